@@ -1,0 +1,44 @@
+# railhil — the two commands: `make run` and `make test` (both bootstrap .venv).
+PYTHON ?= python3.11
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: run test test-slow bench lint vcan clean
+
+$(STAMP): pyproject.toml
+	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'"; exit 2; }
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+## make run: the default scenario as a real-time HIL (one OS process per node on udp_multicast)
+run: $(STAMP)
+	$(VENV)/bin/railhil run scenarios/default.toml --realtime --fallback-lockstep
+
+## make test: the test suite (excludes tests marked slow)
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+## make test-slow: the long suites too
+test-slow: $(STAMP)
+	$(PY) -m pytest -q -m "slow or not slow"
+
+## make bench: speed figures, railhil next to plain python-can/cantools, measured in one run
+bench: $(STAMP)
+	$(PY) bench/run_all.py
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check firmware_py plant_sim hil tests bench
+
+## make vcan: create vcan0 where the kernel has SocketCAN (needs root)
+vcan:
+	@if ! modprobe vcan 2>/dev/null && ! [ -d /sys/module/vcan ]; then \
+	  echo "make vcan: this kernel has no vcan module (SocketCAN unavailable); use the default udp_multicast bus or --lockstep"; exit 1; fi
+	@ip link show vcan0 >/dev/null 2>&1 || ip link add dev vcan0 type vcan
+	ip link set up vcan0
+	@echo "vcan0 is up: railhil run SCENARIO --realtime --interface socketcan --channel vcan0"
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache

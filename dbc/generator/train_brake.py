@@ -1,0 +1,254 @@
+"""Writes dbc/train_brake.dbc, the CAN schema of the whole train (1 to 8 cars).
+
+The DBC file is what every tool reads and what railhil checks against; this script only saves us from
+typing eight copies of the per-car frames by hand (opendbc keeps generators the same way, in
+opendbc/dbc/generator/).  After editing, run
+
+    .venv/bin/python dbc/generator/train_brake.py
+
+and commit both files; tests/test_dbc.py fails when they disagree.
+
+Conventions
+- Units are SI; scaled integers.  Every signal has a comment.
+- Safety frames (emergency, demands, pressure commands) have the lowest identifiers and carry
+  `Checksum` (byte 0) and `Counter` (low nibble of byte 1): the AUTOSAR E2E profile 1 layout.
+- Names: message `<SENDER>_<WHAT>`, per-car messages `<SENDER><n>_<WHAT>` / `PLANT_CAR<n>_<WHAT>`,
+  signals CamelCase with no car index, so a binding can substitute the index.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+MAX_CARS = 8
+BITRATE_BPS = 500_000
+OUT = Path(__file__).resolve().parents[1] / "train_brake.dbc"
+
+
+@dataclass
+class Sig:
+    name: str
+    start: int
+    length: int
+    scale: float = 1.0
+    offset: float = 0.0
+    minimum: float = 0.0
+    maximum: float = 0.0
+    unit: str = ""
+    signed: bool = False
+    comment: str = ""
+    choices: dict[int, str] = field(default_factory=dict)
+
+
+@dataclass
+class Msg:
+    frame_id: int
+    name: str
+    sender: str
+    receivers: list[str]
+    cycle_ms: int
+    comment: str
+    signals: list[Sig]
+    dlc: int = 8
+
+
+def e2e(comment_what: str) -> list[Sig]:
+    return [
+        Sig("Checksum", 0, 8, maximum=255, comment=f"E2E CRC-8 over {comment_what} (filled by the codec)"),
+        Sig("Counter", 8, 4, maximum=15, comment="E2E alive counter, incremented every transmission"),
+    ]
+
+
+def becus(n_cars: int = MAX_CARS) -> list[str]:
+    return [f"BECU{i}" for i in range(1, n_cars + 1)]
+
+
+WSP_CHOICES = {0: "FILL", 1: "HOLD", 2: "VENT"}
+BCU_MODES = {0: "RELEASED", 1: "SERVICE", 2: "EMERGENCY"}
+
+
+def messages() -> list[Msg]:
+    msgs: list[Msg] = [
+        Msg(0x010, "BCU_EMERGENCY", "BCU", becus() + ["PLANT"], 20,
+            "Emergency-brake loop: EmergencyActive=1 commands full braking on every car.",
+            e2e("the emergency frame") + [
+                Sig("EmergencyActive", 12, 1, maximum=1, comment="1 = emergency braking commanded",
+                    choices={0: "INACTIVE", 1: "ACTIVE"}),
+                Sig("Source", 13, 2, maximum=3, comment="who demanded the emergency brake",
+                    choices={0: "NONE", 1: "DESK", 2: "ACD", 3: "BCU"}),
+            ]),
+        Msg(0x018, "DESK_CMD", "DESK", ["BCU"], 100,
+            "Driver desk / ATO commands.",
+            e2e("the desk command") + [
+                Sig("BrakeStep", 12, 3, maximum=7, comment="service brake step 0 (released) .. 7 (full service)"),
+                Sig("EmergencyReq", 15, 1, maximum=1, comment="1 = driver emergency brake request"),
+                Sig("TargetStopValid", 16, 1, maximum=1, comment="1 = TargetStopPos holds a target stop point"),
+                Sig("TargetStopPos", 24, 24, scale=0.01, maximum=167772.15, unit="m",
+                    comment="target stop point of the leading car's front, track position"),
+            ]),
+        Msg(0x020, "ACD_BRAKE_REQ", "ACD", ["BCU"], 100,
+            "Anti-collision device brake request to the BCU.",
+            e2e("the ACD request") + [
+                Sig("Request", 12, 2, maximum=3, comment="requested braking",
+                    choices={0: "NONE", 1: "SERVICE", 2: "EMERGENCY"}),
+                Sig("RequestedDecel", 16, 16, scale=0.001, maximum=65.535, unit="m/s^2",
+                    comment="deceleration the ACD asks for (positive = braking)"),
+                Sig("DistanceToObstacle", 32, 24, scale=0.01, maximum=167772.15, unit="m",
+                    comment="distance to the leader's last wagon or to the red signal"),
+            ]),
+        Msg(0x028, "BCU_DEMAND", "BCU", becus(), 10,
+            "Train brake demand distributed to every car.",
+            e2e("the demand") + [
+                Sig("Mode", 12, 2, maximum=3, comment="BCU brake mode", choices=BCU_MODES),
+                Sig("BrakeStep", 16, 3, maximum=7, comment="active service brake step"),
+                Sig("TargetDecel", 24, 16, scale=0.001, maximum=65.535, unit="m/s^2",
+                    comment="target deceleration for every car (positive = braking)"),
+            ]),
+    ]
+    for i in range(1, MAX_CARS + 1):
+        msgs.append(Msg(
+            0x030 + i, f"BECU{i}_PRESS_CMD", f"BECU{i}", ["PLANT"], 10,
+            f"Car {i}: brake-cylinder valve commands from BECU{i} to the pneumatic brake.",
+            e2e("the pressure command") + [
+                Sig("WspValve", 12, 2, maximum=2, comment="wheel-slide protection dump valve",
+                    choices=WSP_CHOICES),
+                Sig("CylPressureSet", 16, 16, scale=10.0, maximum=655350.0, unit="Pa",
+                    comment="brake-cylinder pressure set-point (gauge)"),
+                Sig("ValveCmd", 32, 16, scale=0.0001, minimum=-1.0, maximum=1.0, signed=True,
+                    comment="EP valve opening: +1 full fill from the reservoir, -1 full vent"),
+            ]))
+    for i in range(1, MAX_CARS + 1):
+        msgs.append(Msg(
+            0x100 + i, f"PLANT_CAR{i}_SENSORS", "PLANT", [f"BECU{i}", "BCU"], 10,
+            f"Car {i}: wheel-speed sensor, brake-cylinder pressure transducer and accelerometer.",
+            [
+                Sig("AxleSpeed", 0, 16, scale=0.005, maximum=327.675, unit="rad/s",
+                    comment="axle angular speed from the wheel-speed sensor"),
+                Sig("CylPressure", 16, 16, scale=10.0, maximum=655350.0, unit="Pa",
+                    comment="brake-cylinder pressure (gauge) from the transducer"),
+                Sig("AccelLong", 32, 16, scale=0.001, minimum=-32.768, maximum=32.767, unit="m/s^2",
+                    signed=True, comment="longitudinal accelerometer (+ forward), includes g*sin(gradient)"),
+                Sig("SensorCounter", 48, 8, maximum=255, comment="sample counter, +1 per frame"),
+            ]))
+    for i in range(1, MAX_CARS + 1):
+        msgs.append(Msg(
+            0x140 + i, f"BECU{i}_STATUS", f"BECU{i}", ["BCU"] + [b for b in becus() if b != f"BECU{i}"], 50,
+            f"Car {i}: BECU{i} estimates and mode flags.",
+            [
+                Sig("SpeedEst", 0, 16, scale=0.01, maximum=655.35, unit="m/s",
+                    comment="reference (ground) speed estimate"),
+                Sig("SlipSpeedEst", 16, 16, scale=0.001, minimum=-32.768, maximum=32.767, unit="m/s",
+                    signed=True, comment="slip speed estimate s = v - r*omega (seed 001 eq. 2)"),
+                Sig("WspActive", 32, 1, maximum=1, comment="1 = wheel-slide protection is venting or holding"),
+                Sig("GovernorActive", 33, 1, maximum=1, comment="1 = reference governor limits the demand"),
+                Sig("IntegratorSat", 34, 1, maximum=1, comment="1 = a PI integrator is saturated or frozen"),
+                Sig("InputMissing", 35, 1, maximum=1, comment="1 = an input signal is missing or non-finite"),
+                Sig("OptSlipEst", 36, 10, scale=0.0005, maximum=0.5115,
+                    comment="estimated optimal slip ratio sigma^o here (seed 000 eq. 2); 0 = no estimate"),
+                Sig("OptSlipPos", 46, 18, scale=0.1, maximum=26214.3, unit="m",
+                    comment="track position at which OptSlipEst was measured"),
+            ]))
+    msgs += [
+        Msg(0x160, "BCU_STATUS", "BCU", ["DESK"] + becus(), 100,
+            "BCU state for the desk and the log.",
+            [
+                Sig("Mode", 0, 2, maximum=3, comment="BCU brake mode", choices=BCU_MODES),
+                Sig("BrakeStep", 2, 3, maximum=7, comment="brake step in force"),
+                Sig("CarsSilent", 8, 8, maximum=255, comment="bit i-1 set = no status from car i"),
+                Sig("TrainSpeedEst", 16, 16, scale=0.01, maximum=655.35, unit="m/s",
+                    comment="train speed estimate (max of the cars' estimates)"),
+            ]),
+        Msg(0x180, "RADIO_LEADER_POS", "PLANT", ["ACD"], 1000,
+            "Radio link: position of the leading train (relayed by the control centre).",
+            [
+                Sig("Latitude", 0, 32, scale=1e-7, minimum=-90.0, maximum=90.0, unit="deg", signed=True,
+                    comment="WGS-84 latitude of the leader's last wagon"),
+                Sig("Longitude", 32, 32, scale=1e-7, minimum=-180.0, maximum=180.0, unit="deg", signed=True,
+                    comment="WGS-84 longitude of the leader's last wagon"),
+            ]),
+        Msg(0x181, "RADIO_LEADER_INFO", "PLANT", ["ACD"], 1000,
+            "Radio link: leading train state.",
+            [
+                Sig("LeaderId", 0, 8, maximum=255, comment="identifier of the leading train"),
+                Sig("RouteSection", 8, 16, maximum=65535, comment="route section the leader occupies"),
+                Sig("Speed", 24, 16, scale=0.01, maximum=655.35, unit="m/s", comment="leader speed"),
+                Sig("TrainLength", 40, 16, scale=0.1, maximum=6553.5, unit="m", comment="leader length"),
+                Sig("AgeOfReport", 56, 8, scale=0.1, maximum=25.5, unit="s",
+                    comment="age of the leader's report when relayed"),
+            ]),
+        Msg(0x182, "RADIO_SIGNAL", "PLANT", ["ACD", "BCU"], 1000,
+            "Radio link: aspect of the next signal.",
+            [
+                Sig("SignalId", 0, 16, maximum=65535, comment="identifier of the next signal"),
+                Sig("Aspect", 16, 2, maximum=3, comment="signal aspect",
+                    choices={0: "UNKNOWN", 1: "RED", 2: "YELLOW", 3: "GREEN"}),
+                Sig("SignalPos", 24, 24, scale=0.01, maximum=167772.15, unit="m",
+                    comment="track position of the signal"),
+            ]),
+    ]
+    return msgs
+
+
+def _num(x: float) -> str:
+    return repr(float(x)).rstrip("0").rstrip(".") if "e" not in repr(float(x)) else repr(float(x))
+
+
+def render() -> str:
+    msgs = messages()
+    nodes = ["PLANT", "BCU"] + becus() + ["ACD", "DESK"]
+    out = [
+        'VERSION "railhil train_brake 1"',
+        "",
+        "NS_ :",
+        "\tBA_DEF_",
+        "\tBA_",
+        "\tBA_DEF_DEF_",
+        "\tCM_",
+        "\tVAL_",
+        "",
+        "BS_:",
+        "",
+        "BU_: " + " ".join(nodes),
+        "",
+    ]
+    for m in msgs:
+        out.append(f"BO_ {m.frame_id} {m.name}: {m.dlc} {m.sender}")
+        for s in m.signals:
+            sign = "-" if s.signed else "+"
+            out.append(
+                f" SG_ {s.name} : {s.start}|{s.length}@1{sign} ({_num(s.scale)},{_num(s.offset)}) "
+                f'[{_num(s.minimum)}|{_num(s.maximum)}] "{s.unit}" {",".join(m.receivers)}'
+            )
+        out.append("")
+    out.append('CM_ "Train brake CAN of railhil: PLANT, BCU, BECU1..BECU8, ACD, DESK. SI units.";')
+    for m in msgs:
+        out.append(f'CM_ BO_ {m.frame_id} "{m.comment}";')
+        for s in m.signals:
+            out.append(f'CM_ SG_ {m.frame_id} {s.name} "{s.comment}";')
+    out += [
+        'BA_DEF_ BO_ "GenMsgCycleTime" INT 0 65535;',
+        'BA_DEF_ BO_ "GenMsgSendType" ENUM "Cyclic","NoMsgSendType";',
+        'BA_DEF_ "Baudrate" INT 10000 1000000;',
+        'BA_DEF_ "BusType" STRING ;',
+        'BA_DEF_DEF_ "GenMsgCycleTime" 0;',
+        'BA_DEF_DEF_ "GenMsgSendType" "NoMsgSendType";',
+        'BA_DEF_DEF_ "Baudrate" 500000;',
+        'BA_DEF_DEF_ "BusType" "CAN";',
+        f'BA_ "Baudrate" {BITRATE_BPS};',
+        'BA_ "BusType" "CAN";',
+    ]
+    for m in msgs:
+        out.append(f'BA_ "GenMsgCycleTime" BO_ {m.frame_id} {m.cycle_ms};')
+        out.append(f'BA_ "GenMsgSendType" BO_ {m.frame_id} 0;')
+    for m in msgs:
+        for s in m.signals:
+            if s.choices:
+                vals = " ".join(f'{k} "{v}"' for k, v in sorted(s.choices.items()))
+                out.append(f"VAL_ {m.frame_id} {s.name} {vals} ;")
+    return "\n".join(out) + "\n"
+
+
+if __name__ == "__main__":
+    OUT.write_text(render())
+    print(f"wrote {OUT}")

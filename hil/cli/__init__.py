@@ -1,0 +1,1 @@
+"""railhil package."""
