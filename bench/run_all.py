@@ -1,0 +1,27 @@
+"""`make bench`: every benchmark, in one process, printed as one table."""
+
+from __future__ import annotations
+
+import importlib
+import platform
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+BENCHES = ("bench_codec", "bench_lockstep")
+
+
+def main() -> int:
+    print(f"railhil benchmarks — Python {platform.python_version()} on {platform.machine()}, "
+          f"{platform.processor() or 'cpu'}")
+    for name in BENCHES:
+        module = importlib.import_module(name)
+        print(f"\n[{name}] {module.__doc__.strip().splitlines()[0]}")
+        for label, figure in module.run():
+            print(f"  {label:<62} {figure}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,143 @@
+"""Brake ECU of one car (BECU), v1.
+
+Chain: train deceleration demand (BCU_DEMAND.TargetDecel) -> brake-cylinder pressure set-point
+(inverse of the brake model: force -> torque -> pressure on the squeeze line of seed 001 eq. (6))
+-> PI pressure control of the EP valve (the shared PI primitive), with a basic wheel-slide protection
+(WSP) that vents above a slip threshold and refills with hysteresis.  With the EP valve's flow this
+loop behaves as seed 001's first-order cylinder (eq. 4).
+
+Inputs (DBC signal names, bound by hil): AxleSpeed, CylPressure, AccelLong (the car's sensors),
+TargetDecel and Mode (BCU_DEMAND), EmergencyActive (BCU_EMERGENCY).
+Outputs: the pressure command frame (CylPressureSet, ValveCmd, WspValve) and the status frame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+from firmware_py.limits import clip, finite_or
+from firmware_py.pi import PI, PIParams
+
+
+class Wsp(IntEnum):
+    """WSP dump-valve state; values are the DBC choices of BECUn_PRESS_CMD.WspValve."""
+
+    FILL = 0   # normal: the EP valve controls the cylinder
+    HOLD = 1   # cylinder isolated, pressure held
+    VENT = 2   # cylinder vented to atmosphere
+
+
+@dataclass(frozen=True)
+class WspParams:
+    vent_slip_mps: float = 0.30          # slip speed that starts venting at standstill (chosen)
+    vent_slip_per_speed: float = 0.03    # + this fraction of the speed: 1.05 m/s at 25 m/s (chosen;
+    #                                      above the slip of peak adhesion of seed 000 at that speed)
+    hold_fraction: float = 0.5           # VENT -> HOLD below this fraction of the vent threshold
+    refill_fraction: float = 0.25        # HOLD -> FILL below this fraction of the vent threshold
+    min_speed_mps: float = 1.0           # WSP inhibited below this speed (lets the train stop)
+
+
+def wsp_transition(state: Wsp, slip_mps: float, speed_mps: float, p: WspParams) -> Wsp:
+    """Pure mode transition of the basic wheel-slide protection (vent / hold / refill with hysteresis)."""
+    if speed_mps < p.min_speed_mps:
+        return Wsp.FILL
+    vent_at = p.vent_slip_mps + p.vent_slip_per_speed * speed_mps
+    if slip_mps > vent_at:
+        return Wsp.VENT
+    if state == Wsp.VENT:
+        return Wsp.HOLD if slip_mps < p.hold_fraction * vent_at else Wsp.VENT
+    if state == Wsp.HOLD:
+        return Wsp.FILL if slip_mps < p.refill_fraction * vent_at else Wsp.HOLD
+    return Wsp.FILL
+
+
+@dataclass(frozen=True)
+class BecuParams:
+    cycle_us: int = 10_000                   # BECU cycle, DESIGN.md node table
+    car_mass_kg: float = 40_000.0            # nominal car mass (load-weighed in service), chosen
+    wheel_radius_m: float = 0.46             # nominal wheel radius
+    brake_gain_Nm_per_Pa: float = 0.08       # squeeze-line slope alpha-bar, seed 001 eq. (6), brake data
+    brake_preload_Pa: float = 30e3           # squeeze line offset -beta-bar/alpha-bar (return spring)
+    p_max_Pa: float = 450e3                  # p-bar, seed 001 eq. (5)
+    # EP valve flow 1 MPa/s at full opening: kp = 1/(Tp*rate) gives seed 001's Tp = 50 ms (eq. 4, §IV)
+    pressure_pi: PIParams = field(default_factory=lambda: PIParams(
+        kp=2.0e-5, ki=4.0e-5, out_min=-1.0, out_max=1.0))
+    wsp: WspParams = field(default_factory=WspParams)
+    wheel_trust_slip_mps: float = 0.2        # speed estimator: below this apparent slip, trust the axle
+    wheel_trust_gain: float = 0.2            # complementary-filter gain towards the axle speed
+    emergency_decel_mps2: float = 1.3        # used when BCU_EMERGENCY is active and the demand lags
+
+
+class Becu:
+    """One car's brake ECU: step(now_us, rx) -> dict of output signals."""
+
+    INPUTS = ("AxleSpeed", "CylPressure", "AccelLong", "TargetDecel", "Mode", "EmergencyActive")
+    OUTPUTS = ("CylPressureSet", "ValveCmd", "WspValve", "SpeedEst", "SlipSpeedEst", "WspActive",
+               "GovernorActive", "IntegratorSat", "InputMissing", "OptSlipEst", "OptSlipPos")
+
+    def __init__(self, params: BecuParams | None = None) -> None:
+        self.p = params or BecuParams()
+        self.pressure_pi = PI(self.p.pressure_pi)
+        self.wsp = Wsp.FILL
+        self.v_ref = math.nan
+        self.last_us: int | None = None
+        self.missing_inputs = 0       # cycles with a missing or non-finite input (diagnostic)
+
+    def pressure_for_decel(self, decel_mps2: float) -> float:
+        """Set-point that gives `decel` on the squeeze line: F = m a, tau = F r, p = tau/alpha + preload."""
+        if decel_mps2 <= 0.0:
+            return 0.0
+        torque = self.p.car_mass_kg * decel_mps2 * self.p.wheel_radius_m
+        return clip(torque / self.p.brake_gain_Nm_per_Pa + self.p.brake_preload_Pa, 0.0, self.p.p_max_Pa)
+
+    def estimate_speed(self, wheel_v: float, accel: float, dt_s: float) -> float:
+        """Reference speed: integrate the accelerometer, pulled to the axle while it is not slipping."""
+        if not math.isfinite(self.v_ref):
+            return wheel_v
+        v_pred = self.v_ref + accel * dt_s
+        if wheel_v >= v_pred:
+            return wheel_v
+        if v_pred - wheel_v < self.p.wheel_trust_slip_mps:
+            return v_pred + self.p.wheel_trust_gain * (wheel_v - v_pred)
+        return max(v_pred, 0.0)
+
+    def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
+        p = self.p
+        dt_s = p.cycle_us * 1e-6 if self.last_us is None else (now_us - self.last_us) * 1e-6
+        self.last_us = now_us
+        omega, ok1 = finite_or(rx["AxleSpeed"], 0.0)
+        pressure, ok2 = finite_or(rx["CylPressure"], 0.0)
+        accel, ok3 = finite_or(rx["AccelLong"], 0.0)
+        decel, ok4 = finite_or(rx["TargetDecel"], 0.0)
+        emergency, ok5 = finite_or(rx["EmergencyActive"], 0.0)
+        missing = not (ok1 and ok2 and ok3 and ok4 and ok5)
+        self.missing_inputs += missing
+        if emergency >= 0.5:
+            decel = max(decel, p.emergency_decel_mps2)
+
+        wheel_v = omega * p.wheel_radius_m
+        self.v_ref = self.estimate_speed(wheel_v, accel, dt_s)
+        slip = self.v_ref - wheel_v                                   # eq. (2), seed 001
+        self.wsp = wsp_transition(self.wsp, slip, self.v_ref, p.wsp)
+
+        p_set = self.pressure_for_decel(decel)
+        overridden = self.wsp != Wsp.FILL
+        valve = self.pressure_pi.update(p_set - pressure, dt_s, freeze=overridden)
+        if overridden:
+            valve = 0.0                                               # the dump valve acts, EP valve holds
+        return {
+            "CylPressureSet": p_set,
+            "ValveCmd": valve,
+            "WspValve": int(self.wsp),
+            "SpeedEst": max(self.v_ref, 0.0),
+            "SlipSpeedEst": slip,
+            "WspActive": int(overridden),
+            "GovernorActive": 0,
+            "IntegratorSat": int(self.pressure_pi.saturated or self.pressure_pi.frozen),
+            "InputMissing": int(missing),
+            "OptSlipEst": 0.0,
+            "OptSlipPos": 0.0,
+        }

@@ -1,0 +1,55 @@
+"""The one PI primitive every loop in railhil uses (pressure, deceleration, precise stop).
+
+Modelled on openpilot's common/pid.py::PIDController and simple-pid's set_auto_mode(): conditional
+anti-windup (the integrator does not move further into a saturated output), an explicit integrator
+freeze (e.g. while wheel-slide protection overrides the actuator), and bumpless hand-over (the
+integrator is set so that the first output after hand-over equals the last applied one).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from firmware_py.limits import clip
+
+
+@dataclass(frozen=True)
+class PIParams:
+    kp: float        # proportional gain [output unit / error unit]
+    ki: float        # integral gain [output unit / (error unit * s)]
+    out_min: float   # output saturation, lower [output unit]
+    out_max: float   # output saturation, upper [output unit]
+
+
+class PI:
+    """u = ff + kp*e + i,  i += ki*e*dt  unless frozen or winding up into saturation."""
+
+    def __init__(self, params: PIParams) -> None:
+        self.p = params
+        self.i = 0.0
+        self.saturated = False
+        self.frozen = False
+        self.output = 0.0
+
+    def reset(self, i: float = 0.0) -> None:
+        self.i = i
+        self.saturated = False
+
+    def handover(self, last_output: float, error: float = 0.0, feedforward: float = 0.0) -> None:
+        """Bumpless transfer: the next update with this error returns `last_output`."""
+        self.i = clip(last_output, self.p.out_min, self.p.out_max) - feedforward - self.p.kp * error
+        self.output = last_output
+
+    def update(self, error: float, dt_s: float, feedforward: float = 0.0, freeze: bool = False) -> float:
+        p = self.p
+        self.frozen = freeze
+        i_next = self.i if freeze else self.i + p.ki * error * dt_s
+        unclipped = feedforward + p.kp * error + i_next
+        out = clip(unclipped, p.out_min, p.out_max)
+        # conditional anti-windup: keep the old integrator when it would push further into the limit
+        winding_up = (unclipped > p.out_max and error > 0.0) or (unclipped < p.out_min and error < 0.0)
+        if not winding_up:
+            self.i = i_next
+        self.saturated = unclipped != out
+        self.output = out
+        return out

@@ -1,0 +1,110 @@
+"""`railhil run SCENARIO` — run a brake scenario in lockstep or as a real-time HIL; leave a run folder."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import can.cli
+
+from hil.errors import BusError
+from hil.scenario import load_scenario
+
+BUS_KEYS = ("channel", "interface", "bitrate", "fd", "data_bitrate", "can_filters", "timing", "bus_kwargs")
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "run",
+        help="run a scenario and write its run folder",
+        description="Run a brake scenario: lockstep (one process, simulated time, deterministic) or real "
+                    "time (one OS process per node on a python-can bus, udp_multicast by default). "
+                    "Writes trace.blf, truth.csv, kpis.json, plot.png and run.json to the run folder "
+                    "and prints a summary.",
+    )
+    p.add_argument("scenario", type=Path, help="scenario TOML file, e.g. scenarios/default.toml")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--lockstep", dest="mode", action="store_const", const="lockstep",
+                      help="simulated time in one process (default)")
+    mode.add_argument("--realtime", dest="mode", action="store_const", const="realtime",
+                      help="one OS process per node on a real python-can bus, wall-clock time")
+    p.add_argument("--fallback-lockstep", action="store_true",
+                   help="with --realtime: if the bus cannot be opened here, say so and run lockstep instead")
+    p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
+    p.add_argument("--out", type=Path, default=None,
+                   help="run folder (default runs/<scenario>-<mode>-<YYYYmmdd-HHMMSS>)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress line")
+    can.cli.add_bus_arguments(p, group_title="bus arguments (real-time mode; python-can's flags)")
+    p.set_defaults(func=run, mode="lockstep")
+
+
+def bus_config_from_args(args: argparse.Namespace) -> dict:
+    config: dict = {}
+    for key in BUS_KEYS:
+        if key in args:
+            value = getattr(args, key)
+            if key == "bus_kwargs":
+                config.update(value)
+            else:
+                config[key] = value
+    return config
+
+
+class Progress:
+    """A tqdm bar over simulated seconds with the train's speed and position; silent when not a tty."""
+
+    def __init__(self, enabled: bool, label: str, total_s: float) -> None:
+        self.bar = None
+        if enabled:
+            from tqdm import tqdm
+
+            fmt = "{desc}: {n:.1f}/{total:.0f} s simulated |{bar}| {postfix} [{elapsed}]"
+            self.bar = tqdm(total=round(total_s, 1), desc=label, unit="s", file=sys.stderr, leave=False,
+                            bar_format=fmt)
+
+    def __call__(self, now_us: int, truth: dict) -> None:
+        if self.bar is not None:
+            self.bar.n = round(now_us / 1e6, 1)
+            self.bar.set_postfix_str(f"v={float(truth['v_mps'].max()) * 3.6:.1f} km/h "
+                                     f"x={float(truth['x_m'][0]):.1f} m")
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def run(args: argparse.Namespace) -> int:
+    overrides = {"seed": args.seed} if args.seed is not None else None
+    scenario = load_scenario(args.scenario, overrides)
+    mode = args.mode
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    out = args.out or Path("runs") / f"{scenario.name}-{mode}-{stamp}"
+    if mode == "realtime":
+        from hil.realtime import run_scenario_realtime
+
+        try:
+            progress = Progress(not args.quiet and sys.stderr.isatty(), "realtime", scenario.max_duration_s)
+            try:
+                report = run_scenario_realtime(scenario, out, bus_config_from_args(args), progress=progress)
+            finally:
+                progress.close()
+        except BusError as exc:
+            if not args.fallback_lockstep:
+                raise
+            print(f"notice: {exc}", file=sys.stderr)
+            print("notice: falling back to lockstep (simulated time, one process)", file=sys.stderr)
+            mode = "lockstep"
+            out = args.out or Path("runs") / f"{scenario.name}-{mode}-{stamp}"
+    if mode == "lockstep":
+        from hil.run import run_scenario_lockstep
+
+        progress = Progress(not args.quiet and sys.stderr.isatty(), "lockstep", scenario.max_duration_s)
+        try:
+            report = run_scenario_lockstep(scenario, out, progress=progress)
+        finally:
+            progress.close()
+    for line in report.summary():
+        print(line)
+    return 130 if report.outcome.reason == "interrupted" else 0

@@ -1,0 +1,39 @@
+"""The one exception tree at railhil's boundaries (cf. python-can's can/exceptions.py).
+
+Every error a user can cause — a bad scenario, DBC, trace, binding or bus — is a RailhilError whose
+message names the file, key, frame or value and what was expected.  The CLI prints it on one line
+(`error: ...`) and exits with `exit_code`; `--debug` shows the traceback.
+"""
+
+from __future__ import annotations
+
+
+class RailhilError(Exception):
+    exit_code = 2
+
+
+class ScenarioError(RailhilError, ValueError):
+    """A scenario file that does not load or validate."""
+
+
+class DbcError(RailhilError, ValueError):
+    """A DBC file that does not load, or lacks what railhil needs from it."""
+
+
+class BindingError(RailhilError, KeyError):
+    """A node uses a signal name the DBC does not have."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0]) if self.args else ""
+
+
+class BusError(RailhilError, OSError):
+    """A python-can bus that cannot be opened or used."""
+
+    exit_code = 3
+
+
+class NodeDied(RailhilError, RuntimeError):
+    """A node process of a real-time run ended unexpectedly."""
+
+    exit_code = 4

@@ -1,0 +1,110 @@
+"""The PLANT node: binds plant_sim to the DBC (actuator frames in, sensor frames out) and records
+the plant's ground truth, from which the KPIs are computed."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from cantools.database.can import Database
+
+from hil.scenario import Scenario
+from plant_sim.params import PlantParams, TrainParams
+from plant_sim.plant import Plant
+from plant_sim.track import Track
+
+TRUTH_PERIOD_US = 10_000         # ground truth is sampled every 10 ms
+STANDSTILL_MPS = 0.01            # every car slower than this counts as standing still (chosen)
+SENSOR_FIELDS = (("AxleSpeed", "axle_speed_rad_s"), ("CylPressure", "cyl_pressure_Pa"),
+                 ("AccelLong", "accel_mps2"))
+
+
+def build_track(scenario: Scenario) -> Track:
+    t = scenario.track
+    segments = [(s.from_m, s.condition if s.condition is not None else tuple(s.theta), s.transition_m)
+                for s in t.rail]
+    gradient = [(g.from_m, g.permille) for g in t.gradient]
+    curves = [(c.from_m, c.radius_m) for c in t.curves]
+    return Track.from_segments(segments, gradient=gradient, curvature=curves)
+
+
+def build_plant(scenario: Scenario) -> Plant:
+    train = TrainParams(masses_kg=scenario.train.masses())
+    params = PlantParams(train=train)
+    return Plant(params, build_track(scenario), v0_mps=scenario.train.initial_speed_kmh / 3.6,
+                 x0_m=scenario.train.start_position_m, seed=scenario.seed)
+
+
+class TruthLog:
+    """Ground truth sampled at a fixed period: one row per sample, arrays per quantity."""
+
+    def __init__(self) -> None:
+        self.t_us: list[int] = []
+        self.rows: dict[str, list[np.ndarray]] = {}
+
+    def record(self, t_us: int, truth: dict[str, np.ndarray]) -> None:
+        self.t_us.append(t_us)
+        for key, value in truth.items():
+            self.rows.setdefault(key, []).append(np.array(value, dtype=float, copy=True))
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """Flat columns: t_s, then `<quantity>_<k>` per car (or coupler) k starting at 1."""
+        cols = {"t_s": np.asarray(self.t_us, dtype=np.int64) / 1e6}
+        for key, series in self.rows.items():
+            arr = np.vstack(series)
+            for k in range(arr.shape[1]):
+                cols[f"{key}_{k + 1}"] = arr[:, k]
+        return cols
+
+
+class PlantController:
+    """step(now_us, rx): sense (when the sensor frames are due), record truth, then integrate one step."""
+
+    def __init__(self, plant: Plant, n_cars: int, db: Database) -> None:
+        self.plant = plant
+        self.n = n_cars
+        self.valve_keys = [f"BECU{i}_PRESS_CMD.ValveCmd" for i in range(1, n_cars + 1)]
+        self.wsp_keys = [f"BECU{i}_PRESS_CMD.WspValve" for i in range(1, n_cars + 1)]
+        self.inputs = tuple(self.valve_keys + self.wsp_keys)
+        self.outputs = tuple(f"PLANT_CAR{i}_SENSORS.{sig}" for i in range(1, n_cars + 1)
+                             for sig, _ in SENSOR_FIELDS + (("SensorCounter", ""),))
+        cycle_ms = db.get_message_by_name("PLANT_CAR1_SENSORS").cycle_time
+        self.sensor_period_us = int(cycle_ms) * 1000
+        self.next_sense_us = 0
+        self.next_truth_us = 0
+        self.sense_count = 0
+        self.truth = TruthLog()
+        self._rx_version = -1
+        self._valve = np.zeros(n_cars)
+        self._wsp = np.zeros(n_cars, dtype=np.int64)
+        self.standstill = False     # every car below STANDSTILL_MPS at the last truth sample
+
+    def _actuators(self, rx) -> None:
+        if rx.version == self._rx_version:
+            return
+        self._rx_version = rx.version
+        for k, (vk, wk) in enumerate(zip(self.valve_keys, self.wsp_keys, strict=True)):
+            v, w = rx[vk], rx[wk]
+            self._valve[k] = v if math.isfinite(v) else 0.0       # nothing received yet: valve closed
+            self._wsp[k] = int(w) if math.isfinite(w) else 0
+
+    def step(self, now_us: int, rx) -> dict[str, float]:
+        out: dict[str, float] = {}
+        if now_us >= self.next_sense_us:
+            s = self.plant.sense()
+            counter = self.sense_count % 256
+            for i in range(self.n):
+                prefix = f"PLANT_CAR{i + 1}_SENSORS."
+                for sig, attr in SENSOR_FIELDS:
+                    out[prefix + sig] = float(getattr(s, attr)[i])
+                out[prefix + "SensorCounter"] = counter
+            self.sense_count += 1
+            self.next_sense_us += self.sensor_period_us
+        if now_us >= self.next_truth_us:
+            truth = self.plant.truth()
+            self.truth.record(now_us, truth)
+            self.standstill = bool(truth["v_mps"].max() < STANDSTILL_MPS)
+            self.next_truth_us += TRUTH_PERIOD_US
+        self._actuators(rx)
+        self.plant.step(self._valve, self._wsp)
+        return out

@@ -1,0 +1,361 @@
+"""Real-time runner: one OS process per node (PLANT, DESK, BCU, each BECU) plus a recorder writing
+the trace, all on one python-can bus — `udp_multicast` by default (no kernel module, no root),
+`socketcan` on vcan0 where the kernel has it, or any python-can interface.
+
+Bus configuration follows python-can's precedence: command-line flags, then python-can's own
+configuration (CAN_* environment variables, ~/.canrc, /etc/can.conf), then the scenario's
+[realtime] section.  A udp_multicast run without a named channel gets a multicast group and port of
+its own, so parallel runs on one host do not hear each other.
+
+Scheduling: every node process runs against absolute deadlines on CLOCK_MONOTONIC (openpilot's
+Ratekeeper: next += period), all relative to one start instant t0 that the parent hands out once
+every process has opened its bus.  Controllers get the scheduled time in integer microseconds, as in
+lockstep.  A node that misses deadlines skips the missed cycles and counts them; the plant catches
+up step by step instead (physics time must not jump).
+
+Ctrl-C / SIGTERM: the parent sets the stop event; every node ends its loop, the plant hands back its
+ground truth, the recorder closes the trace; the run folder is written as usual.  A node that dies
+ends the run with a NodeDied error naming it.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import queue
+import random
+import signal
+import sys
+import time
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+
+import can
+
+from hil.errors import BusError, NodeDied, RailhilError
+from hil.lockstep import RunOutcome
+from hil.plant_node import TruthLog
+from hil.scenario import Scenario
+
+READY_TIMEOUT_S = 60.0         # processes importing numpy/cantools on a loaded 2-core machine
+START_MARGIN_S = 0.3           # t0 lies this far after the last process reported ready
+JOIN_TIMEOUT_S = 10.0
+PLANT_NICE = -10               # the 1 kHz plant asks for this priority where allowed (root, CAP_SYS_NICE)
+
+
+def resolve_bus_config(cli: dict, scenario: Scenario) -> dict:
+    cfg = dict(cli)
+    if "interface" not in cfg:
+        try:
+            loaded = dict(can.util.load_config())
+        except (can.CanInterfaceNotImplementedError, Exception):  # no python-can config at all
+            loaded = {}
+        if loaded.get("interface"):
+            cfg = {**loaded, **cfg}
+        else:
+            cfg["interface"] = scenario.realtime.interface
+            if scenario.realtime.channel and "channel" not in cfg:
+                cfg["channel"] = scenario.realtime.channel
+    if cfg["interface"] == "udp_multicast" and not cfg.get("channel"):
+        rnd = random.Random(os.getpid() ^ time.monotonic_ns())
+        cfg["channel"] = f"239.255.{rnd.randrange(1, 255)}.{rnd.randrange(1, 255)}"
+        cfg.setdefault("port", rnd.randrange(20000, 60000))
+    if cfg["interface"] == "socketcan" and not cfg.get("channel"):
+        cfg["channel"] = "vcan0"
+    return cfg
+
+
+def describe_bus(cfg: dict) -> str:
+    extra = f":{cfg['port']}" if "port" in cfg else ""
+    return f"interface={cfg.get('interface')} channel={cfg.get('channel')}{extra}"
+
+
+def open_bus(cfg: dict) -> can.BusABC:
+    try:
+        return can.Bus(**cfg)
+    except Exception as exc:
+        hint = ""
+        if cfg.get("interface") == "socketcan":
+            hint = " (no SocketCAN here? `make vcan` sets up vcan0 where the kernel allows it)"
+        raise BusError(f"cannot open the python-can bus {describe_bus(cfg)}: "
+                       f"{' '.join(str(exc).split())}{hint}; use --lockstep to run without a bus") from None
+
+
+def _raise_priority(nice: int) -> bool:
+    """Ask the OS for a higher scheduling priority (needs privileges; quietly kept as is otherwise)."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, nice)
+        return True
+    except (OSError, AttributeError):
+        return False
+
+
+def _monotonic_us(t0_ns: int) -> int:
+    return (time.monotonic_ns() - t0_ns) // 1000
+
+
+def _wait_and_receive(bus: can.BusABC, node, deadline_ns: int, t0_ns: int) -> None:
+    """Receive frames into the node until the deadline (the wait *is* the receive loop)."""
+    while True:
+        remaining = (deadline_ns - time.monotonic_ns()) / 1e9
+        msg = bus.recv(timeout=remaining if remaining > 0 else 0.0)
+        if msg is None:
+            if remaining <= 0:
+                return
+            continue
+        if node is not None and not msg.is_error_frame:
+            node.receive(msg.arbitration_id, bytes(msg.data), _monotonic_us(t0_ns))
+        if remaining <= 0:
+            continue          # drain what is already queued, then return on the next empty recv
+
+
+def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns, go, stop, results,
+                  progress) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)         # the parent coordinates shutdown
+    bus = None
+    try:
+        from hil.assembly import build_node
+        from hil.codec import Codec
+        from hil.dbc import load_dbc
+        from hil.scenario import Scenario as _Scenario
+
+        scenario = _Scenario.model_validate_json(scenario_json)
+        db = load_dbc(dbc_path)
+        codec = Codec(db)
+        node = build_node(name, scenario, db, codec, dbc_path)
+        bus = open_bus(cfg)
+        if name == "PLANT":
+            _raise_priority(PLANT_NICE)
+        results.put(("ready", name, None))
+        go.wait()
+        t0 = t0_ns.value
+        is_plant = name == "PLANT"
+        plant = node.controller if is_plant else None
+        linger_us = round(scenario.end_after_standstill_s * 1e6)
+        max_us = round(scenario.max_duration_s * 1e6)
+        stopped_since = None
+        next_us = node.offset_us
+        next_progress = 0
+        misses = 0
+        while not stop.is_set():
+            _wait_and_receive(bus, node, t0 + next_us * 1000, t0)
+            frames = node.cycle(next_us)
+            for fc, data in frames:
+                bus.send(can.Message(arbitration_id=fc.frame_id, is_extended_id=fc.is_extended_id,
+                                     data=data, check=False))
+            next_us += node.period_us
+            lag_us = _monotonic_us(t0) - next_us
+            if lag_us > node.period_us and not is_plant:
+                skipped = lag_us // node.period_us
+                misses += skipped
+                next_us += skipped * node.period_us
+            if is_plant:
+                now = next_us - node.period_us
+                if plant.standstill:
+                    stopped_since = now if stopped_since is None else stopped_since
+                    if now - stopped_since >= linger_us:
+                        results.put(("done", name, "standstill"))
+                        break
+                else:
+                    stopped_since = None
+                if now >= max_us:
+                    results.put(("done", name, "max_duration"))
+                    break
+                if progress is not None and now >= next_progress:
+                    truth = plant.plant.truth()
+                    progress.put((now, {"v_mps": truth["v_mps"], "x_m": truth["x_m"]}))
+                    next_progress += 250_000
+        stats = vars(node.stats).copy()
+        stats["deadline_misses"] = misses
+        payload = {"stats": stats, "end_us": next_us}
+        if is_plant:
+            payload["truth"] = node.controller.truth
+        results.put(("result", name, payload))
+    except BaseException as exc:  # report, then exit non-zero: the parent names the node
+        detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
+        if not isinstance(exc, RailhilError):
+            detail += " | " + traceback.format_exc().strip().splitlines()[-3].strip()
+        results.put(("error", name, detail))
+        raise SystemExit(1) from None
+    finally:
+        if bus is not None:
+            bus.shutdown()
+
+
+def _recorder_process(trace_path: str, cfg: dict, go, stop, results) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    bus = None
+    try:
+        bus = open_bus(cfg)
+        writer = can.Logger(trace_path)
+        results.put(("ready", "RECORDER", None))
+        notifier = can.Notifier(bus, [writer], timeout=0.05)
+        stop.wait()
+        time.sleep(0.2)             # let in-flight frames of the last cycle arrive before closing
+        notifier.stop()             # stops its listeners too: the trace is flushed and closed
+        results.put(("result", "RECORDER", {"stats": {}}))
+    except BaseException as exc:
+        results.put(("error", "RECORDER", " ".join(str(exc).split())))
+        raise SystemExit(1) from None
+    finally:
+        if bus is not None:
+            bus.shutdown()
+
+
+class _Terminate(Exception):
+    pass
+
+
+def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
+                 progress: Callable[[int, dict], None] | None = None) -> tuple[RunOutcome, float]:
+    """Run every node in its own process; returns the outcome and the trace's epoch at t0."""
+    from hil.assembly import node_names
+
+    probe = open_bus(cfg)                       # fail early, in the parent, with one clear line
+    probe.shutdown()
+    ctx = mp.get_context("fork" if sys.platform.startswith("linux") else "spawn")
+    go, stop = ctx.Event(), ctx.Event()
+    t0_ns = ctx.Value("q", 0)
+    results = ctx.Queue()
+    progress_q = ctx.Queue() if progress is not None else None
+    scenario_json = scenario.model_dump_json()
+    names = node_names(scenario)
+    procs = {"RECORDER": ctx.Process(target=_recorder_process, name="railhil-RECORDER",
+                                     args=(str(trace_path), cfg, go, stop, results), daemon=True)}
+    for name in names:
+        procs[name] = ctx.Process(target=_node_process, name=f"railhil-{name}", daemon=True,
+                                  args=(name, scenario_json, dbc_path, cfg, t0_ns, go, stop, results,
+                                        progress_q if name == "PLANT" else None))
+
+    old_term = signal.getsignal(signal.SIGTERM)
+
+    def on_term(signum, frame):
+        raise _Terminate()
+
+    signal.signal(signal.SIGTERM, on_term)
+    payloads: dict[str, dict] = {}
+    reason = "interrupted"
+    wall0 = time.perf_counter()
+    epoch_t0 = 0.0
+    failure: str | None = None
+    try:
+        for p in procs.values():
+            p.start()
+        ready: set[str] = set()
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        while len(ready) < len(procs):
+            try:
+                kind, name, detail = results.get(timeout=max(0.1, deadline - time.monotonic()))
+            except queue.Empty:
+                missing = sorted(set(procs) - ready)
+                raise NodeDied(f"nodes {', '.join(missing)} did not start "
+                               f"within {READY_TIMEOUT_S:.0f} s") from None
+            if kind == "error":
+                raise NodeDied(f"node {name} failed at start: {detail}")
+            ready.add(name)
+        t0 = time.monotonic_ns() + int(START_MARGIN_S * 1e9)
+        epoch_t0 = time.time() + (t0 - time.monotonic_ns()) / 1e9
+        t0_ns.value = t0
+        wall0 = time.perf_counter() + START_MARGIN_S
+        go.set()
+        print(f"realtime: {len(procs)} processes on {describe_bus(cfg)}; pids "
+              + " ".join(f"{n}={p.pid}" for n, p in procs.items()), file=sys.stderr, flush=True)
+        limit = time.monotonic() + START_MARGIN_S + scenario.max_duration_s + 30.0
+        while True:
+            if progress_q is not None:
+                _show_progress(progress_q, progress)
+            try:
+                kind, name, detail = results.get(timeout=0.2)
+            except queue.Empty:
+                dead = [n for n, p in procs.items() if p.exitcode is not None and n not in payloads]
+                if dead:
+                    code = procs[dead[0]].exitcode
+                    raise NodeDied(f"node {dead[0]} died (exit code {code}); run ended") from None
+                if time.monotonic() > limit:
+                    raise NodeDied("the plant did not finish within the scenario's max_duration_s") from None
+                continue
+            if kind == "error":
+                raise NodeDied(f"node {name} died: {detail}")
+            if kind == "done":
+                reason = detail
+                break
+            if kind == "result":
+                payloads[name] = detail
+    except (KeyboardInterrupt, _Terminate):
+        reason = "interrupted"
+        print("\nstopping: interrupt received, closing the trace", file=sys.stderr)
+    except RailhilError as exc:
+        failure = str(exc)
+    finally:
+        stop.set()
+        go.set()
+        end = time.monotonic() + JOIN_TIMEOUT_S
+        while len(payloads) < len(procs) and time.monotonic() < end:
+            try:
+                kind, name, detail = results.get(timeout=0.2)
+            except queue.Empty:
+                if all(p.exitcode is not None for p in procs.values()):
+                    break
+                continue
+            if kind == "result":
+                payloads[name] = detail
+            elif kind == "error" and failure is None:
+                failure = f"node {name} died: {detail}"
+        for p in procs.values():
+            p.join(timeout=max(0.1, end - time.monotonic()))
+            if p.is_alive():
+                p.terminate()
+                p.join(1.0)
+        signal.signal(signal.SIGTERM, old_term)
+    wall = time.perf_counter() - wall0
+    if "PLANT" not in payloads:
+        raise NodeDied((failure or "the PLANT process ended without handing back its ground truth")
+                       + (f"; the trace so far is in {trace_path}" if trace_path.exists() else ""))
+    if failure is not None:
+        reason = "failed"
+    plant = payloads["PLANT"]
+    truth: TruthLog = plant["truth"]
+    end_us = truth.t_us[-1] if truth.t_us else 0
+    outcome = RunOutcome(
+        mode="realtime", end_us=end_us, reason=reason, truth=truth,
+        frames_by_node={n: payloads[n]["stats"]["frames_sent"] for n in names if n in payloads},
+        node_stats={n: payloads[n]["stats"] for n in names if n in payloads}, wall_s=wall)
+    return outcome, epoch_t0, failure
+
+
+def _show_progress(q, progress: Callable[[int, dict], None]) -> None:
+    item = None
+    while True:
+        try:
+            item = q.get_nowait()
+        except queue.Empty:
+            break
+    if item is not None:
+        now_us, truth = item
+        progress(now_us, truth)
+
+
+def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dict,
+                          progress: Callable[[int, dict], None] | None = None):
+    from hil.codec import Codec
+    from hil.dbc import load_dbc
+    from hil.results import check_out_dir
+    from hil.run import TRACE_NAME, dbc_path_of, finish_run
+
+    cfg = resolve_bus_config(cli_bus_config, scenario)
+    dbc_path = dbc_path_of(scenario)
+    db = load_dbc(dbc_path)                       # bad DBC: one line, before any process starts
+    codec = Codec(db)
+    from hil.assembly import build_node, node_names
+
+    for name in node_names(scenario):             # bad bindings: one line, before any process starts
+        build_node(name, scenario, db, codec, str(dbc_path))
+    out_dir = check_out_dir(out_dir)
+    trace = out_dir / TRACE_NAME
+    outcome, epoch_t0, failure = run_realtime(scenario, str(dbc_path), trace, cfg, progress=progress)
+    report = finish_run(scenario, outcome, out_dir, db, codec, trace_t0_s=epoch_t0,
+                        extra={"bus": {k: str(v) for k, v in cfg.items()}, "failure": failure})
+    if failure is not None:                      # nothing recorded is lost: the folder is written first
+        raise NodeDied(f"{failure}; what was recorded is in {out_dir}")
+    return report

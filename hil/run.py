@@ -1,0 +1,90 @@
+"""One run of a scenario, in lockstep or real time, and the run folder it leaves."""
+
+from __future__ import annotations
+
+import json
+import platform
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import can
+
+from hil.codec import Codec
+from hil.dbc import DEFAULT_DBC, load_dbc
+from hil.desk import DeskScript
+from hil.lockstep import RunOutcome, run_lockstep
+from hil.results import (
+    check_out_dir,
+    compute_kpis,
+    plot_run,
+    read_signal,
+    summary_lines,
+    write_kpis,
+    write_truth_csv,
+)
+from hil.scenario import Scenario
+
+TRACE_NAME = "trace.blf"
+
+
+@dataclass
+class RunReport:
+    out_dir: Path
+    outcome: RunOutcome
+    kpis: dict
+    files: list[Path]
+
+    def summary(self) -> list[str]:
+        o = self.outcome
+        head = (f"{o.mode} run: {o.end_us / 1e6:.2f} s simulated in {o.wall_s:.2f} s wall "
+                f"({o.end_us / 1e6 / max(o.wall_s, 1e-9):.1f}x real time), ended by {o.reason}")
+        return [head] + summary_lines(self.kpis, self.files)
+
+
+def dbc_path_of(scenario: Scenario) -> Path:
+    return Path(scenario.dbc) if scenario.dbc else DEFAULT_DBC
+
+
+def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec: Codec,
+               trace_t0_s: float = 0.0, extra: dict | None = None) -> RunReport:
+    trace = out_dir / TRACE_NAME
+    cols = outcome.truth.columns()
+    truth_csv = out_dir / "truth.csv"
+    write_truth_csv(cols, truth_csv)
+    target = read_signal(trace, db, codec, "BCU_DEMAND", "TargetDecel", t0_s=trace_t0_s)
+    brake_us = DeskScript(scenario.desk).first_brake_us()
+    kpis = compute_kpis(scenario, cols, target, None if brake_us is None else brake_us / 1e6,
+                        outcome.frames_by_node)
+    kpis["mode"] = outcome.mode
+    kpis["seed"] = scenario.seed
+    kpis["simulated_s"] = outcome.end_us / 1e6
+    kpis["end_reason"] = outcome.reason
+    kpis_json = out_dir / "kpis.json"
+    write_kpis(kpis, kpis_json)
+    plot = out_dir / "plot.png"
+    plot_run(scenario, cols, plot, f"{scenario.name} ({outcome.mode}, seed {scenario.seed})")
+    meta = {
+        "scenario": scenario.model_dump(mode="json"),
+        "mode": outcome.mode,
+        "dbc": str(dbc_path_of(scenario)),
+        "python": sys.version.split()[0],
+        "python_can": can.__version__,
+        "platform": platform.platform(),
+        "trace_t0_s": trace_t0_s,
+        "node_stats": outcome.node_stats,
+        **(extra or {}),
+    }
+    run_json = out_dir / "run.json"
+    run_json.write_text(json.dumps(meta, indent=2, default=str) + "\n")
+    return RunReport(out_dir, outcome, kpis, [trace, truth_csv, kpis_json, plot, run_json])
+
+
+def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None) -> RunReport:
+    out_dir = check_out_dir(out_dir)
+    dbc_path = dbc_path_of(scenario)
+    db = load_dbc(dbc_path)
+    codec = Codec(db)
+    with can.Logger(str(out_dir / TRACE_NAME)) as writer:
+        outcome = run_lockstep(scenario, db, codec, writer, progress=progress, dbc_name=str(dbc_path))
+    return finish_run(scenario, outcome, out_dir, db, codec)

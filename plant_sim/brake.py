@@ -1,0 +1,102 @@
+"""Pneumatic brake per car: EP valve, WSP dump valve, brake cylinder, pressure → torque hysteresis.
+
+Pure functions of (state, inputs, params), vectorised over cars.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from plant_sim.params import BrakeParams
+
+# WSP dump-valve states (the DBC's WspValve signal)
+WSP_FILL = 0   # normal: the EP valve acts on the cylinder
+WSP_HOLD = 1   # cylinder isolated: pressure held
+WSP_VENT = 2   # cylinder dumped to atmosphere by the WSP valve
+WSP_STATES = frozenset((WSP_FILL, WSP_HOLD, WSP_VENT))
+# literals as 0-d arrays: numpy runs a ufunc faster on two arrays than on an array and a Python float
+_ZERO = np.array(0.0)
+
+
+def sanitize_valve_cmd(valve_cmd: np.ndarray) -> tuple[np.ndarray, int]:
+    """EP valve opening clipped to [−1, 1]; non-finite entries become 0 (valve closed: pressure held).
+
+    Returns the clean array and how many entries were non-finite.
+    """
+    u = np.asarray(valve_cmd, dtype=float)
+    bad = ~np.isfinite(u)
+    n_bad = int(np.count_nonzero(bad))
+    if n_bad:
+        u = np.where(bad, 0.0, u)
+    return np.minimum(np.maximum(u, -1.0), 1.0), n_bad
+
+
+def sanitize_wsp_valve(wsp_valve: np.ndarray) -> tuple[np.ndarray, int]:
+    """WSP valve states as intp in {0, 1, 2}; anything else becomes WSP_FILL (the dump valve does nothing).
+
+    Returns the clean array and how many entries were invalid.
+    """
+    w = np.asarray(wsp_valve)
+    with np.errstate(invalid="ignore"):
+        valid = (w == WSP_FILL) | (w == WSP_HOLD) | (w == WSP_VENT)
+    n_bad = int(valid.size - np.count_nonzero(valid))
+    return np.where(valid, w, WSP_FILL).astype(np.intp), n_bad
+
+
+class ValveTable(NamedTuple):
+    """Pressure change over one step by WSP state (index 0 FILL, 1 HOLD, 2 VENT): for opening u of a car
+    in WSP state w, dp = u·fill[w] if u > 0, u·vent[w] if u < 0, plus dump[w]."""
+
+    fill_Pa: np.ndarray      # (3,) per unit opening
+    vent_Pa: np.ndarray      # (3,) per unit opening
+    dump_Pa: np.ndarray      # (3,)
+    vent_ge_fill: bool       # vent rate ≥ fill rate: u·fill (u > 0) / u·vent (u < 0) is the smaller product
+
+
+def valve_table(bp: BrakeParams, dt_s: float) -> ValveTable:
+    fill, vent, dump = np.zeros(3), np.zeros(3), np.zeros(3)
+    fill[WSP_FILL] = bp.fill_rate_Pa_per_s * dt_s       # FILL: the EP valve fills (u > 0) ...
+    vent[WSP_FILL] = bp.vent_rate_Pa_per_s * dt_s       # ... or vents (u < 0); HOLD: nothing moves
+    dump[WSP_VENT] = -bp.wsp_vent_rate_Pa_per_s * dt_s  # VENT: the dump valve empties the cylinder
+    return ValveTable(fill, vent, dump, bool(bp.vent_rate_Pa_per_s >= bp.fill_rate_Pa_per_s))
+
+
+def cylinder_pressure_step(p: np.ndarray, valve_cmd: np.ndarray, wsp_valve: np.ndarray, dt_s: float,
+                           bp: BrakeParams, table: ValveTable | None = None) -> np.ndarray:
+    """Cylinder pressure after dt_s [s], exact for inputs held over the step.
+
+    EP valve with opening valve_cmd ∈ [−1, 1] (finite; `sanitize_valve_cmd` makes it so): dp/dt =
+    valve_cmd · fill_rate if > 0, else valve_cmd · vent_rate. The WSP dump valve (wsp_valve, ints in
+    {0, 1, 2}) overrides it: FILL (0) lets the EP valve act, HOLD (1) isolates the cylinder (dp/dt = 0),
+    VENT (2) dumps it (dp/dt = −wsp_vent_rate). The result is clipped to [0, p̄] (eq. (5a) seed 001).
+    A pressure controller closing the loop on the valve turns this into the first-order lag of eq. (4)
+    seed 001. table = valve_table(bp, dt_s), computed here unless the caller keeps it.
+    """
+    fill, vent, dump, vent_ge_fill = valve_table(bp, dt_s) if table is None else table
+    by_fill, by_vent = valve_cmd * fill[wsp_valve], valve_cmd * vent[wsp_valve]
+    # EP valve: u·fill for u > 0, u·vent for u < 0, i.e. the smaller product if vent ≥ fill, else the larger
+    ep = np.minimum(by_fill, by_vent) if vent_ge_fill else np.maximum(by_fill, by_vent)
+    return np.minimum(np.maximum(p + ep + dump[wsp_valve], _ZERO), bp.p_max_Pa)  # 0 ≤ p ≤ p̄, eq. (5a) s. 001
+
+
+def hysteresis_torque(tau_prev: np.ndarray, p: np.ndarray, bp: BrakeParams) -> np.ndarray:
+    """Brake torque τ ≥ 0 [N·m] at cylinder pressure p, eq. (10a) seed 001 as a play operator.
+
+    The squeeze line τ = ᾱ p + β̄ lies below the release line τ = α̲ p + β̲ (same p). The three cases
+    of (10a), with τ⁻ = tau_prev:
+      squeeze  τ⁻ ≤ ᾱ p + β̄  → τ = ᾱ p + β̄   (pressure rose past the squeeze line: torque rises on it)
+      release  τ⁻ ≥ α̲ p + β̲  → τ = α̲ p + β̲   (pressure fell past the release line: torque falls on it)
+      hold     otherwise     → τ = τ⁻         (between the lines: torque does not respond)
+    (10a)'s conditions u ≥ p / u ≤ p are implied: τ⁻ can only lie below the squeeze line if p rose since
+    the last step, above the release line if it fell. The torque is then clipped at 0 (block off the disc).
+    """
+    alpha_p = bp.alpha_squeeze_Nm_per_Pa * p
+    squeeze = alpha_p + bp.beta_squeeze_Nm                           # squeeze line, eq. (6) seed 001
+    if bp.alpha_release_Nm_per_Pa is not bp.alpha_squeeze_Nm_per_Pa:  # (`as_arrays` shares equal values)
+        alpha_p = bp.alpha_release_Nm_per_Pa * p
+    release = alpha_p + bp.beta_release_Nm                           # release line, eq. (6) seed 001
+    tau = np.maximum(tau_prev, squeeze)    # squeeze case of (10a): lifted onto the squeeze line
+    tau = np.minimum(tau, release)         # release case of (10a): pushed down onto the release line
+    return np.maximum(tau, _ZERO)          # hold case leaves τ⁻; torque never negative

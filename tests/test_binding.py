@@ -1,0 +1,57 @@
+"""Node bindings: every signal name a node uses is checked against the DBC at start."""
+
+import pytest
+
+from hil.codec import Codec
+from hil.dbc import load_dbc
+from hil.errors import BindingError
+from hil.node import Binding, Node
+
+DB = load_dbc()
+
+
+def build(inputs=("AxleSpeed",), outputs=("ValveCmd",), rx=("PLANT_CAR3_SENSORS",), tx=("BECU3_PRESS_CMD",)):
+    return Binding.build(DB, "BECU3", inputs, outputs, rx, tx, "train_brake.dbc")
+
+
+def test_binding_resolves_bare_and_qualified_names():
+    b = build(inputs=("AxleSpeed", "BCU_DEMAND.TargetDecel"))
+    fid = DB.get_message_by_name("PLANT_CAR3_SENSORS").frame_id
+    assert b.rx[fid] == [("AxleSpeed", "AxleSpeed")]
+
+
+@pytest.mark.parametrize("kw, needle", [
+    ({"inputs": ("AxelSpeed",)}, "'AxelSpeed'"),
+    ({"outputs": ("ValveCommand",)}, "'ValveCommand'"),
+    ({"inputs": ("PLANT_CAR3_SENSOR.AxleSpeed",)}, "PLANT_CAR3_SENSORS"),
+    ({"rx": ("PLANT_CAR3_SENSOR",)}, "PLANT_CAR3_SENSORS"),
+])
+def test_unknown_names_name_themselves_and_the_closest_dbc_names(kw, needle):
+    with pytest.raises(BindingError) as err:
+        build(**kw)
+    text = str(err.value)
+    assert "BECU3" in text and needle in text and "closest" in text and "\n" not in text
+
+
+def test_closest_name_is_suggested():
+    with pytest.raises(BindingError, match="closest: AxleSpeed"):
+        build(inputs=("AxelSpeed",))
+
+
+def test_node_cycle_encodes_due_frames_and_counts_bad_outputs():
+    class Ctrl:
+        def step(self, now_us, rx):
+            return {"ValveCmd": float("nan"), "CylPressureSet": 1e5}
+
+    codec = Codec(DB)
+    b = build(outputs=("ValveCmd", "CylPressureSet"))
+    node = Node("BECU3", Ctrl(), b, codec, DB, period_us=10_000)
+    frames = node.cycle(0)
+    assert len(frames) == 1
+    fc, data = frames[0]
+    values = fc.decode(data)
+    assert values["ValveCmd"] == 0.0 and values["CylPressureSet"] == 1e5 and values["Counter"] == 0
+    assert node.stats.bad_outputs == 1
+    assert node.cycle(5_000) == []                         # not due yet
+    fc, data = node.cycle(10_000)[0]
+    assert fc.decode(data)["Counter"] == 1

@@ -1,0 +1,107 @@
+"""Controllers: the shared PI primitive, pure mode transitions (keyword tables), step tests."""
+
+import math
+
+import pytest
+
+from firmware_py.bcu import Bcu, BcuMode, bcu_mode_transition
+from firmware_py.becu import Becu, Wsp, WspParams, wsp_transition
+from firmware_py.pi import PI, PIParams
+
+
+def test_pi_integrates_and_saturates_without_windup():
+    pi = PI(PIParams(kp=1.0, ki=10.0, out_min=-1.0, out_max=1.0))
+    for _ in range(100):
+        out = pi.update(5.0, 0.01)
+    assert out == 1.0 and pi.saturated
+    i_at_limit = pi.i
+    for _ in range(100):
+        pi.update(5.0, 0.01)
+    assert pi.i == i_at_limit                      # conditional anti-windup: no further integration
+    # the error reverses: the output leaves the limit at once (no wound-up integrator to unwind)
+    assert pi.update(-0.5, 0.01) < 1.0
+
+
+def test_pi_freeze_and_bumpless_handover():
+    pi = PI(PIParams(kp=2.0, ki=1.0, out_min=-10, out_max=10))
+    pi.update(1.0, 0.1)
+    i = pi.i
+    pi.update(3.0, 0.1, freeze=True)
+    assert pi.i == i and pi.frozen
+    pi.handover(last_output=4.0, error=0.5)
+    assert pi.update(0.5, 0.0) == pytest.approx(4.0)
+
+
+P = WspParams()
+
+
+@pytest.mark.parametrize("state, slip, speed, expected", [
+    (Wsp.FILL, 0.1, 25.0, Wsp.FILL),          # normal adhesion
+    (Wsp.FILL, 1.2, 25.0, Wsp.VENT),          # above 0.30 + 0.03*25 = 1.05 m/s
+    (Wsp.VENT, 0.8, 25.0, Wsp.VENT),          # still above the hold fraction 0.525
+    (Wsp.VENT, 0.5, 25.0, Wsp.HOLD),          # recovering: hold the pressure
+    (Wsp.HOLD, 0.4, 25.0, Wsp.HOLD),          # between refill (0.2625) and hold thresholds
+    (Wsp.HOLD, 0.2, 25.0, Wsp.FILL),          # recovered: refill
+    (Wsp.HOLD, 1.1, 25.0, Wsp.VENT),          # slips again while holding
+    (Wsp.VENT, 5.0, 0.5, Wsp.FILL),           # below min speed: WSP inhibited, train may stop
+])
+def test_wsp_transition_table(state, slip, speed, expected):
+    assert wsp_transition(state, slip, speed, P) == expected
+
+
+@pytest.mark.parametrize("mode, step, emergency, standstill, expected", [
+    (BcuMode.RELEASED, 0, False, False, BcuMode.RELEASED),
+    (BcuMode.RELEASED, 3, False, False, BcuMode.SERVICE),
+    (BcuMode.SERVICE, 0, False, False, BcuMode.RELEASED),
+    (BcuMode.SERVICE, 7, True, False, BcuMode.EMERGENCY),
+    (BcuMode.EMERGENCY, 0, False, False, BcuMode.EMERGENCY),    # latched while moving
+    (BcuMode.EMERGENCY, 0, False, True, BcuMode.RELEASED),      # released at standstill
+    (BcuMode.EMERGENCY, 2, False, True, BcuMode.SERVICE),
+])
+def test_bcu_mode_transition_table(mode, step, emergency, standstill, expected):
+    assert bcu_mode_transition(mode, step, emergency, standstill) == expected
+
+
+def rx_becu(**kw):
+    base = {"AxleSpeed": 25 / 0.46, "CylPressure": 0.0, "AccelLong": 0.0, "TargetDecel": 1.0,
+            "Mode": 1, "EmergencyActive": 0}
+    base.update(kw)
+    return base
+
+
+def test_becu_fills_towards_the_setpoint_for_the_demand():
+    becu = Becu()
+    out = becu.step(0, rx_becu())
+    # m a r / alpha + preload = 40000*1.0*0.46/0.08 + 30e3
+    assert out["CylPressureSet"] == pytest.approx(260e3)
+    assert out["ValveCmd"] > 0 and out["WspValve"] == Wsp.FILL
+    out = becu.step(10_000, rx_becu(CylPressure=300e3))
+    assert out["ValveCmd"] < 0                                  # over pressure: vent through the EP valve
+
+
+def test_becu_vents_on_slip_and_freezes_its_integrator():
+    becu = Becu()
+    becu.step(0, rx_becu())
+    i_before = becu.pressure_pi.i
+    out = becu.step(10_000, rx_becu(AxleSpeed=20 / 0.46, AccelLong=-1.0))   # 5 m/s slip
+    assert out["WspValve"] == Wsp.VENT and out["WspActive"] == 1 and out["ValveCmd"] == 0.0
+    assert becu.pressure_pi.i == i_before
+
+
+def test_becu_treats_missing_inputs_safely():
+    becu = Becu()
+    out = becu.step(0, rx_becu(AxleSpeed=math.nan, TargetDecel=math.inf))
+    assert out["InputMissing"] == 1
+    assert all(math.isfinite(v) for v in out.values())
+
+
+def test_bcu_steps_and_emergency():
+    bcu = Bcu(2)
+    rx = {"BrakeStep": 7, "EmergencyReq": 0, "BECU1_STATUS.SpeedEst": 20.0, "BECU2_STATUS.SpeedEst": math.nan}
+    out = {}
+    for k in range(200):                                  # 2 s: the jerk limit lets the target reach 1.0
+        out = bcu.step(k * 10_000, rx)
+    assert out["TargetDecel"] == pytest.approx(1.0) and out["Mode"] == BcuMode.SERVICE
+    assert out["CarsSilent"] == 0b10 and out["TrainSpeedEst"] == 20.0
+    out = bcu.step(2_000_000, {**rx, "EmergencyReq": 1})
+    assert out["Mode"] == BcuMode.EMERGENCY and out["EmergencyActive"] == 1 and out["TargetDecel"] == 1.3
