@@ -100,8 +100,8 @@ class Binding:
                 msg_name, sig = key.split(".", 1)
                 msg = message(msg_name, role, key)
                 if not any(s.name == sig for s in msg.signals):
-                    raise BindingError(f"node {node}: {role} signal {key!r}: message {msg_name} of {dbc_name} "
-                                       f"has no signal {sig!r}; closest: "
+                    raise BindingError(f"node {node}: {role} signal {key!r}: message {msg_name} of "
+                                       f"{dbc_name} has no signal {sig!r}; closest: "
                                        f"{closest(sig, [s.name for s in msg.signals])}")
                 hits = [(msg, sig)]
             else:

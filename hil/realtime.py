@@ -91,11 +91,12 @@ def _raise_priority(nice: int) -> bool:
         return False
 
 
-def _monotonic_us(t0_ns: int) -> int:
-    return (time.monotonic_ns() - t0_ns) // 1000
+def _monotonic_us(t0_ns: int, speed: float = 1.0) -> int:
+    """Scheduled (simulated) microseconds since t0; wall time runs 1/speed times slower."""
+    return int((time.monotonic_ns() - t0_ns) * speed) // 1000
 
 
-def _wait_and_receive(bus: can.BusABC, node, deadline_ns: int, t0_ns: int) -> None:
+def _wait_and_receive(bus: can.BusABC, node, deadline_ns: int, t0_ns: int, speed: float = 1.0) -> None:
     """Receive frames into the node until the deadline (the wait *is* the receive loop)."""
     while True:
         remaining = (deadline_ns - time.monotonic_ns()) / 1e9
@@ -105,7 +106,7 @@ def _wait_and_receive(bus: can.BusABC, node, deadline_ns: int, t0_ns: int) -> No
                 return
             continue
         if node is not None and not msg.is_error_frame:
-            node.receive(msg.arbitration_id, bytes(msg.data), _monotonic_us(t0_ns))
+            node.receive(msg.arbitration_id, bytes(msg.data), _monotonic_us(t0_ns, speed))
         if remaining <= 0:
             continue          # drain what is already queued, then return on the next empty recv
 
@@ -135,17 +136,18 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         linger_us = round(scenario.end_after_standstill_s * 1e6)
         max_us = round(scenario.max_duration_s * 1e6)
         stopped_since = None
+        speed = scenario.realtime.speed
         next_us = node.offset_us
         next_progress = 0
         misses = 0
         while not stop.is_set():
-            _wait_and_receive(bus, node, t0 + next_us * 1000, t0)
+            _wait_and_receive(bus, node, t0 + round(next_us * 1000 / speed), t0, speed)
             frames = node.cycle(next_us)
             for fc, data in frames:
                 bus.send(can.Message(arbitration_id=fc.frame_id, is_extended_id=fc.is_extended_id,
                                      data=data, check=False))
             next_us += node.period_us
-            lag_us = _monotonic_us(t0) - next_us
+            lag_us = _monotonic_us(t0, speed) - next_us
             if lag_us > node.period_us and not is_plant:
                 skipped = lag_us // node.period_us
                 misses += skipped
@@ -261,7 +263,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         go.set()
         print(f"realtime: {len(procs)} processes on {describe_bus(cfg)}; pids "
               + " ".join(f"{n}={p.pid}" for n, p in procs.items()), file=sys.stderr, flush=True)
-        limit = time.monotonic() + START_MARGIN_S + scenario.max_duration_s + 30.0
+        limit = time.monotonic() + START_MARGIN_S + scenario.max_duration_s / scenario.realtime.speed + 30.0
         while True:
             if progress_q is not None:
                 _show_progress(progress_q, progress)
@@ -355,6 +357,7 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
     trace = out_dir / TRACE_NAME
     outcome, epoch_t0, failure = run_realtime(scenario, str(dbc_path), trace, cfg, progress=progress)
     report = finish_run(scenario, outcome, out_dir, db, codec, trace_t0_s=epoch_t0,
+                        trace_speed=scenario.realtime.speed,
                         extra={"bus": {k: str(v) for k, v in cfg.items()}, "failure": failure})
     if failure is not None:                      # nothing recorded is lost: the folder is written first
         raise NodeDied(f"{failure}; what was recorded is in {out_dir}")

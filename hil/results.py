@@ -16,8 +16,8 @@ import numpy as np
 from cantools.database.can import Database
 
 from hil.codec import Codec
-from hil.plant_node import STANDSTILL_MPS
 from hil.errors import RailhilError
+from hil.plant_node import STANDSTILL_MPS
 from hil.scenario import Scenario
 
 MOVING_MPS = 0.5        # a car below this speed is not judged for slip or deceleration tracking
@@ -34,15 +34,15 @@ def write_truth_csv(columns: dict[str, np.ndarray], path: Path) -> None:
 
 
 def read_signal(trace: Path, db: Database, codec: Codec, message: str, signal: str,
-                t0_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Times [s, relative to t0] and values of one signal in a trace."""
+                t0_s: float = 0.0, speed: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Simulated times [s] ((timestamp - t0) * speed) and values of one signal in a trace."""
     fid = db.get_message_by_name(message).frame_id
     fc = codec[fid]
     ts, vs = [], []
     with can.LogReader(str(trace)) as reader:
         for msg in reader:
             if msg.arbitration_id == fid and not msg.is_error_frame and not msg.is_remote_frame:
-                ts.append(msg.timestamp - t0_s)
+                ts.append((msg.timestamp - t0_s) * speed)
                 vs.append(fc.decode(bytes(msg.data))[signal])
     return np.asarray(ts), np.asarray(vs)
 

@@ -47,12 +47,12 @@ def dbc_path_of(scenario: Scenario) -> Path:
 
 
 def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec: Codec,
-               trace_t0_s: float = 0.0, extra: dict | None = None) -> RunReport:
+               trace_t0_s: float = 0.0, trace_speed: float = 1.0, extra: dict | None = None) -> RunReport:
     trace = out_dir / TRACE_NAME
     cols = outcome.truth.columns()
     truth_csv = out_dir / "truth.csv"
     write_truth_csv(cols, truth_csv)
-    target = read_signal(trace, db, codec, "BCU_DEMAND", "TargetDecel", t0_s=trace_t0_s)
+    target = read_signal(trace, db, codec, "BCU_DEMAND", "TargetDecel", t0_s=trace_t0_s, speed=trace_speed)
     brake_us = DeskScript(scenario.desk).first_brake_us()
     kpis = compute_kpis(scenario, cols, target, None if brake_us is None else brake_us / 1e6,
                         outcome.frames_by_node)

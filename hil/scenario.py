@@ -94,7 +94,8 @@ class DeskEvent(_Strict):
 class RealtimeSpec(_Strict):
     interface: str = "udp_multicast"
     channel: str | None = None        # None: a channel of this run's own (udp_multicast group/port)
-    speed: Annotated[float, Field(gt=0, le=1)] = 1.0   # 1.0 = wall-clock real time
+    # simulated seconds per wall second: 1.0 = real time, 0.5 = half speed (for slow or loaded hosts)
+    speed: Annotated[float, Field(gt=0, le=1)] = 1.0
 
 
 class Scenario(_Strict):
