@@ -11,6 +11,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import IntEnum
 
+from firmware_py.cycle import CycleTimer
 from firmware_py.limits import finite_or, rate_limit
 
 
@@ -50,14 +51,13 @@ class Bcu:
         self.n_cars = n_cars
         self.mode = BcuMode.RELEASED
         self.target = 0.0
-        self.last_us: int | None = None
+        self.timer = CycleTimer(self.p.cycle_us)
         self.inputs = ("BrakeStep", "EmergencyReq") + tuple(
             f"BECU{i}_STATUS.SpeedEst" for i in range(1, n_cars + 1))
 
     def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
         p = self.p
-        dt_s = p.cycle_us * 1e-6 if self.last_us is None else (now_us - self.last_us) * 1e-6
-        self.last_us = now_us
+        dt_s = self.timer.dt_s(now_us)
         step_raw, _ = finite_or(rx["BrakeStep"], 0.0)
         emergency_req, _ = finite_or(rx["EmergencyReq"], 0.0)
         brake_step = int(min(max(step_raw, 0), 7))

@@ -18,6 +18,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum
 
+from firmware_py.cycle import CycleTimer
 from firmware_py.limits import clip, finite_or
 from firmware_py.pi import PI, PIParams
 
@@ -83,7 +84,7 @@ class Becu:
         self.pressure_pi = PI(self.p.pressure_pi)
         self.wsp = Wsp.FILL
         self.v_ref = math.nan
-        self.last_us: int | None = None
+        self.timer = CycleTimer(self.p.cycle_us)
         self.missing_inputs = 0       # cycles with a missing or non-finite input (diagnostic)
 
     def pressure_for_decel(self, decel_mps2: float) -> float:
@@ -106,8 +107,7 @@ class Becu:
 
     def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
         p = self.p
-        dt_s = p.cycle_us * 1e-6 if self.last_us is None else (now_us - self.last_us) * 1e-6
-        self.last_us = now_us
+        dt_s = self.timer.dt_s(now_us)
         omega, ok1 = finite_or(rx["AxleSpeed"], 0.0)
         pressure, ok2 = finite_or(rx["CylPressure"], 0.0)
         accel, ok3 = finite_or(rx["AccelLong"], 0.0)
