@@ -1,13 +1,20 @@
-"""Wheel-rail adhesion μ(θ(x), σ, v), seed 000 §2.1: pure functions, vectorised over cars.
+"""Wheel-rail adhesion μ(θ(x), σ, v), seed 000 §2.1: pure functions.
 
-θ arrays are shaped (n, 3) (one row θ = (θ1, θ2, θ3) per car), σ and v are shaped (n,); a single car is
-n = 1. σ is the slip RATIO (v − rω)/v ∈ [0, 1] of a braking wheel.
+The `*_scalar` functions are the implementation: one car, Python floats, θ = (θ1, θ2, θ3) a tuple; the
+plant calls them per car in its step (why scalar: `plant_sim.plant`). `slip_ratio`, `mu_bar` and `mu` are
+their array wrappers (`plant_sim.elementwise`): θ arrays shaped (n, 3) (one row per car), σ and v shaped
+(n,), broadcast against each other. The closed-form peak (`sigma_opt_bar` ... `mu_opt`) is numpy: it is
+not on the step's path (set-up, tests and the 10 ms truth only). σ is the slip RATIO (v − rω)/v ∈ [0, 1]
+of a braking wheel.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from plant_sim.elementwise import elementwise
 from plant_sim.params import AdhesionParams
 
 # Slip-ratio regularisation (representative value, chosen): σ = s / max(v, V_EPS_MPS). Below 0.5 m/s the
@@ -18,50 +25,72 @@ V_EPS_MPS = 0.5
 # With AdhesionParams.constant_mu the curve is flat at μ_c for σ ≥ 0.001 and rises linearly from 0 below
 # (chosen): a free-rolling wheel (σ = 0) transmits no force, a slipping or locked one transmits μ_c.
 CONST_MU_RAMP_SIGMA = 1e-3
-# literals as 0-d arrays: numpy runs a ufunc faster on two arrays than on an array and a Python float
-_ONE, _INV_RAMP, _V_EPS = np.array(1.0), np.array(1.0 / CONST_MU_RAMP_SIGMA), np.array(V_EPS_MPS)
+_INV_RAMP = 1.0 / CONST_MU_RAMP_SIGMA
+_CURVE = AdhesionParams()   # the adhesion curve (no constant_mu), for μ̄ = μ at v = 0
+
+Theta = tuple[float, float, float]
+
+
+# ------------------------------------------------------------------------------------ scalar: one car
+# In the functions on the step's path, max(a, b) is written `b if b > a else a` and min(a, b) `b if b < a
+# else a` (the same value, NaN and ±0 included): the builtins cost ~0.1–0.25 µs a call, ~20 times a step.
+def slip_ratio_unclipped_scalar(s_mps: float, v_mps: float) -> float:
+    """σ = s / max(v, V_EPS_MPS) [-] (seed 000 §2.1; s = v − rω, eq. (2) seed 001), not clipped: the plant
+    keeps 0 ≤ s ≤ v, hence σ ∈ [0, 1] already."""
+    return s_mps / (V_EPS_MPS if V_EPS_MPS > v_mps else v_mps)  # σ = s / max(v, V_EPS), seed 000 §2.1
+
+
+def slip_ratio_scalar(s_mps: float, v_mps: float) -> float:
+    """σ = s / max(v, V_EPS_MPS) clipped to [0, 1] [-]."""
+    return min(max(slip_ratio_unclipped_scalar(s_mps, v_mps), 0.0), 1.0)
+
+
+def mu_scalar(theta: Theta, sigma: float, v_mps: float, p: AdhesionParams) -> float:
+    """μ(θ, σ, v) = μ̄(θ, k2(v) σ) / k1(v) [-], eq. (1) seed 000, with k_i(v) = 1 + π_i v (v in m/s) and
+    μ̄(θ, σ) = √σ / (θ1 + θ2 σ + θ3 σ²), seed 000 §2.1; σ ≥ 0."""
+    if p.constant_mu is not None:
+        return p.constant_mu * min(sigma * _INV_RAMP, 1.0)  # flat μ (test hook)
+    t1, t2, t3 = theta
+    k1 = p.pi1_s_per_m * v_mps + 1.0                        # k1(v) = 1 + π1 v, seed 000 §2.1
+    ks = (p.pi2_s_per_m * v_mps + 1.0) * sigma              # k2(v) σ, k2(v) = 1 + π2 v
+    return math.sqrt(ks) / (t1 + ks * (t2 + t3 * ks)) / k1  # μ̄(θ, k2 σ) / k1(v), eq. (1) seed 000
+
+
+def mu_bar_scalar(theta: Theta, sigma: float) -> float:
+    """μ̄(θ, σ) [-], seed 000 §2.1: the curve at v = 0, i.e. μ(θ, σ, 0) of eq. (1) (k1(0) = k2(0) = 1 exactly,
+    so this is √σ / (θ1 + θ2 σ + θ3 σ²) to the last bit)."""
+    return mu_scalar(theta, sigma, 0.0, _CURVE)
+
+
+# ------------------------------------------------------------------------------ array wrappers, n cars
+def _theta_cols(theta) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    theta = np.asarray(theta, dtype=float)
+    return theta[..., 0], theta[..., 1], theta[..., 2]
 
 
 def slip_ratio(s_mps: np.ndarray, v_mps: np.ndarray) -> np.ndarray:
-    """σ = s / v (seed 000 §2.1, s = v − rω of eq. (2) seed 001), regularised near v = 0, clipped to [0, 1]."""
-    return np.clip(slip_ratio_unclipped(np.asarray(s_mps, dtype=float), v_mps), 0.0, 1.0)
-
-
-def slip_ratio_unclipped(s_mps: np.ndarray, v_mps: np.ndarray) -> np.ndarray:
-    """σ = s / max(v, V_EPS_MPS) without the clip: the plant keeps 0 ≤ s ≤ v, hence σ ∈ [0, 1] already."""
-    return s_mps / np.maximum(v_mps, _V_EPS)
+    """`slip_ratio_scalar` per element: σ regularised near v = 0, clipped to [0, 1]."""
+    return elementwise(slip_ratio_scalar, np.asarray(s_mps, dtype=float), np.asarray(v_mps, dtype=float))
 
 
 def mu_bar(theta: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """μ̄(θ, σ) = √σ / (θ1 + θ2 σ + θ3 σ²), seed 000 §2.1 (the curve at v = 0)."""
-    theta = np.asarray(theta, dtype=float)
-    return _mu_bar_cols(theta[..., 0], theta[..., 1], theta[..., 2], np.asarray(sigma, dtype=float))
-
-
-def _mu_bar_cols(t1, t2, t3, sigma):
-    return np.sqrt(sigma) / (t1 + sigma * (t2 + t3 * sigma))  # μ̄(θ, σ), seed 000 §2.1
+    """`mu_bar_scalar` per element: μ̄(θ, σ), seed 000 §2.1."""
+    t1, t2, t3 = _theta_cols(theta)
+    return elementwise(lambda a, b, c, sig: mu_bar_scalar((a, b, c), sig), t1, t2, t3,
+                       np.asarray(sigma, dtype=float))
 
 
 def mu(theta: np.ndarray, sigma: np.ndarray, v: np.ndarray, p: AdhesionParams) -> np.ndarray:
-    """μ(θ, σ, v) = μ̄(θ, k2(v) σ) / k1(v), eq. (1) seed 000, with k_i(v) = 1 + π_i v."""
-    theta = np.asarray(theta, dtype=float)
-    return mu_cols(theta[..., 0], theta[..., 1], theta[..., 2], np.asarray(sigma, dtype=float),
-                   np.asarray(v, dtype=float), p)
+    """`mu_scalar` per element: μ(θ, σ, v), eq. (1) seed 000."""
+    t1, t2, t3 = _theta_cols(theta)
+    return elementwise(lambda a, b, c, sig, vel: mu_scalar((a, b, c), sig, vel, p), t1, t2, t3,
+                       np.asarray(sigma, dtype=float), np.asarray(v, dtype=float))
 
 
-def mu_cols(t1, t2, t3, sigma, v, p: AdhesionParams):
-    """`mu` with θ given as its three columns (the plant keeps them so); p's fields may be 0-d arrays."""
-    if p.constant_mu is not None:
-        return p.constant_mu * np.minimum(sigma * _INV_RAMP, _ONE)  # flat μ (test hook)
-    k1 = p.pi1_s_per_m * v + _ONE                                  # k1(v) = 1 + π1 v, seed 000 §2.1
-    k2 = k1 if p.pi2_s_per_m is p.pi1_s_per_m else p.pi2_s_per_m * v + _ONE  # k2(v) = 1 + π2 v
-    return _mu_bar_cols(t1, t2, t3, k2 * sigma) / k1              # μ̄(θ, k2 σ) / k1(v), eq. (1) seed 000
-
-
+# ------------------------------------------------------------------------- closed-form peak, numpy
 def sigma_opt_bar(theta: np.ndarray) -> np.ndarray:
     """Maximiser σ̄° = (−θ2 + √(θ2² + 12 θ1 θ3)) / (6 θ3) of μ̄, seed 000 §2.1."""
-    theta = np.asarray(theta, dtype=float)
-    t1, t2, t3 = theta[..., 0], theta[..., 1], theta[..., 2]
+    t1, t2, t3 = _theta_cols(theta)
     return (-t2 + np.sqrt(t2 * t2 + 12.0 * t1 * t3)) / (6.0 * t3)  # seed 000 §2.1
 
 

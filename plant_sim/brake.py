@@ -1,6 +1,9 @@
 """Pneumatic brake per car: EP valve, WSP dump valve, brake cylinder, pressure → torque hysteresis.
 
-Pure functions of (state, inputs, params), vectorised over cars.
+Pure functions of (state, inputs, params). The `*_scalar` functions are the implementation: one car,
+Python floats, called per car by the plant's step (why scalar: `plant_sim.plant`); `cylinder_pressure_step`
+and `hysteresis_torque` are their array wrappers over cars (`plant_sim.elementwise`). The input sanitizers
+are numpy: they run only when an input is bad.
 """
 
 from __future__ import annotations
@@ -9,6 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from plant_sim.elementwise import elementwise
 from plant_sim.params import BrakeParams
 
 # WSP dump-valve states (the DBC's WspValve signal)
@@ -16,8 +20,6 @@ WSP_FILL = 0   # normal: the EP valve acts on the cylinder
 WSP_HOLD = 1   # cylinder isolated: pressure held
 WSP_VENT = 2   # cylinder dumped to atmosphere by the WSP valve
 WSP_STATES = frozenset((WSP_FILL, WSP_HOLD, WSP_VENT))
-# literals as 0-d arrays: numpy runs a ufunc faster on two arrays than on an array and a Python float
-_ZERO = np.array(0.0)
 
 
 def sanitize_valve_cmd(valve_cmd: np.ndarray) -> tuple[np.ndarray, int]:
@@ -47,42 +49,52 @@ def sanitize_wsp_valve(wsp_valve: np.ndarray) -> tuple[np.ndarray, int]:
 
 class ValveTable(NamedTuple):
     """Pressure change over one step by WSP state (index 0 FILL, 1 HOLD, 2 VENT): for opening u of a car
-    in WSP state w, dp = u·fill[w] if u > 0, u·vent[w] if u < 0, plus dump[w]."""
+    in WSP state w, dp = u·fill[w] if u > 0, u·vent[w] if u < 0, plus dump[w]; then 0 ≤ p ≤ p̄."""
 
-    fill_Pa: np.ndarray      # (3,) per unit opening
-    vent_Pa: np.ndarray      # (3,) per unit opening
-    dump_Pa: np.ndarray      # (3,)
-    vent_ge_fill: bool       # vent rate ≥ fill rate: u·fill (u > 0) / u·vent (u < 0) is the smaller product
+    fill_Pa: tuple[float, float, float]   # per unit opening
+    vent_Pa: tuple[float, float, float]   # per unit opening
+    dump_Pa: tuple[float, float, float]
+    vent_ge_fill: bool    # vent rate ≥ fill rate: u·fill (u > 0) / u·vent (u < 0) is the smaller product
+    p_max_Pa: float       # reservoir pressure p̄
 
 
 def valve_table(bp: BrakeParams, dt_s: float) -> ValveTable:
-    fill, vent, dump = np.zeros(3), np.zeros(3), np.zeros(3)
+    """The valves' pressure change over a step of dt_s [s], by WSP state (see ValveTable)."""
+    dt_s = float(dt_s)
+    fill, vent, dump = [0.0] * 3, [0.0] * 3, [0.0] * 3
     fill[WSP_FILL] = bp.fill_rate_Pa_per_s * dt_s       # FILL: the EP valve fills (u > 0) ...
     vent[WSP_FILL] = bp.vent_rate_Pa_per_s * dt_s       # ... or vents (u < 0); HOLD: nothing moves
     dump[WSP_VENT] = -bp.wsp_vent_rate_Pa_per_s * dt_s  # VENT: the dump valve empties the cylinder
-    return ValveTable(fill, vent, dump, bool(bp.vent_rate_Pa_per_s >= bp.fill_rate_Pa_per_s))
+    return ValveTable(tuple(fill), tuple(vent), tuple(dump),
+                      bool(bp.vent_rate_Pa_per_s >= bp.fill_rate_Pa_per_s), float(bp.p_max_Pa))
 
 
-def cylinder_pressure_step(p: np.ndarray, valve_cmd: np.ndarray, wsp_valve: np.ndarray, dt_s: float,
-                           bp: BrakeParams, table: ValveTable | None = None) -> np.ndarray:
-    """Cylinder pressure after dt_s [s], exact for inputs held over the step.
+# ------------------------------------------------------------------------------------ scalar: one car
+# max(a, b) is written `b if b > a else a` and min(a, b) `b if b < a else a` (the same value, NaN and ±0
+# included): the builtins cost ~0.1–0.25 µs a call, and these run for every car at every step.
+def cylinder_pressure_scalar(p_Pa: float, valve_cmd: float, wsp_valve: int, table: ValveTable) -> float:
+    """Cylinder pressure [Pa] after one step, exact for inputs held over the step (table = valve_table).
 
     EP valve with opening valve_cmd ∈ [−1, 1] (finite; `sanitize_valve_cmd` makes it so): dp/dt =
-    valve_cmd · fill_rate if > 0, else valve_cmd · vent_rate. The WSP dump valve (wsp_valve, ints in
-    {0, 1, 2}) overrides it: FILL (0) lets the EP valve act, HOLD (1) isolates the cylinder (dp/dt = 0),
-    VENT (2) dumps it (dp/dt = −wsp_vent_rate). The result is clipped to [0, p̄] (eq. (5a) seed 001).
-    A pressure controller closing the loop on the valve turns this into the first-order lag of eq. (4)
-    seed 001. table = valve_table(bp, dt_s), computed here unless the caller keeps it.
+    valve_cmd · fill_rate if > 0, else valve_cmd · vent_rate. The WSP dump valve (wsp_valve ∈ {0, 1, 2})
+    overrides it: FILL (0) lets the EP valve act, HOLD (1) isolates the cylinder (dp/dt = 0), VENT (2)
+    dumps it (dp/dt = −wsp_vent_rate). The result is clipped to [0, p̄] (eq. (5a) seed 001). A pressure
+    controller closing the loop on the valve turns this into the first-order lag of eq. (4) seed 001.
     """
-    fill, vent, dump, vent_ge_fill = valve_table(bp, dt_s) if table is None else table
+    fill, vent, dump, vent_ge_fill, p_max = table
     by_fill, by_vent = valve_cmd * fill[wsp_valve], valve_cmd * vent[wsp_valve]
     # EP valve: u·fill for u > 0, u·vent for u < 0, i.e. the smaller product if vent ≥ fill, else the larger
-    ep = np.minimum(by_fill, by_vent) if vent_ge_fill else np.maximum(by_fill, by_vent)
-    return np.minimum(np.maximum(p + ep + dump[wsp_valve], _ZERO), bp.p_max_Pa)  # 0 ≤ p ≤ p̄, eq. (5a) s. 001
+    if vent_ge_fill:
+        ep = by_vent if by_vent < by_fill else by_fill              # min(by_fill, by_vent)
+    else:
+        ep = by_vent if by_vent > by_fill else by_fill              # max(by_fill, by_vent)
+    p = p_Pa + ep + dump[wsp_valve]
+    p = 0.0 if 0.0 > p else p                                       # 0 ≤ p ...
+    return p_max if p_max < p else p                                # ... ≤ p̄, eq. (5a) seed 001
 
 
-def hysteresis_torque(tau_prev: np.ndarray, p: np.ndarray, bp: BrakeParams) -> np.ndarray:
-    """Brake torque τ ≥ 0 [N·m] at cylinder pressure p, eq. (10a) seed 001 as a play operator.
+def hysteresis_torque_scalar(tau_prev_Nm: float, p_Pa: float, bp: BrakeParams) -> float:
+    """Brake torque τ ≥ 0 [N·m] at cylinder pressure p [Pa], eq. (10a) seed 001 as a play operator.
 
     The squeeze line τ = ᾱ p + β̄ lies below the release line τ = α̲ p + β̲ (same p). The three cases
     of (10a), with τ⁻ = tau_prev:
@@ -92,11 +104,27 @@ def hysteresis_torque(tau_prev: np.ndarray, p: np.ndarray, bp: BrakeParams) -> n
     (10a)'s conditions u ≥ p / u ≤ p are implied: τ⁻ can only lie below the squeeze line if p rose since
     the last step, above the release line if it fell. The torque is then clipped at 0 (block off the disc).
     """
-    alpha_p = bp.alpha_squeeze_Nm_per_Pa * p
-    squeeze = alpha_p + bp.beta_squeeze_Nm                           # squeeze line, eq. (6) seed 001
-    if bp.alpha_release_Nm_per_Pa is not bp.alpha_squeeze_Nm_per_Pa:  # (`as_arrays` shares equal values)
-        alpha_p = bp.alpha_release_Nm_per_Pa * p
-    release = alpha_p + bp.beta_release_Nm                           # release line, eq. (6) seed 001
-    tau = np.maximum(tau_prev, squeeze)    # squeeze case of (10a): lifted onto the squeeze line
-    tau = np.minimum(tau, release)         # release case of (10a): pushed down onto the release line
-    return np.maximum(tau, _ZERO)          # hold case leaves τ⁻; torque never negative
+    squeeze = bp.alpha_squeeze_Nm_per_Pa * p_Pa + bp.beta_squeeze_Nm   # squeeze line, eq. (6) seed 001
+    release = bp.alpha_release_Nm_per_Pa * p_Pa + bp.beta_release_Nm   # release line, eq. (6) seed 001
+    tau = squeeze if squeeze > tau_prev_Nm else tau_prev_Nm   # squeeze case of (10a): lifted onto the line
+    tau = release if release < tau else tau                    # release case of (10a): pushed down onto it
+    return 0.0 if 0.0 > tau else tau                           # hold case leaves τ⁻; torque never negative
+
+
+# ------------------------------------------------------------------------------ array wrappers, n cars
+def cylinder_pressure_step(p: np.ndarray, valve_cmd: np.ndarray, wsp_valve: np.ndarray, dt_s: float,
+                           bp: BrakeParams, table: ValveTable | None = None) -> np.ndarray:
+    """`cylinder_pressure_scalar` per car: pressures [Pa] after dt_s [s]; wsp_valve ints in {0, 1, 2}.
+
+    table = valve_table(bp, dt_s), computed here unless the caller keeps it.
+    """
+    table = valve_table(bp, dt_s) if table is None else table
+    u = np.asarray(valve_cmd, dtype=float)
+    return elementwise(cylinder_pressure_scalar, np.asarray(p, dtype=float), u,
+                       np.asarray(wsp_valve).astype(np.intp), params=(table,))
+
+
+def hysteresis_torque(tau_prev: np.ndarray, p: np.ndarray, bp: BrakeParams) -> np.ndarray:
+    """`hysteresis_torque_scalar` per car: brake torques [N·m] at pressures p [Pa], eq. (10a) seed 001."""
+    return elementwise(hysteresis_torque_scalar, np.asarray(tau_prev, dtype=float),
+                       np.asarray(p, dtype=float), params=(bp,))

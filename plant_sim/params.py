@@ -9,10 +9,7 @@ with the reason.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
-from types import SimpleNamespace
-
-import numpy as np
+from dataclasses import dataclass, field
 
 from plant_sim.errors import PlantConfigError
 
@@ -58,7 +55,8 @@ def theta2_for_locked_ratio(sigma_opt: float, mu_opt: float, locked_ratio: float
 # family allows at most 2√σ̄°/(1+σ̄°) ≈ 0.24 for extra_wet).
 LOCKED_RATIO = 0.2
 RAIL_PEAKS: dict[str, tuple[float, float]] = {
-    # name: (σ̄° [-], μ̄° [-]) at v = 0 (representative values, chosen; ordering of seed 000 Fig. 4)
+    # name: (σ̄° [-], μ̄° [-]) at v = 0; representative values, chosen (seed 000 §3 names the conditions
+    # from extra dry to extra wet but gives no numbers); at speed v both scale by 1/k(v), eq. (2)
     "extra_dry": (0.04, 0.35),
     "dry": (0.03, 0.25),
     "wet": (0.02, 0.10),
@@ -101,16 +99,19 @@ class TrainParams:
     """The train: n cars in a row, car 1 leading, couplers between neighbours, one lumped wheelset per car."""
 
     masses_kg: tuple[float, ...] = (40_000.0,) * 6   # representative value, chosen: loaded metro car
-    car_pitch_m: float = 25.0             # distance of car centres with couplers at rest (2d + l0, eq. 1 seed 003)
+    car_pitch_m: float = 25.0             # car centres' distance, couplers at rest (2d + l0, eq. 1 seed 003)
     coupler_k_N_per_m: float = 80_000.0   # κ, seed 003 Table 2
     coupler_eps_per_m2: float = -0.5      # ε, seed 003 Table 2
     coupler_c_Ns_per_m: float = 2.0e4     # damping, representative value, chosen: ζ ≈ 0.25 for two 40 t cars
     # Draft-gear travel and solid end stop (representative values, chosen): seed 003's spring alone
     # would stretch ~0.5 m under the ~40 kN a car-to-car brake difference gives, and with ε < 0 its
     # force falls past |Δl| = 0.82 m (cars could pass through each other). Real couplers go solid
-    # after ~0.1 m of travel; the stop stiffness keeps ω·dt ≈ 0.03 at dt = 1 ms.
+    # after ~0.1 m of travel; the stop stiffness keeps ω·dt ≈ 0.03 at dt = 1 ms. Its damping grows with
+    # the penetration b (Hunt–Crossley contact, force k b + χ |b| ḃ, continuous at separation): ζ ≈ 0.5
+    # for two 40 t cars 5 mm into the stop, as a friction draft gear absorbs the impact.
     coupler_stroke_m: float = 0.10
     coupler_stop_k_N_per_m: float = 1.0e7
+    coupler_stop_chi_Ns_per_m2: float = 1.0e8
     # Davis resistance f_r = c0 + c1 v + c2 v² per car, eq. (4) seed 003 (representative values, chosen:
     # ≈ 3 kN for a 40 t car at 25 m/s, the lead car's nose adds aerodynamic drag)
     davis_c0_N: float = 800.0
@@ -129,8 +130,8 @@ class TrainParams:
                      "coupler_stroke_m", "coupler_stop_k_N_per_m"):
             val = getattr(self, name)
             _require(val > 0.0 and not math.isnan(val), "TrainParams", f"{name} must be > 0, got {val!r}")
-        for name in ("coupler_c_Ns_per_m", "davis_c0_N", "davis_c1_Ns_per_m", "davis_c2_Ns2_per_m2",
-                     "davis_c2_lead_Ns2_per_m2"):
+        for name in ("coupler_c_Ns_per_m", "coupler_stop_chi_Ns_per_m2", "davis_c0_N", "davis_c1_Ns_per_m",
+                     "davis_c2_Ns2_per_m2", "davis_c2_lead_Ns2_per_m2"):
             val = getattr(self, name)
             _require(math.isfinite(val) and val >= 0.0, "TrainParams", f"{name} must be >= 0, got {val!r}")
         _require(math.isfinite(self.coupler_eps_per_m2), "TrainParams", "coupler_eps_per_m2 must be finite")
@@ -206,17 +207,3 @@ class PlantParams:
     def n_cars(self) -> int:
         return self.train.n_cars
 
-
-def as_arrays(params) -> SimpleNamespace:
-    """params' fields with every float as a 0-d float64 array, for the plant's inner loop.
-
-    The pure physics functions accept either; numpy runs a ufunc on two arrays faster than on an array
-    and a Python float (≈ 0.5 µs against ≈ 0.75 µs per call at n = 6), and the step makes ~70 calls.
-    Equal floats share one array object, so a function may test `a is b` to skip recomputing a value.
-    """
-    seen: dict[float, np.ndarray] = {}
-    out = {}
-    for f in fields(params):
-        v = getattr(params, f.name)
-        out[f.name] = seen.setdefault(v, np.array(v)) if isinstance(v, float) else v
-    return SimpleNamespace(**out)

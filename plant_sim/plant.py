@@ -17,8 +17,21 @@ Integrator (one step of dt = dt_us, 1 ms by default):
   * standstill: a car whose speed would cross zero stops at v = 0 (brakes and resistances cannot reverse
     motion; rolling backwards is not modelled); the slip speed is clipped to [0, v], i.e. 0 ≤ ω ≤ v/r,
     a locked wheel has ω = 0 and s = v. A braked car at rest stays at rest: the chord slope is huge at
-    s = 0, which makes the linearised adhesion the static (rolling-constraint) force.
-tests/plant/test_plant_integrator.py checks the step against a reference at dt = 0.1 ms.
+    s ≈ 0, which makes the linearised adhesion the static (rolling-constraint) force.
+tests/plant/test_plant_integrator.py checks the step against a reference at dt = 0.1 ms,
+tests/plant/test_plant_regression.py pins a trajectory of the default train.
+
+Why the step is scalar, against the style guide's "vectorise over cars with numpy": at n ≤ 8 cars a
+numpy call costs its fixed overhead (~0.45 µs) whatever the array size, and the vectorised step made ~62 of
+them: 37–40 µs per step on its own, 50–60 µs inside the lockstep HIL, which then ran the default scenario
+at 8–9.5x real time, short of the 10x acceptance point. The step is therefore a loop over the cars calling
+scalar functions on Python floats (the `*_scalar` functions of `brake`, `dynamics`, `adhesion` and
+`integrate_car_scalar` below): ~16 µs per step on its own, ~24 µs in the HIL (11–12x real time), with
+results bit-identical to the vectorised step's (same equations, same order of operations). Each equation
+has this one implementation; the array functions of those modules wrap it (`plant_sim.elementwise`) for
+tests and for `truth()`, which runs every 10 ms. What the step still spends above a fully inlined loop
+(~12 µs) is Python's call overhead, ~60 calls a step: the price of keeping one function per equation.
+The state is kept as lists of Python floats and turned into numpy arrays only by `sense()` and `truth()`.
 
 Time is an integer count of microseconds, t_us = n_steps · dt_us.
 """
@@ -26,71 +39,85 @@ Time is an integer count of microseconds, t_us = n_steps · dt_us.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
-from plant_sim.adhesion import mu_cols, slip_ratio, slip_ratio_unclipped
+from plant_sim.adhesion import mu, mu_scalar, slip_ratio, slip_ratio_unclipped_scalar
 from plant_sim.adhesion import mu_opt as _mu_opt
 from plant_sim.adhesion import sigma_opt as _sigma_opt
 from plant_sim.brake import (
     WSP_STATES,
-    cylinder_pressure_step,
-    hysteresis_torque,
+    cylinder_pressure_scalar,
+    hysteresis_torque_scalar,
     sanitize_valve_cmd,
     sanitize_wsp_valve,
     valve_table,
 )
 from plant_sim.dynamics import (
-    CarConstants,
     car_constants,
     coupler_extension,
+    coupler_extension_scalar,
     coupler_force,
+    coupler_force_scalar,
     coupler_rate,
-    grade_curvature_resistance,
-    other_forces,
-    slip_rate,
+    coupler_rate_scalar,
+    grade_curvature_resistance_scalar,
+    other_force_scalar,
+    slip_rate_scalar,
 )
 from plant_sim.errors import PlantConfigError
-from plant_sim.params import PlantParams, as_arrays
+from plant_sim.params import PlantParams
 from plant_sim.sensors import SensorModel, Sensors
 from plant_sim.track import Track
 
-S_EPS_MPS = 1e-9  # keeps the chord slope f/s finite at s = 0 (where f = 0 too), chosen
+# Adhesion is evaluated at s + S_EPS_MPS (chosen): the chord slope f/s is then finite and, at s = 0,
+# very large (μ ∝ √s), so a braked car at rest is held by the static force the linearised step finds
+# (up to τ/r) instead of creeping off and back to 0 every other step. The bias is ≲ 50 N per car on a
+# free-rolling wheel, against c0 = 800 N of rolling resistance.
+S_EPS_MPS = 1e-9
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class StepConstants:
-    """What the integrator needs besides the car constants, as arrays (see `as_arrays`)."""
+def integrate_car_scalar(x_m: float, v_mps: float, s_mps: float, s_reg_mps: float, f_N: float,
+                         f_other_N: float, tau_Nm: float, inv_mass_per_kg: float, r_over_J: float,
+                         slip_gain_per_kg: float, inv_dt_per_s: float, inv_mass_dt: float,
+                         dt_s: float) -> tuple[float, float, float]:
+    """One integrator step of one car (module docstring): (x [m], v [m/s], s [m/s]) at the end of the step.
 
-    dt_s: np.ndarray               # 0-d
-    inv_dt_per_s: np.ndarray       # 0-d
-    inv_mass_dt: np.ndarray        # (n,) dt / m
-    s_eps_mps: np.ndarray          # 0-d S_EPS_MPS
-    zero: np.ndarray               # 0-d 0.0
-
-
-def step_constants(dt_s: float, cc: CarConstants) -> StepConstants:
-    return StepConstants(dt_s=np.array(dt_s), inv_dt_per_s=np.array(1.0 / dt_s),
-                         inv_mass_dt=cc.inv_mass_per_kg * dt_s, s_eps_mps=np.array(S_EPS_MPS),
-                         zero=np.array(0.0))
-
-
-def semi_implicit_speeds(v: np.ndarray, s: np.ndarray, f: np.ndarray, f_other: np.ndarray, tau: np.ndarray,
-                         cc: CarConstants, sc: StepConstants) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One linearly-implicit Euler step of car speed v and slip speed s (module docstring).
-
-    f is the adhesion force at (v, s), f_other every other force on the car, tau the brake torque over
-    the step. Returns (v, s) at the end of the step and the adhesion force applied over it.
+    f is the adhesion force [N] at slip speed s_reg = s + S_EPS_MPS, f_other every other force on the car
+    [N], tau the brake torque [N·m] over the step; inv_mass_dt = dt/m. Speeds: linearly-implicit Euler with
+    the standstill handling, v ≥ 0 (a car cannot reverse) and 0 ≤ s ≤ v (0 ≤ ω ≤ v/r); position:
+    symplectic Euler.
     """
-    s_dot = slip_rate(f_other, f, tau, cc)                          # explicit ṡ, eq. (3) seed 001
-    chord = f / (s + sc.s_eps_mps)                                  # f(s) ≈ c·s, c ≥ 0
-    ds = s_dot / (sc.inv_dt_per_s + cc.slip_gain_per_kg * chord)    # (1 + dt (1/M + r²/J) c) Δs = dt ṡ
-    f_new = f + chord * ds                                          # adhesion force over the step
-    # v̇ = (F_other − f)/m, eq. (3) seed 003; a car cannot reverse
-    v_new = np.maximum(v + (f_other - f_new) * sc.inv_mass_dt, sc.zero)
-    s_new = np.minimum(np.maximum(s + ds, sc.zero), v_new)          # 0 ≤ ω ≤ v/r
-    return v_new, s_new, f_new
+    s_dot = slip_rate_scalar(f_other_N, f_N, tau_Nm, inv_mass_per_kg, r_over_J,
+                             slip_gain_per_kg)                    # explicit ṡ, eq. (3) seed 001
+    chord = f_N / s_reg_mps                                        # f(s) ≈ c·s, c > 0
+    ds = s_dot / (inv_dt_per_s + slip_gain_per_kg * chord)         # (1 + dt (1/M + r²/J) c) Δs = dt ṡ
+    f_new = f_N + chord * ds                                       # adhesion force over the step
+    # v̇ = (F_other − f)/m, eq. (3) seed 003; a car cannot reverse: v ≥ 0
+    # (max/min written out, `b if b > a else a` = max(a, b): the builtins cost ~0.1–0.25 µs a call)
+    v_new = v_mps + (f_other_N - f_new) * inv_mass_dt
+    v_new = 0.0 if 0.0 > v_new else v_new
+    s_new = s_mps + ds
+    s_new = 0.0 if 0.0 > s_new else s_new
+    s_new = v_new if v_new < s_new else s_new                      # 0 ≤ s ≤ v, i.e. 0 ≤ ω ≤ v/r
+    return x_m + v_new * dt_s, v_new, s_new                        # ẋ = v at the new v: symplectic Euler
+
+
+class TruthSnapshot(NamedTuple):
+    """The plant's raw state at one instant, per car (lists of floats as the step holds them)."""
+
+    x: list          # car centre position [m]
+    v_prev: list     # speed one step earlier [m/s] (for v̇)
+    v: list          # speed [m/s]
+    s: list          # slip speed v − rω [m/s]
+    p: list          # cylinder pressure [Pa]
+    tau: list        # brake torque [N m]
+    f_other: list    # every force on the car but adhesion, over the last step [N]
+    u: list          # EP valve command applied over the last step [-]
+    w: list          # WSP dump valve state applied over the last step (0 FILL, 1 HOLD, 2 VENT)
+    theta: list      # adhesion curve parameters (θ1, θ2, θ3) at the car
 
 
 class Plant:
@@ -100,8 +127,8 @@ class Plant:
                  seed: int = 0) -> None:
         if not (math.isfinite(v0_mps) and v0_mps >= 0.0):
             raise PlantConfigError(f"Plant: v0_mps must be finite and >= 0, got {v0_mps!r}")
-        if not math.isfinite(x0_m):
-            raise PlantConfigError(f"Plant: x0_m must be finite, got {x0_m!r}")
+        if not (math.isfinite(x0_m) and abs(x0_m) < 1e9):   # float spacing stays ≪ coupler travel
+            raise PlantConfigError(f"Plant: x0_m must be finite and within ±1e9 m, got {x0_m!r}")
         if not isinstance(seed, int | np.integer) or isinstance(seed, bool) or seed < 0:
             raise PlantConfigError(f"Plant: seed must be an int >= 0, got {seed!r}")
         self.params = params
@@ -109,45 +136,54 @@ class Plant:
         tp = params.train
         n = params.n_cars
         self._n = n
-        self._tp, self._ap = tp, params.adhesion
-        self._bpa, self._apa = as_arrays(params.brake), as_arrays(params.adhesion)
-        self._valve_table = valve_table(params.brake, params.dt_us * 1e-6)
-        self._cc = cc = car_constants(tp)
-        self._sc = step_constants(params.dt_us * 1e-6, cc)
+        self._tp, self._ap, self._bp = tp, params.adhesion, params.brake
         self._dt_us = params.dt_us
-        self._dt = params.dt_us * 1e-6
+        self._dt = dt = params.dt_us * 1e-6
+        self._inv_dt = 1.0 / dt
+        self._valve_table = valve_table(params.brake, dt)
+        self._cc = cc = car_constants(tp)
+        # per car, what the step needs besides the track: (1/m, 1/M + r²/J, dt/m, N = m g, Davis c2)
+        self._car_k = tuple(zip(cc.inv_mass_per_kg, cc.slip_gain_per_kg,
+                                [im * dt for im in cc.inv_mass_per_kg], cc.normal_force_N, cc.c2_Ns2_per_m2,
+                                strict=True))
         self._n_steps = 0
         self.bad_inputs = 0                     # non-finite valve commands and invalid WSP states received
 
-        # state: car centre x, speed v, wheel slip speed s = v − rω, cylinder pressure p, brake torque τ
-        self._x = x0_m - tp.car_pitch_m * np.arange(n, dtype=float)
-        self._v = np.full(n, float(v0_mps))
+        # state, lists of Python floats (one per car): car centre x, speed v, wheel slip speed s = v − rω,
+        # cylinder pressure p, brake torque τ
+        self._x = [float(x0_m) - tp.car_pitch_m * float(i) for i in range(n)]
+        self._v = [float(v0_mps)] * n
         self._v_prev = self._v                  # for v̇ of the last step
-        self._s = np.zeros(n)                   # rolling: ω = v/r
-        self._p = np.zeros(n)
-        self._tau = np.zeros(n)
+        self._s = [0.0] * n                     # rolling: ω = v/r
+        self._p = [0.0] * n
+        self._tau = [0.0] * n
         self._u_list: list = [0.0] * n          # inputs of the last step, as applied
         self._w_list: list = [0] * n
         self._shape = (n,)
-        self._f = np.zeros(n)                   # adhesion force applied over the last step
-        self._ones = np.ones(n)
+        self._f_other = [0.0] * n               # every force but adhesion over the last step
         self._sensors = SensorModel(params.sensors, int(seed))
         self._refresh_track()
 
     # ------------------------------------------------------------------------------------------------- track
     def _refresh_track(self) -> None:
         """Look the track up at the cars' positions and cache what stays constant until a car meets a knot."""
-        smp = self.track.sample(self._x)
-        self._theta = tuple(np.ascontiguousarray(smp.theta.T))         # θ1, θ2, θ3, each (n,)
+        x = np.array(self._x)
+        smp = self.track.sample(x)
+        self._theta = [tuple(row) for row in smp.theta.tolist()]       # θ = (θ1, θ2, θ3) per car
         self._sin = smp.sin_grade
-        f_c = grade_curvature_resistance(self._cc.mass_kg, smp.sin_grade, smp.curvature_deg, self._tp.g_mps2)
-        self._static_force = -(self._cc.c0_N + f_c)                    # −(c0 + f_c), eqs. (4)–(5) seed 003
-        self._budget_m = float(np.min(smp.next_change_m - self._x))    # > 0: no car on a new interval before
-        # θ is affine in x on each interval: inside a smooth blend it is updated every step from these
-        self._theta_live = bool(np.any(smp.dtheta_per_m))
-        self._theta_anchor = np.ascontiguousarray(smp.theta_anchor.T)  # (3, n)
-        self._dtheta = np.ascontiguousarray(smp.dtheta_per_m.T)         # (3, n)
-        self._anchor_m = smp.anchor_m
+        cc, g = self._cc, self._tp.g_mps2
+        # −(c0 + f_c), eqs. (4)–(5) seed 003, joined to the car's constants for the step
+        static_force = [-(cc.c0_N + grade_curvature_resistance_scalar(m, sg, dc, g))
+                        for m, sg, dc in zip(cc.mass_kg, smp.sin_grade.tolist(), smp.curvature_deg.tolist(),
+                                             strict=True)]
+        self._car = [(static,) + k for static, k in zip(static_force, self._car_k, strict=True)]
+        self._budget_m = float(np.min(smp.next_change_m - x))          # > 0: no car on a new interval before
+        # θ is affine in x on each interval: for the cars inside a smooth blend it is updated every step,
+        # θ = θ_anchor + dθ/dx · (x − anchor), as `Track.sample` does
+        self._theta_live = [
+            (i, xa, *th, *dth) for i, (xa, th, dth) in enumerate(zip(
+                smp.anchor_m.tolist(), smp.theta_anchor.tolist(), smp.dtheta_per_m.tolist(), strict=True))
+            if any(dth)]
 
     # ------------------------------------------------------------------------------------------------- step
     @property
@@ -160,7 +196,7 @@ class Plant:
         return self._n
 
     def step(self, valve_cmd: np.ndarray, wsp_valve: np.ndarray) -> None:
-        """Advance one dt_us with the EP valve openings (float in [−1, 1]) and WSP valve states (0/1/2) per car.
+        """Advance one dt_us with per-car EP valve openings (float in [−1, 1]) and WSP valve states (0/1/2).
 
         Out-of-range openings are clipped; non-finite ones are taken as 0 (valve closed, pressure held)
         and invalid WSP states as 0 (FILL, dump valve inactive), both counted in `bad_inputs`.
@@ -170,80 +206,119 @@ class Plant:
         if u.shape != self._shape or w.shape != self._shape:
             raise PlantConfigError(f"Plant.step: need {self._n} valve commands and WSP states, "
                                    f"got shapes {u.shape} and {w.shape}")
-        u_list, w_list = u.tolist(), w.tolist()                         # checked in Python: cheaper at n ≈ 6
-        if not (-1.0 <= min(u_list) and max(u_list) <= 1.0 and math.isfinite(math.fsum(u_list))):
+        u_list, w_list = u.tolist(), w.tolist()
+        # inputs equal to the last ones applied are valid (the controllers update them every 10 ms)
+        if u_list != self._u_list and not (-1.0 <= min(u_list) and max(u_list) <= 1.0
+                                           and math.isfinite(sum(u_list))):  # NaN too
             u, n_bad = sanitize_valve_cmd(u)
             self.bad_inputs += n_bad
             u_list = u.tolist()
-        if w_list != self._w_list:                                      # validate only when it changes
-            if not (w.dtype.kind in "iu" and WSP_STATES.issuperset(w_list)):
-                w, n_bad = sanitize_wsp_valve(w)
-                self.bad_inputs += n_bad
-                w_list = w.tolist()
-        cc, sc = self._cc, self._sc
+        if w.dtype.kind not in "iu" or (w_list != self._w_list and not WSP_STATES.issuperset(w_list)):
+            w, n_bad = sanitize_wsp_valve(w)
+            self.bad_inputs += n_bad
+            w_list = w.tolist()
         if any(u_list) or any(w_list):                                  # else p and τ stay as they are
-            p = cylinder_pressure_step(self._p, u, w, sc.dt_s, self._bpa, self._valve_table)
-            tau = hysteresis_torque(self._tau, p, self._bpa)            # eq. (10a) seed 001
+            table, bp = self._valve_table, self._bp
+            p, tau = [], []
+            for p_i, tau_i, u_i, w_i in zip(self._p, self._tau, u_list, w_list, strict=True):
+                p_i = cylinder_pressure_scalar(p_i, u_i, w_i, table)
+                p.append(p_i)
+                tau.append(hysteresis_torque_scalar(tau_i, p_i, bp))    # eq. (10a) seed 001
         else:
             p, tau = self._p, self._tau
 
-        # forces at the start of the step
+        # forces at the start of the step: couplers (Φ = 0 ahead of the first and behind the last car) ...
         x, v, s = self._x, self._v, self._s
-        phi = coupler_force(coupler_extension(x, cc), coupler_rate(v, cc), cc)
-        f_other = other_forces(v, phi, self._static_force, cc)
-        t1, t2, t3 = self._theta
-        f = mu_cols(t1, t2, t3, slip_ratio_unclipped(s, v), v, self._apa) * cc.normal_force_N  # f = μN
-        v_new, s_new, f_new = semi_implicit_speeds(v, s, f, f_other, tau, cc, sc)
-        x_new = x + v_new * sc.dt_s                                     # symplectic Euler
+        cc = self._cc
+        pitch = cc.car_pitch_m
+        phi = [0.0]
+        phi += [coupler_force_scalar(coupler_extension_scalar(x_f, x_r, pitch), coupler_rate_scalar(v_f, v_r),
+                                     cc)
+                for x_f, x_r, v_f, v_r in zip(x, x[1:], v, v[1:], strict=False)]   # coupler i: cars i, i+1
+        phi.append(0.0)
+        # ... then per car: other forces, adhesion, and the integrator step
+        ap, c1, r_over_J, inv_dt, dt = self._ap, cc.c1_Ns_per_m, cc.r_over_J, self._inv_dt, self._dt
+        x_new, v_new, s_new, f_others = [], [], [], []
+        for x_i, v_i, s_i, tau_i, theta_i, phi_f, phi_r, (static, inv_m, gain, inv_m_dt, normal, c2) in zip(
+                x, v, s, tau, self._theta, phi, phi[1:], self._car, strict=False):   # phi: n + 1 entries
+            f_other = other_force_scalar(v_i, phi_f, phi_r, static, c1, c2)
+            s_reg = s_i + S_EPS_MPS                                     # > 0 (see S_EPS_MPS)
+            # f = μN, eq. (1a) seed 001
+            f = mu_scalar(theta_i, slip_ratio_unclipped_scalar(s_reg, v_i), v_i, ap) * normal
+            x_i, v_i, s_i = integrate_car_scalar(x_i, v_i, s_i, s_reg, f, f_other, tau_i, inv_m, r_over_J,
+                                                 gain, inv_dt, inv_m_dt, dt)
+            x_new.append(x_i)
+            v_new.append(v_i)
+            s_new.append(s_i)
+            f_others.append(f_other)
 
         self._x, self._v_prev, self._v, self._s = x_new, v, v_new, s_new
-        self._p, self._tau, self._f = p, tau, f_new
+        self._p, self._tau, self._f_other = p, tau, f_others
         self._u_list, self._w_list = u_list, w_list
         self._n_steps += 1
-        self._budget_m -= self._dt * self._ones.dot(v_new)              # ≥ the farthest any car moved
+        self._budget_m -= dt * max(v_new)                               # the farthest any car moved
         if self._budget_m <= 0.0:
             self._refresh_track()
         elif self._theta_live:                                          # θ(x) on the current intervals
-            self._theta = tuple(self._theta_anchor + self._dtheta * (x_new - self._anchor_m))
+            theta = self._theta
+            for i, xa, a1, a2, a3, d1, d2, d3 in self._theta_live:
+                dx = x_new[i] - xa
+                theta[i] = (a1 + d1 * dx, a2 + d2 * dx, a3 + d3 * dx)
 
     # ----------------------------------------------------------------------------------------------- outputs
     @property
     def stopped(self) -> bool:
         """Every car at standstill."""
-        return not self._v.any()
+        return not any(self._v)
 
     def _accel(self) -> np.ndarray:
-        return (self._v - self._v_prev) * (1.0 / self._dt)
+        return (np.array(self._v) - np.array(self._v_prev)) * (1.0 / self._dt)
 
     def _omega(self) -> np.ndarray:
-        return (self._v - self._s) * (1.0 / self._cc.r_m)
+        return (np.array(self._v) - np.array(self._s)) * (1.0 / self._cc.r_m)
 
     def sense(self) -> Sensors:
         """What the cars' sensors report now (noisy, quantised, seeded)."""
-        return self._sensors.read(self._omega(), self._p, self._accel(), self._sin, self._tp.g_mps2)
+        return self._sensors.read(self._omega(), np.array(self._p), self._accel(), self._sin, self._tp.g_mps2)
 
-    def truth(self) -> dict[str, np.ndarray]:
-        """Ground truth per car (and per coupler), copies."""
-        tp, ap = self._tp, self._ap  # noqa: F841
-        x, v, s = self._x, self._v, self._s
-        theta = np.column_stack(self._theta)
+    def snapshot(self) -> TruthSnapshot:
+        """The raw state behind `truth()`, cheap enough to take every sample of a run.
+
+        The step replaces its state lists rather than changing them, so they are shared, not copied;
+        θ is copied because a blend updates it in place. `truth_series` turns snapshots into truth.
+        """
+        return TruthSnapshot(self._x, self._v_prev, self._v, self._s, self._p, self._tau, self._f_other,
+                             self._u_list, self._w_list, list(self._theta))
+
+    def truth_series(self, snaps: Sequence[TruthSnapshot]) -> dict[str, np.ndarray]:
+        """Ground truth for a sequence of snapshots: the keys of `truth()`, arrays (k, n) per car and
+        (k, n − 1) per coupler, derived in one pass at the end of a run rather than every sample."""
+        ap, cc = self._ap, self._cc
+        x, v_prev, v, s, p, tau, f_other, u, w, theta = (np.array(col) for col in zip(*snaps, strict=True))
         sigma = slip_ratio(s, v)
-        dl = coupler_extension(x, self._cc)
+        dl = coupler_extension(x, cc)
+        accel = (v - v_prev) * (1.0 / self._dt)
         return {
-            "x_m": x.copy(),
-            "v_mps": v.copy(),
-            "a_mps2": self._accel(),
-            "omega_rad_s": self._omega(),
-            "slip_speed_mps": s.copy(),
+            "x_m": x,
+            "v_mps": v,
+            "a_mps2": accel,
+            "omega_rad_s": (v - s) * (1.0 / cc.r_m),
+            "slip_speed_mps": s,
             "slip_ratio": sigma,
-            "mu": mu_cols(*self._theta, sigma, v, ap),
+            "mu": mu(theta, sigma, v, ap),
             "mu_opt": _mu_opt(theta, v, ap),
             "sigma_opt": _sigma_opt(theta, v, ap),
-            "p_Pa": self._p.copy(),
-            "tau_Nm": self._tau.copy(),
-            "valve_cmd": np.clip(np.array(self._u_list, dtype=float), -1.0, 1.0),
-            "wsp_valve": np.array(self._w_list, dtype=np.int64),
-            "brake_force_N": self._f.copy(),
+            "p_Pa": p.astype(float),
+            "tau_Nm": tau.astype(float),
+            "valve_cmd": np.clip(u.astype(float), -1.0, 1.0),
+            "wsp_valve": w.astype(np.int64),
+            # the adhesion force that moved the car over the last step, F_other − m v̇ (eq. (3) seed 003);
+            # at standstill it is the static force holding the car, not the linearised f
+            "brake_force_N": f_other - np.array(cc.mass_kg) * accel,
             "coupler_dl_m": dl,
-            "coupler_force_N": coupler_force(dl, coupler_rate(v, self._cc), self._cc),
+            "coupler_force_N": coupler_force(dl, coupler_rate(v, cc), cc),
         }
+
+    def truth(self) -> dict[str, np.ndarray]:
+        """Ground truth per car (and per coupler) now, fresh arrays."""
+        return {key: series[0] for key, series in self.truth_series([self.snapshot()]).items()}

@@ -38,7 +38,8 @@ class SensorModel:
     def read(self, omega_rad_s: np.ndarray, p_Pa: np.ndarray, a_mps2: np.ndarray, sin_grade: np.ndarray,
              g_mps2: float) -> Sensors:
         """Readings from the true ω, p and v̇ (a_mps2, + forward) of each car on a slope sin θ."""
-        noisy = np.stack([omega_rad_s, p_Pa, a_mps2 + g_mps2 * sin_grade])  # a_meas = a + g sin θ, eq. (1) s. 004
+        # the accelerometer reads a + g sin θ, eq. (1) seed 004
+        noisy = np.stack([omega_rad_s, p_Pa, a_mps2 + g_mps2 * sin_grade])
         noisy += self._std * self._rng.standard_normal(noisy.shape)
         q_w, q_p, q_a = self._q
         return Sensors(axle_speed_rad_s=np.maximum(quantise(noisy[0], q_w), 0.0),

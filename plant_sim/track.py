@@ -171,7 +171,8 @@ class Track:
 
     @classmethod
     def from_table(cls, x_m: Sequence[float], theta_rows: Sequence[Sequence[float]],
-                   gradient: Iterable[Sequence[float]] = (), curvature: Iterable[Sequence[float]] = ()) -> Track:
+                   gradient: Iterable[Sequence[float]] = (),
+                   curvature: Iterable[Sequence[float]] = ()) -> Track:
         """θ(x) as a table: linear between the rows at strictly increasing x_m, constant beyond the ends."""
         x = np.asarray(x_m, dtype=float).reshape(-1)
         rows = np.asarray(theta_rows, dtype=float)
@@ -189,7 +190,7 @@ class Track:
         pieces.append((x[-1], thetas[-1], zero))
         return cls(pieces, gradient=gradient, curvature=curvature)
 
-    # ------------------------------------------------------------------------------------------------ look-ups
+    # ----------------------------------------------------------------------------------------------- look-ups
     def _index(self, x) -> tuple[np.ndarray, np.ndarray]:
         x = np.atleast_1d(np.asarray(x, dtype=float))
         return x, np.searchsorted(self._x, x, side="right") - 1
@@ -211,8 +212,8 @@ class Track:
         """All profiles at x in one look-up, plus where each x's interval ends (the plant caches on it)."""
         x, i = self._index(x)
         theta = self._theta0[i] + self._dtheta[i] * (x - self._anchor[i])[:, None]
-        return TrackSample(theta, self._sin[i], self._curv[i], self._next[i], self._anchor[i], self._theta0[i],
-                           self._dtheta[i])
+        return TrackSample(theta, self._sin[i], self._curv[i], self._next[i], self._anchor[i],
+                           self._theta0[i], self._dtheta[i])
 
     @property
     def knots_m(self) -> np.ndarray:
