@@ -35,6 +35,7 @@ def _once(with_trace: bool) -> tuple[float, float, int]:
 
 
 def run(repeats: int = 3) -> list[tuple[str, str]]:
+    _once(False)                                   # warm-up: imports, codec generation, caches
     best = min((_once(True) for _ in range(repeats)), key=lambda r: r[1])
     sim_s, wall_s, frames = best
     no_trace = min((_once(False) for _ in range(repeats)), key=lambda r: r[1])

@@ -19,6 +19,7 @@ from cantools.database.can import Database
 
 from hil.assembly import build_node, node_names
 from hil.codec import Codec, FrameCodec
+from hil.gctune import loop_gc
 from hil.node import Node
 from hil.plant_node import PlantController, TruthLog
 from hil.scenario import Scenario
@@ -80,27 +81,28 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
     reason = "max_duration"
     next_progress = 0
     now = 0
-    while heap:
-        now, k = heapq.heappop(heap)
-        if now > max_us:
-            break
-        node = nodes[k]
-        frames = node.cycle(now)
-        for fc, data in frames:
-            bus.send(now, fc, data)
-        sent[node.name] += len(frames)
-        heapq.heappush(heap, (now + node.period_us, k))
-        if node is plant_node:
-            if plant.standstill:
-                stopped_since = now if stopped_since is None else stopped_since
-                if now - stopped_since >= linger_us:
-                    reason = "standstill"
-                    break
-            else:
-                stopped_since = None
-            if progress is not None and now >= next_progress:
-                progress(now, plant.plant.truth())
-                next_progress += 500_000
+    with loop_gc():
+        while heap:
+            now, k = heapq.heappop(heap)
+            if now > max_us:
+                break
+            node = nodes[k]
+            frames = node.cycle(now)
+            for fc, data in frames:
+                bus.send(now, fc, data)
+            sent[node.name] += len(frames)
+            heapq.heappush(heap, (now + node.period_us, k))
+            if node is plant_node:
+                if plant.standstill:
+                    stopped_since = now if stopped_since is None else stopped_since
+                    if now - stopped_since >= linger_us:
+                        reason = "standstill"
+                        break
+                else:
+                    stopped_since = None
+                if progress is not None and now >= next_progress:
+                    progress(now, plant.glance())
+                    next_progress += 500_000
     return RunOutcome(mode="lockstep", end_us=now, reason=reason, truth=plant.truth, frames_by_node=sent,
                       node_stats={n.name: vars(n.stats).copy() for n in nodes},
                       wall_s=time.perf_counter() - wall0)

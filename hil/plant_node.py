@@ -10,7 +10,7 @@ from cantools.database.can import Database
 
 from hil.scenario import Scenario
 from plant_sim.params import PlantParams, TrainParams
-from plant_sim.plant import Plant
+from plant_sim.plant import Plant, TruthSnapshot
 from plant_sim.track import Track
 
 TRUTH_PERIOD_US = 10_000         # ground truth is sampled every 10 ms
@@ -36,22 +36,37 @@ def build_plant(scenario: Scenario) -> Plant:
 
 
 class TruthLog:
-    """Ground truth sampled at a fixed period: one row per sample, arrays per quantity."""
+    """Ground truth sampled at a fixed period: cheap raw snapshots during the run, derived quantities
+    (adhesion, optimal slip, forces) computed once when the columns are asked for."""
 
-    def __init__(self) -> None:
+    def __init__(self, plant: Plant) -> None:
+        self.plant = plant
         self.t_us: list[int] = []
-        self.rows: dict[str, list[np.ndarray]] = {}
+        self.snaps: list[TruthSnapshot] = []
 
-    def record(self, t_us: int, truth: dict[str, np.ndarray]) -> None:
+    def record(self, t_us: int, snap: TruthSnapshot) -> None:
         self.t_us.append(t_us)
-        for key, value in truth.items():
-            self.rows.setdefault(key, []).append(np.array(value, dtype=float, copy=True))
+        self.snaps.append(snap)
+
+    def __getstate__(self) -> dict:          # crosses process boundaries without the plant
+        return {"plant": None, "t_us": self.t_us, "snaps": [tuple(s) for s in self.snaps],
+                "series": self.series()}
+
+    def __setstate__(self, state: dict) -> None:
+        self.plant, self.t_us, self.snaps = None, state["t_us"], state["snaps"]
+        self._series = state["series"]
+
+    def series(self) -> dict[str, np.ndarray]:
+        if self.plant is None:
+            return self._series
+        if not self.snaps:
+            return {}
+        return self.plant.truth_series(self.snaps)
 
     def columns(self) -> dict[str, np.ndarray]:
         """Flat columns: t_s, then `<quantity>_<k>` per car (or coupler) k starting at 1."""
         cols = {"t_s": np.asarray(self.t_us, dtype=np.int64) / 1e6}
-        for key, series in self.rows.items():
-            arr = np.vstack(series)
+        for key, arr in self.series().items():
             for k in range(arr.shape[1]):
                 cols[f"{key}_{k + 1}"] = arr[:, k]
         return cols
@@ -73,11 +88,16 @@ class PlantController:
         self.next_sense_us = 0
         self.next_truth_us = 0
         self.sense_count = 0
-        self.truth = TruthLog()
+        self.truth = TruthLog(plant)
         self._rx_version = -1
         self._valve = np.zeros(n_cars)
         self._wsp = np.zeros(n_cars, dtype=np.int64)
         self.standstill = False     # every car below STANDSTILL_MPS at the last truth sample
+
+    def glance(self) -> dict[str, np.ndarray]:
+        """Speeds and positions now, for progress displays."""
+        snap = self.plant.snapshot()
+        return {"v_mps": np.array(snap.v), "x_m": np.array(snap.x)}
 
     def _actuators(self, rx) -> None:
         if rx.version == self._rx_version:
@@ -101,9 +121,9 @@ class PlantController:
             self.sense_count += 1
             self.next_sense_us += self.sensor_period_us
         if now_us >= self.next_truth_us:
-            truth = self.plant.truth()
-            self.truth.record(now_us, truth)
-            self.standstill = bool(truth["v_mps"].max() < STANDSTILL_MPS)
+            snap = self.plant.snapshot()
+            self.truth.record(now_us, snap)
+            self.standstill = max(snap.v) < STANDSTILL_MPS
             self.next_truth_us += TRUTH_PERIOD_US
         self._actuators(rx)
         self.plant.step(self._valve, self._wsp)

@@ -10,8 +10,11 @@ its own, so parallel runs on one host do not hear each other.
 Scheduling: every node process runs against absolute deadlines on CLOCK_MONOTONIC (openpilot's
 Ratekeeper: next += period), all relative to one start instant t0 that the parent hands out once
 every process has opened its bus.  Controllers get the scheduled time in integer microseconds, as in
-lockstep.  A node that misses deadlines skips the missed cycles and counts them; the plant catches
-up step by step instead (physics time must not jump).
+lockstep.  A cycle that starts after its deadline is late and counted; a node up to CATCH_UP_CYCLES
+periods behind runs its cycles back to back (so a short stall of the host does not change the mean
+rate), one further behind skips to the next slot and counts the skipped cycles as missed.  The plant
+never skips: physics time must not jump.  Every process asks the OS for a raised priority (nice
+REALTIME_NICE) where it is allowed to.
 
 Ctrl-C / SIGTERM: the parent sets the stop event; every node ends its loop, the plant hands back its
 ground truth, the recorder closes the trace; the run folder is written as usual.  A node that dies
@@ -20,6 +23,7 @@ ends the run with a NodeDied error naming it.
 
 from __future__ import annotations
 
+import gc
 import multiprocessing as mp
 import os
 import queue
@@ -34,6 +38,7 @@ from pathlib import Path
 import can
 
 from hil.errors import BusError, NodeDied, RailhilError
+from hil.gctune import LOOP_THRESHOLDS
 from hil.lockstep import RunOutcome
 from hil.plant_node import TruthLog
 from hil.scenario import Scenario
@@ -41,7 +46,8 @@ from hil.scenario import Scenario
 READY_TIMEOUT_S = 60.0         # processes importing numpy/cantools on a loaded 2-core machine
 START_MARGIN_S = 0.3           # t0 lies this far after the last process reported ready
 JOIN_TIMEOUT_S = 10.0
-PLANT_NICE = -10               # the 1 kHz plant asks for this priority where allowed (root, CAP_SYS_NICE)
+REALTIME_NICE = -10            # node processes ask for this priority where allowed (root, CAP_SYS_NICE)
+CATCH_UP_CYCLES = 5            # a node at most this many periods late catches up instead of skipping
 
 
 def resolve_bus_config(cli: dict, scenario: Scenario) -> dict:
@@ -126,10 +132,12 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         codec = Codec(db)
         node = build_node(name, scenario, db, codec, dbc_path)
         bus = open_bus(cfg)
-        if name == "PLANT":
-            _raise_priority(PLANT_NICE)
+        _raise_priority(REALTIME_NICE)
         results.put(("ready", name, None))
         go.wait()
+        gc.collect()
+        gc.freeze()                                      # setup objects leave the collector's scans
+        gc.set_threshold(*LOOP_THRESHOLDS)
         t0 = t0_ns.value
         is_plant = name == "PLANT"
         plant = node.controller if is_plant else None
@@ -139,7 +147,7 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         speed = scenario.realtime.speed
         next_us = node.offset_us
         next_progress = 0
-        misses = 0
+        late = missed = 0
         while not stop.is_set():
             _wait_and_receive(bus, node, t0 + round(next_us * 1000 / speed), t0, speed)
             frames = node.cycle(next_us)
@@ -148,10 +156,12 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
                                      data=data, check=False))
             next_us += node.period_us
             lag_us = _monotonic_us(t0, speed) - next_us
-            if lag_us > node.period_us and not is_plant:
-                skipped = lag_us // node.period_us
-                misses += skipped
-                next_us += skipped * node.period_us
+            if lag_us > 0:
+                late += 1
+                if lag_us > CATCH_UP_CYCLES * node.period_us and not is_plant:
+                    skipped = lag_us // node.period_us
+                    missed += skipped
+                    next_us += skipped * node.period_us
             if is_plant:
                 now = next_us - node.period_us
                 if plant.standstill:
@@ -165,11 +175,11 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
                     results.put(("done", name, "max_duration"))
                     break
                 if progress is not None and now >= next_progress:
-                    truth = plant.plant.truth()
-                    progress.put((now, {"v_mps": truth["v_mps"], "x_m": truth["x_m"]}))
+                    progress.put((now, plant.glance()))
                     next_progress += 250_000
         stats = vars(node.stats).copy()
-        stats["deadline_misses"] = misses
+        stats["late_cycles"] = late          # started after their deadline
+        stats["missed_cycles"] = missed      # skipped after falling more than CATCH_UP_CYCLES behind
         payload = {"stats": stats, "end_us": next_us}
         if is_plant:
             payload["truth"] = node.controller.truth
@@ -190,6 +200,7 @@ def _recorder_process(trace_path: str, cfg: dict, go, stop, results) -> None:
     bus = None
     try:
         bus = open_bus(cfg)
+        _raise_priority(REALTIME_NICE)
         writer = can.Logger(trace_path)
         results.put(("ready", "RECORDER", None))
         notifier = can.Notifier(bus, [writer], timeout=0.05)
