@@ -1,5 +1,7 @@
-"""Lockstep real-time factor of the default scenario (simulated seconds per wall second), and where the
-wall time goes: the same run with the trace writer off shows the trace's share."""
+"""Lockstep real-time factor of the default scenario (simulated s per wall s), with and without trace.
+
+The same run with the trace writer off shows what writing the BLF trace costs.
+"""
 
 from __future__ import annotations
 

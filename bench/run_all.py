@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import os
 import platform
 import sys
 from pathlib import Path
@@ -14,7 +15,7 @@ BENCHES = ("bench_codec", "bench_lockstep")
 
 def main() -> int:
     print(f"railhil benchmarks — Python {platform.python_version()} on {platform.machine()}, "
-          f"{platform.processor() or 'cpu'}")
+          f"{os.cpu_count()} CPUs")
     for name in BENCHES:
         module = importlib.import_module(name)
         print(f"\n[{name}] {module.__doc__.strip().splitlines()[0]}")
