@@ -11,6 +11,7 @@ arbitration come with the bit-timed bus).
 from __future__ import annotations
 
 import heapq
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -64,8 +65,6 @@ class LockstepBus:
 
 def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Listener | None,
                  progress: Callable[[int, dict], None] | None = None, dbc_name: str = "DBC") -> RunOutcome:
-    import time
-
     wall0 = time.perf_counter()
     nodes = [build_node(name, scenario, db, codec, dbc_name) for name in node_names(scenario)]
     plant_node = nodes[0]

@@ -45,9 +45,6 @@ class RxTable(Mapping[str, float]):
     def __len__(self) -> int:
         return len(self._values)
 
-    def received_us(self, name: str) -> int | None:
-        return self._times.get(name)
-
     def age_us(self, name: str, now_us: int) -> int | None:
         t = self._times.get(name)
         return None if t is None else now_us - t

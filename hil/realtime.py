@@ -55,7 +55,7 @@ def resolve_bus_config(cli: dict, scenario: Scenario) -> dict:
     if "interface" not in cfg:
         try:
             loaded = dict(can.util.load_config())
-        except (can.CanInterfaceNotImplementedError, Exception):  # no python-can config at all
+        except (can.CanError, ValueError):    # python-can has no configuration here: none given
             loaded = {}
         if loaded.get("interface"):
             cfg = {**loaded, **cfg}

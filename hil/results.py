@@ -47,14 +47,6 @@ def read_signal(trace: Path, db: Database, codec: Codec, message: str, signal: s
     return np.asarray(ts), np.asarray(vs)
 
 
-def frames_per_id(trace: Path) -> dict[int, list[float]]:
-    times: dict[int, list[float]] = {}
-    with can.LogReader(str(trace)) as reader:
-        for msg in reader:
-            times.setdefault(msg.arbitration_id, []).append(msg.timestamp)
-    return times
-
-
 def _per_car(cols: dict[str, np.ndarray], key: str, n: int) -> np.ndarray:
     return np.column_stack([cols[f"{key}_{i}"] for i in range(1, n + 1)])
 

@@ -38,6 +38,19 @@ def test_closest_name_is_suggested():
         build(inputs=("AxelSpeed",))
 
 
+def test_rx_table_tracks_values_and_ages():
+    codec = Codec(DB)
+    binding = build(inputs=("AxleSpeed", "BCU_DEMAND.TargetDecel"))
+    node = Node("BECU3", None, binding, codec, DB, period_us=10_000)
+    assert node.rx["AxleSpeed"] != node.rx["AxleSpeed"]          # NaN until first received
+    assert node.rx.age_us("AxleSpeed", 0) is None
+    fc = codec.by_name("PLANT_CAR3_SENSORS")
+    node.receive(fc.frame_id, fc.encode({"AxleSpeed": 50.0}), 1_000)
+    node.receive(fc.frame_id, b"\x01", 2_000)                    # short frame: counted, not raised
+    assert node.rx["AxleSpeed"] == 50.0 and node.rx.age_us("AxleSpeed", 11_000) == 10_000
+    assert node.stats.bad_frames == 1 and node.stats.frames_received == 1
+
+
 def test_node_cycle_encodes_due_frames_and_counts_bad_outputs():
     class Ctrl:
         def step(self, now_us, rx):
