@@ -46,6 +46,8 @@ class BcuParams:
 class Bcu:
     """step(now_us, rx) -> BCU_DEMAND / BCU_EMERGENCY / BCU_STATUS signals."""
 
+    OUTPUTS = ("Mode", "BrakeStep", "TargetDecel", "EmergencyActive", "Source", "CarsSilent", "TrainSpeedEst")
+
     def __init__(self, n_cars: int, params: BcuParams | None = None) -> None:
         self.p = params or BcuParams()
         self.n_cars = n_cars

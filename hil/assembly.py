@@ -61,8 +61,7 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_na
         rx_msgs = ["DESK_CMD"] + [f"BECU{i}_STATUS" for i in range(1, n + 1)]
         tx_msgs = ["BCU_DEMAND", "BCU_EMERGENCY", "BCU_STATUS"]
         period, offset = ctrl.p.cycle_us, BCU_OFFSET_US
-        inputs, outputs = ctrl.inputs, ("Mode", "BrakeStep", "TargetDecel", "EmergencyActive", "Source",
-                                        "CarsSilent", "TrainSpeedEst")
+        inputs, outputs = ctrl.inputs, ctrl.OUTPUTS
     elif name.startswith("BECU") and name[4:].isdigit() and 1 <= int(name[4:]) <= n:
         i = int(name[4:])
         ctrl = Becu()
