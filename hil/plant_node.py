@@ -21,10 +21,13 @@ SENSOR_FIELDS = (("AxleSpeed", "axle_speed_rad_s"), ("CylPressure", "cyl_pressur
 
 def build_track(scenario: Scenario) -> Track:
     t = scenario.track
-    segments = [(s.from_m, s.condition if s.condition is not None else tuple(s.theta), s.transition_m)
-                for s in t.rail]
     gradient = [(g.from_m, g.permille) for g in t.gradient]
     curves = [(c.from_m, c.radius_m) for c in t.curves]
+    if t.rail_table is not None:
+        return Track.from_table([r.x_m for r in t.rail_table], [r.theta for r in t.rail_table],
+                                gradient=gradient, curvature=curves)
+    segments = [(s.from_m, s.condition if s.condition is not None else tuple(s.theta), s.transition_m)
+                for s in t.rail]
     return Track.from_segments(segments, gradient=gradient, curvature=curves)
 
 

@@ -63,8 +63,15 @@ class CurvePoint(_Strict):
     radius_m: Annotated[float, Field(ge=0)]   # 0 = straight
 
 
+class RailRow(_Strict):
+    x_m: float
+    theta: tuple[Annotated[float, Field(gt=0)], Annotated[float, Field(ge=0)], Annotated[float, Field(gt=0)]]
+
+
 class TrackSpec(_Strict):
     rail: list[RailSegment] = Field(default_factory=lambda: [RailSegment(from_m=0.0, condition="dry")])
+    # θ(x) as a table instead of segments: linear between rows, constant beyond the ends
+    rail_table: list[RailRow] | None = None
     gradient: list[GradientPoint] = Field(default_factory=list)
     curves: list[CurvePoint] = Field(default_factory=list)
 
@@ -81,6 +88,15 @@ class TrackSpec(_Strict):
     def _nonempty(cls, v):
         if not v:
             raise ValueError("needs at least one segment")
+        return v
+
+    @field_validator("rail_table")
+    @classmethod
+    def _table_increasing(cls, v):
+        if v is not None:
+            xs = [r.x_m for r in v]
+            if not xs or any(b <= a for a, b in zip(xs, xs[1:], strict=False)):
+                raise ValueError(f"needs rows with strictly increasing x_m, got {xs}")
         return v
 
 

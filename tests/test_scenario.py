@@ -38,6 +38,20 @@ def test_bad_scenarios_give_one_line_naming_key_and_value(tmp_path, text, needle
         assert needle in msg, msg
 
 
+def test_rail_condition_as_a_table_reaches_the_plant(tmp_path):
+    from hil.plant_node import build_track
+    from plant_sim.params import RAIL_CONDITIONS
+
+    dry, wet = RAIL_CONDITIONS["dry"], RAIL_CONDITIONS["wet"]
+    path = tmp_path / "table.toml"
+    path.write_text(f"[track]\nrail_table = [{{ x_m = 0.0, theta = {list(dry)} }}, "
+                    f"{{ x_m = 100.0, theta = {list(wet)} }}]\n")
+    track = build_track(load_scenario(path))
+    theta = track.theta_at([-10.0, 50.0, 200.0])
+    assert theta[0] == pytest.approx(dry) and theta[2] == pytest.approx(wet)
+    assert theta[1] == pytest.approx([(a + b) / 2 for a, b in zip(dry, wet, strict=True)])
+
+
 def test_missing_file(tmp_path):
     with pytest.raises(ScenarioError, match="no such scenario file"):
         load_scenario(tmp_path / "nope.toml")
