@@ -34,17 +34,20 @@ def write_truth_csv(columns: dict[str, np.ndarray], path: Path) -> None:
 
 
 def read_signal(trace: Path, db: Database, codec: Codec, message: str, signal: str,
-                t0_s: float = 0.0, speed: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Simulated times [s] ((timestamp - t0) * speed) and values of one signal in a trace."""
+                t0_s: float = 0.0, speed: float = 1.0) -> tuple[np.ndarray, np.ndarray, int]:
+    """Simulated times [s] ((timestamp - t0) * speed) and values of one signal in a trace, and the
+    number of frames in the whole trace (one pass over the file)."""
     fid = db.get_message_by_name(message).frame_id
     fc = codec[fid]
     ts, vs = [], []
+    total = 0
     with can.LogReader(str(trace)) as reader:
         for msg in reader:
+            total += 1
             if msg.arbitration_id == fid and not msg.is_error_frame and not msg.is_remote_frame:
                 ts.append((msg.timestamp - t0_s) * speed)
                 vs.append(fc.decode(bytes(msg.data))[signal])
-    return np.asarray(ts), np.asarray(vs)
+    return np.asarray(ts), np.asarray(vs), total
 
 
 def _per_car(cols: dict[str, np.ndarray], key: str, n: int) -> np.ndarray:
@@ -52,7 +55,7 @@ def _per_car(cols: dict[str, np.ndarray], key: str, n: int) -> np.ndarray:
 
 
 def compute_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[np.ndarray, np.ndarray],
-                 brake_start_s: float | None, frames_sent: dict[str, int]) -> dict:
+                 brake_start_s: float | None, frames_sent: dict[str, int], frames_recorded: int) -> dict:
     n = scenario.train.cars
     t = cols["t_s"]
     x = _per_car(cols, "x_m", n)
@@ -91,6 +94,8 @@ def compute_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[
         "wsp_time_s": [round(float(k) * dt, 3) for k in np.sum(vent | (wsp == 1), axis=0)],
         "mean_abs_decel_error_mps2": round(float(decel_err.mean()), 4) if decel_err.size else None,
         "frames_sent": int(sum(frames_sent.values())),
+        "frames_recorded": int(frames_recorded),          # in the trace
+        "frames_lost": int(sum(frames_sent.values())) - int(frames_recorded),
         "frames_sent_by_node": dict(frames_sent),
     }
     if n > 1:
@@ -139,7 +144,7 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
         f"WSP activations per car {per_car(kpis['wsp_activations'], '{:d}')}",
         "mean |decel error|      " + (f"{kpis['mean_abs_decel_error_mps2']:.3f} m/s²"
                                       if kpis["mean_abs_decel_error_mps2"] is not None else "—"),
-        f"frames sent             {kpis['frames_sent']}",
+        f"frames sent             {kpis['frames_sent']} ({kpis['frames_lost']} not in the trace)",
     ]
     lines.append("files: " + ", ".join(str(f) for f in files))
     return lines

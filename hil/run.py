@@ -52,10 +52,11 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     cols = outcome.truth.columns()
     truth_csv = out_dir / "truth.csv"
     write_truth_csv(cols, truth_csv)
-    target = read_signal(trace, db, codec, "BCU_DEMAND", "TargetDecel", t0_s=trace_t0_s, speed=trace_speed)
+    *target, recorded = read_signal(trace, db, codec, "BCU_DEMAND", "TargetDecel", t0_s=trace_t0_s,
+                                    speed=trace_speed)
     brake_us = DeskScript(scenario.desk).first_brake_us()
     kpis = compute_kpis(scenario, cols, target, None if brake_us is None else brake_us / 1e6,
-                        outcome.frames_by_node)
+                        outcome.frames_by_node, recorded)
     kpis["mode"] = outcome.mode
     kpis["seed"] = scenario.seed
     kpis["simulated_s"] = outcome.end_us / 1e6

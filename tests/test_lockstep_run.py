@@ -25,7 +25,8 @@ def test_run_folder_has_everything_and_the_trace_decodes(default_lockstep):
             db.decode_message(msg.arbitration_id, bytes(msg.data))     # raises if it does not decode
             senders.update(m.senders)
             n += 1
-    assert n == default_lockstep.kpis["frames_sent"]
+    assert n == default_lockstep.kpis["frames_sent"] == default_lockstep.kpis["frames_recorded"]
+    assert default_lockstep.kpis["frames_lost"] == 0
     assert senders == {"PLANT", "DESK", "BCU"} | {f"BECU{i}" for i in range(1, 7)}
     kpis = json.loads((out / "kpis.json").read_text())
     assert kpis == default_lockstep.kpis

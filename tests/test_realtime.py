@@ -70,6 +70,8 @@ def test_trace_holds_every_node_at_its_cycle_times(realtime_run):
         assert abs(mean_period_ms - m.cycle_time) <= 0.05 * m.cycle_time, (m.name, mean_period_ms)
     assert senders == {"PLANT", "DESK", "BCU"} | {f"BECU{i}" for i in range(1, 7)}
     assert "stopping distance" in stdout
+    kpis = json.loads((out / "kpis.json").read_text())
+    assert kpis["frames_lost"] == 0, kpis                  # bus health: every frame sent was recorded
 
 
 def test_stopping_distance_agrees_with_lockstep(realtime_run, default_lockstep):

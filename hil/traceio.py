@@ -1,0 +1,133 @@
+"""Reading CAN traces with python-can's readers, every failure one TraceError line naming the file.
+
+``open_trace(path)`` picks python-can's reader by suffix (``can.LogReader``: .asc .blf .csv .db
+.log .mf4 .trc, and any of them gzip-compressed as .asc.gz and so on); ``open_trace("-")`` reads
+candump -L text (``(1.5) can0 123#DEADBEEF``) from stdin with python-can's ``CanutilsLogReader``.
+
+The file is checked and its reader opened when ``open_trace`` is called, so a missing file or an
+unknown suffix fails at once; corrupt content fails while iterating.  A non-empty file in which the
+reader finds no frame at all (a text file of another format) is an error too: python-can's text
+readers skip lines they do not understand without a word.
+"""
+
+from __future__ import annotations
+
+import gzip
+import pathlib
+import sys
+from collections.abc import Iterator
+from typing import TextIO
+
+import can
+from can.io.player import MESSAGE_READERS
+
+from hil.errors import RailhilError
+
+__all__ = ["FORMATS", "TraceError", "open_trace"]
+
+#: what each suffix is expected to hold, for error messages
+FORMATS = {
+    ".asc": "a Vector ASC text trace",
+    ".blf": "a Vector BLF binary trace",
+    ".csv": "a python-can CSV trace",
+    ".db": "a python-can SQLite trace",
+    ".log": "a candump -L text trace ('(timestamp) channel id#data' per line)",
+    ".mf4": "an ASAM MDF4 trace",
+    ".trc": "a PEAK TRC text trace",
+}
+STDIN = "-"
+
+
+class TraceError(RailhilError, ValueError):
+    """A CAN trace that cannot be read: missing, of an unknown format, or corrupt."""
+
+
+class _Lines:
+    """A text stream that counts the lines read from it, so a parse error can name its line."""
+
+    def __init__(self, stream: TextIO, close: bool = True) -> None:
+        self.stream = stream
+        self.n = 0
+        self.line = ""
+        self._close = close
+
+    def __iter__(self) -> Iterator[str]:
+        for line in self.stream:
+            self.n += 1
+            self.line = line
+            yield line
+
+    def close(self) -> None:
+        if self._close:
+            self.stream.close()
+
+
+def _suffix_of(path: pathlib.Path) -> tuple[str, bool]:
+    """(format suffix, gzip-compressed?) of a trace file name."""
+    suffixes = [s.lower() for s in path.suffixes]
+    if suffixes and suffixes[-1] == ".gz":
+        return (suffixes[-2] if len(suffixes) >= 2 else ""), True
+    return (suffixes[-1] if suffixes else ""), False
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def open_trace(path: str | pathlib.Path) -> Iterator[can.Message]:
+    """The frames of a trace file (or of candump text on stdin for ``"-"``), in file order."""
+    if str(path) == STDIN:
+        lines = _Lines(sys.stdin, close=False)
+        return _frames(can.CanutilsLogReader(lines), "<stdin>", FORMATS[".log"], lines, empty_ok=True)
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise TraceError(f"{path}: no such trace file")
+    if not path.is_file():
+        raise TraceError(f"{path}: not a file (expected a CAN trace)")
+    suffix, compressed = _suffix_of(path)
+    if suffix not in MESSAGE_READERS:
+        known = ", ".join(sorted(MESSAGE_READERS))
+        raise TraceError(f"{path}: unknown trace format {''.join(path.suffixes) or '(no suffix)'!r}; "
+                         f"expected one of {known} (optionally .gz compressed), or '-' for candump "
+                         f"text on stdin")
+    expected = FORMATS.get(suffix, f"a {suffix} trace")
+    if compressed:
+        expected += ", gzip-compressed"
+    lines = None
+    try:
+        if suffix == ".log":  # counted lines: a parse error names its line
+            stream = gzip.open(path, "rt") if compressed else path.open("r")
+            lines = _Lines(stream)
+            reader = can.CanutilsLogReader(lines)
+        else:
+            reader = can.LogReader(path)
+    except NotImplementedError as exc:  # MF4 without asammdf
+        raise TraceError(f"{path}: cannot read {expected} here: {' '.join(str(exc).split())}") from exc
+    except Exception as exc:  # python-can raises many types; all mean "not readable as expected"
+        raise TraceError(f"{path}: not readable as {expected}: {_one_line(exc)}") from exc
+    empty_ok = path.stat().st_size == 0
+    return _frames(reader, str(path), expected, lines, empty_ok=empty_ok)
+
+
+def _frames(reader, name: str, expected: str, lines: _Lines | None, empty_ok: bool) -> Iterator[can.Message]:
+    count = 0
+    try:
+        try:
+            for msg in reader:
+                count += 1
+                yield msg
+        except GeneratorExit:
+            raise
+        except Exception as exc:
+            where = f" line {lines.n}" if lines is not None and lines.n else ""
+            seen = f" {lines.line.strip()[:60]!r}" if lines is not None and lines.n else ""
+            raise TraceError(f"{name}{where}: not readable as {expected}{seen} "
+                             f"(after {count} frames): {_one_line(exc)}") from exc
+    finally:
+        try:
+            reader.stop()
+        except Exception:  # closing a half-read file must not hide the real error
+            pass
+    if count == 0 and not empty_ok:
+        raise TraceError(f"{name}: no CAN frames found (expected {expected})")
