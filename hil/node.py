@@ -24,7 +24,7 @@ from hil.dbc import closest
 from hil.errors import BindingError
 
 NAN = float("nan")
-E2E_COUNTER = "Counter"
+E2E_COUNTER = "COUNTER"
 E2E_COUNTER_MODULO = 15          # AUTOSAR E2E profile 1 alive counter runs 0..14
 
 

@@ -63,8 +63,8 @@ def test_node_cycle_encodes_due_frames_and_counts_bad_outputs():
     assert len(frames) == 1
     fc, data = frames[0]
     values = fc.decode(data)
-    assert values["ValveCmd"] == 0.0 and values["CylPressureSet"] == 1e5 and values["Counter"] == 0
+    assert values["ValveCmd"] == 0.0 and values["CylPressureSet"] == 1e5 and values["COUNTER"] == 0
     assert node.stats.bad_outputs == 1
     assert node.cycle(5_000) == []                         # not due yet
     fc, data = node.cycle(10_000)[0]
-    assert fc.decode(data)["Counter"] == 1
+    assert fc.decode(data)["COUNTER"] == 1

@@ -278,7 +278,7 @@ def test_codec_lookup() -> None:
     fc = codec[49]
     assert isinstance(fc, FrameCodec)
     assert (fc.frame_id, fc.name, fc.length, fc.is_extended_id) == (49, "BECU1_PRESS_CMD", 8, False)
-    assert fc.signal_names == ("Checksum", "Counter", "WspValve", "CylPressureSet", "ValveCmd")
+    assert fc.signal_names == ("CHECKSUM", "COUNTER", "WspValve", "CylPressureSet", "ValveCmd")
     assert codec.by_name("BECU1_PRESS_CMD") is fc
     assert codec.get(49) is fc
     assert codec.get(0x7FF) is None
@@ -291,7 +291,7 @@ def test_codec_lookup() -> None:
 
 # --- saturation: never raise, saturate, count -----------------------------------------------------
 
-NOMINAL = {"Checksum": 0x5A, "Counter": 7, "WspValve": 1, "CylPressureSet": 250_000.0, "ValveCmd": 0.25}
+NOMINAL = {"CHECKSUM": 0x5A, "COUNTER": 7, "WspValve": 1, "CylPressureSet": 250_000.0, "ValveCmd": 0.25}
 
 
 @pytest.mark.parametrize(
@@ -314,8 +314,8 @@ NOMINAL = {"Checksum": 0x5A, "Counter": 7, "WspValve": 1, "CylPressureSet": 250_
         ("WspValve", "VENT", 2.0, 0),  # a choice name
         ("WspValve", "BOGUS", 0.0, 1),
         ("WspValve", True, 1.0, 0),
-        ("Counter", 16, 15.0, 1),
-        ("Counter", object(), 0.0, 1),
+        ("COUNTER", 16, 15.0, 1),
+        ("COUNTER", object(), 0.0, 1),
     ],
 )
 def test_encode_saturates_and_counts(signal: str, value, decoded: float, counted: int) -> None:

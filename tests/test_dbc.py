@@ -38,7 +38,7 @@ def test_schema_content():
     assert max(safety_ids) < min(other_ids), "safety frames must have the lowest identifiers"
     for name in SAFETY:
         sigs = {s.name for s in db.get_message_by_name(name).signals}
-        assert {"Counter", "Checksum"} <= sigs, name
+        assert {"COUNTER", "CHECKSUM"} <= sigs, name
 
 
 @pytest.mark.parametrize("content, expected", [

@@ -11,7 +11,7 @@ and commit both files; tests/test_dbc.py fails when they disagree.
 Conventions
 - Units are SI; scaled integers.  Every signal has a comment.
 - Safety frames (emergency, demands, pressure commands) have the lowest identifiers and carry
-  `Checksum` (byte 0) and `Counter` (low nibble of byte 1): the AUTOSAR E2E profile 1 layout.
+  `CHECKSUM` (byte 0) and `COUNTER` (low nibble of byte 1): the AUTOSAR E2E profile 1 layout.
 - Names: message `<SENDER>_<WHAT>`, per-car messages `<SENDER><n>_<WHAT>` / `PLANT_CAR<n>_<WHAT>`,
   signals CamelCase with no car index, so a binding can substitute the index.
 """
@@ -55,8 +55,8 @@ class Msg:
 
 def e2e(comment_what: str) -> list[Sig]:
     return [
-        Sig("Checksum", 0, 8, maximum=255, comment=f"E2E CRC-8 over {comment_what} (filled by the codec)"),
-        Sig("Counter", 8, 4, maximum=15, comment="E2E alive counter, incremented every transmission"),
+        Sig("CHECKSUM", 0, 8, maximum=255, comment=f"E2E CRC-8 over {comment_what} (filled by the codec)"),
+        Sig("COUNTER", 8, 4, maximum=15, comment="E2E alive counter, incremented every transmission"),
     ]
 
 

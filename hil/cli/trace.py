@@ -186,12 +186,13 @@ def collect_stats(frames: Iterable[can.Message]) -> tuple[dict[tuple, IdStats], 
         first = min(first, msg.timestamp)
         last = max(last, msg.timestamp)
         kind = kind_of(msg)
-        # error frames carry no meaningful id: one row per 11/29-bit kind
-        arb = 0 if kind == "error" else msg.arbitration_id
-        key = (arb, bool(msg.is_extended_id), kind)
+        if kind == "error":  # error frames carry no meaningful id: one row for them all
+            key = (0, False, kind)
+        else:
+            key = (msg.arbitration_id, bool(msg.is_extended_id), kind)
         row = table.get(key)
         if row is None:
-            row = table[key] = IdStats(arb, bool(msg.is_extended_id), kind)
+            row = table[key] = IdStats(*key)
         row.add(msg)
     return table, total, first, last
 
@@ -217,7 +218,7 @@ def stats(args: argparse.Namespace) -> int:
         rate = r.count / duration if duration > 0 else None
         rows.append({
             "id": "" if r.kind == "error" else id_text(r.arbitration_id, r.extended),
-            "frame": ("ext" if r.extended else "std") + ("+fd" if r.fd else ""),
+            "frame": "" if r.kind == "error" else ("ext" if r.extended else "std") + ("+fd" if r.fd else ""),
             "kind": r.kind,
             "name": fc.name if fc is not None else "",
             "count": r.count,
@@ -303,6 +304,7 @@ class Row:
     data: str | None = None
     kind: str = "data"
     error: str | None = None
+    dlc: int = 0
 
 
 def decoded_rows(frames: Iterable[can.Message], codec: Codec, sel: Selection, start: float | None,
@@ -323,7 +325,7 @@ def decoded_rows(frames: Iterable[can.Message], codec: Codec, sel: Selection, st
         data = bytes(msg.data).hex().upper()
         if fc is None:
             counts[kind if kind != "data" else "unknown"] += 1
-            yield Row(t, ident, None, None, data, kind)
+            yield Row(t, ident, None, None, data, kind, dlc=msg.dlc)
             continue
         try:
             values = fc.decode(bytes(msg.data))
@@ -371,6 +373,8 @@ def decode(args: argparse.Namespace) -> int:
                 obj["data"] = r.data
                 if r.kind != "data":
                     obj["kind"] = r.kind
+                if r.kind == "remote":
+                    obj["dlc"] = r.dlc
                 if r.error:
                     obj["error"] = r.error
             out.write(json.dumps(obj) + "\n")
@@ -384,7 +388,8 @@ def decode(args: argparse.Namespace) -> int:
                 body = " ".join(f"{k}={v:.10g}" for k, v in r.signals.items())
                 name = r.name
             else:
-                body = f"data={r.data}" + (f"  ({r.error})" if r.error else "")
+                body = {"remote": f"remote frame dlc={r.dlc}", "error": "error frame"}.get(
+                    r.kind, f"data={r.data}" + (f"  ({r.error})" if r.error else ""))
                 name = r.name or ("?" if r.kind == "data" else r.kind.upper())
             out.write(f"{r.t:17.6f}  {r.id:<10}  {name:<{width}}  {body}\n")
             if out.closed:
