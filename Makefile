@@ -30,7 +30,7 @@ bench: $(STAMP)
 	$(PY) bench/run_all.py
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check firmware_py plant_sim hil tests bench
+	$(VENV)/bin/ruff check firmware_py plant_sim hil tests bench dbc
 
 ## make vcan: create vcan0 where the kernel has SocketCAN (needs root)
 vcan:

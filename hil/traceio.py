@@ -13,6 +13,7 @@ readers skip lines they do not understand without a word.
 from __future__ import annotations
 
 import gzip
+import logging
 import pathlib
 import sys
 from collections.abc import Iterator
@@ -23,7 +24,7 @@ from can.io.player import MESSAGE_READERS
 
 from hil.errors import RailhilError
 
-__all__ = ["FORMATS", "TraceError", "open_trace"]
+__all__ = ["FORMATS", "Trace", "TraceError", "open_trace"]
 
 #: what each suffix is expected to hold, for error messages
 FORMATS = {
@@ -71,15 +72,18 @@ def _suffix_of(path: pathlib.Path) -> tuple[str, bool]:
 
 
 def _one_line(exc: BaseException) -> str:
+    kind = type(exc).__name__
+    if kind == "error":  # struct.error, zlib.error
+        kind = f"{type(exc).__module__}.error"
     text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+    return f"{kind}: {text}" if text else kind
 
 
-def open_trace(path: str | pathlib.Path) -> Iterator[can.Message]:
+def open_trace(path: str | pathlib.Path) -> Trace:
     """The frames of a trace file (or of candump text on stdin for ``"-"``), in file order."""
     if str(path) == STDIN:
         lines = _Lines(sys.stdin, close=False)
-        return _frames(can.CanutilsLogReader(lines), "<stdin>", FORMATS[".log"], lines, empty_ok=True)
+        return Trace(can.CanutilsLogReader(lines), "<stdin>", FORMATS[".log"], lines, empty_ok=True)
     path = pathlib.Path(path)
     if not path.exists():
         raise TraceError(f"{path}: no such trace file")
@@ -107,27 +111,63 @@ def open_trace(path: str | pathlib.Path) -> Iterator[can.Message]:
     except Exception as exc:  # python-can raises many types; all mean "not readable as expected"
         raise TraceError(f"{path}: not readable as {expected}: {_one_line(exc)}") from exc
     empty_ok = path.stat().st_size == 0
-    return _frames(reader, str(path), expected, lines, empty_ok=empty_ok)
+    return Trace(reader, str(path), expected, lines, empty_ok=empty_ok)
 
 
-def _frames(reader, name: str, expected: str, lines: _Lines | None, empty_ok: bool) -> Iterator[can.Message]:
-    count = 0
-    try:
+class _Warnings(logging.Handler):
+    """Counts the lines python-can's readers skip with a logged warning (its TRC reader does)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.count = 0
+        self.first = ""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.count += 1
+        if not self.first:
+            self.first = " ".join(record.getMessage().split())[:120]
+
+
+class Trace:
+    """The frames of one trace, once; ``skipped`` and ``first_skipped`` say what the reader dropped.
+
+    While iterating, python-can's reader warnings are counted here instead of reaching stderr as
+    loose lines (they still reach any handler the application configured).
+    """
+
+    def __init__(self, reader, name: str, expected: str, lines: _Lines | None, empty_ok: bool) -> None:
+        self.name = name
+        self.expected = expected
+        self.count = 0
+        self.skipped = 0
+        self.first_skipped = ""
+        self._reader = reader
+        self._lines = lines
+        self._empty_ok = empty_ok
+
+    def __iter__(self) -> Iterator[can.Message]:
+        lines = self._lines
+        handler = _Warnings()
+        logger = logging.getLogger("can.io")
+        logger.addHandler(handler)
         try:
-            for msg in reader:
-                count += 1
-                yield msg
-        except GeneratorExit:
-            raise
-        except Exception as exc:
-            where = f" line {lines.n}" if lines is not None and lines.n else ""
-            seen = f" {lines.line.strip()[:60]!r}" if lines is not None and lines.n else ""
-            raise TraceError(f"{name}{where}: not readable as {expected}{seen} "
-                             f"(after {count} frames): {_one_line(exc)}") from exc
-    finally:
-        try:
-            reader.stop()
-        except Exception:  # closing a half-read file must not hide the real error
-            pass
-    if count == 0 and not empty_ok:
-        raise TraceError(f"{name}: no CAN frames found (expected {expected})")
+            try:
+                for msg in self._reader:
+                    self.count += 1
+                    yield msg
+            except GeneratorExit:
+                raise
+            except Exception as exc:
+                where = f" line {lines.n}" if lines is not None and lines.n else ""
+                seen = f" {lines.line.strip()[:60]!r}" if lines is not None and lines.n else ""
+                raise TraceError(f"{self.name}{where}: not readable as {self.expected}{seen} "
+                                 f"(after {self.count} frames): {_one_line(exc)}") from exc
+        finally:
+            logger.removeHandler(handler)
+            self.skipped, self.first_skipped = handler.count, handler.first
+            try:
+                self._reader.stop()
+            except Exception:  # closing a half-read file must not hide the real error
+                pass
+        if self.count == 0 and not self._empty_ok:
+            raise TraceError(f"{self.name}: no CAN frames found (expected {self.expected})")

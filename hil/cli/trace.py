@@ -23,7 +23,7 @@ import can
 from hil.codec import Codec, FrameCodec
 from hil.dbc import closest, load_dbc
 from hil.errors import RailhilError
-from hil.traceio import open_trace
+from hil.traceio import Trace, open_trace
 
 FORMAT_CHOICES = ("table", "csv", "jsonl")
 
@@ -147,6 +147,12 @@ class Output:
             pass
 
 
+def notice_skipped(trace: Trace) -> None:
+    if trace.skipped:
+        print(f"notice: {trace.name}: python-can skipped {trace.skipped} unreadable lines "
+              f"(first: {trace.first_skipped})", file=sys.stderr)
+
+
 # --- stats ------------------------------------------------------------------------------------
 
 
@@ -199,7 +205,9 @@ def collect_stats(frames: Iterable[can.Message]) -> tuple[dict[tuple, IdStats], 
 
 def stats(args: argparse.Namespace) -> int:
     codec = Codec(load_dbc(args.dbc)) if args.dbc is not None else None
-    table, total, first, last = collect_stats(open_trace(args.trace))
+    trace = open_trace(args.trace)
+    table, total, first, last = collect_stats(trace)
+    notice_skipped(trace)
     duration = last - first if total else 0.0
     n_err = sum(r.count for r in table.values() if r.kind == "error")
     n_rtr = sum(r.count for r in table.values() if r.kind == "remote")
@@ -271,24 +279,20 @@ class Selection:
 
 def select(args: argparse.Namespace, codec: Codec) -> Selection:
     ids = {parse_id(t) for t in args.ids} or None
-    names: set[str] | None = None
     all_names = [fc.name for fc in codec]
-    if args.messages:
-        unknown = [n for n in args.messages if n not in all_names]
-        if unknown:
-            raise TraceArgError(f"{args.dbc}: no message named "
-                                + "; ".join(f"{n!r} (closest: {closest(n, all_names)})" for n in unknown))
-        names = set(args.messages)
+    carriers: dict[str, set[str]] = {}  # signal name -> the messages that carry it
+    for fc in codec:
+        for s in fc.signal_names:
+            carriers.setdefault(s, set()).add(fc.name)
+    problems = [f"no message named {n!r} (closest: {closest(n, all_names)})"
+                for n in args.messages if n not in all_names]
+    problems += [f"no signal named {s!r} (closest: {closest(s, list(carriers))})"
+                 for s in args.signals if s not in carriers]
+    if problems:
+        raise TraceArgError(f"{args.dbc}: " + "; ".join(problems))
+    names = set(args.messages) or None
     signals = None
     if args.signals:
-        carriers: dict[str, set[str]] = {}
-        for fc in codec:
-            for s in fc.signal_names:
-                carriers.setdefault(s, set()).add(fc.name)
-        unknown = [s for s in args.signals if s not in carriers]
-        if unknown:
-            raise TraceArgError(f"{args.dbc}: no signal named "
-                                + "; ".join(f"{s!r} (closest: {closest(s, list(carriers))})" for s in unknown))
         signals = set(args.signals)
         with_signal = set().union(*(carriers[s] for s in signals))
         names = with_signal if names is None else names & with_signal
@@ -395,8 +399,9 @@ def decode(args: argparse.Namespace) -> int:
             if out.closed:
                 break
     out.flush()
+    notice_skipped(frames)
     if not out.closed:
-        summary = (f"{counts['decoded']} frames decoded, {counts['unknown']} of ids not in {args.dbc}, "
+        summary = (f"{counts['decoded']} frames decoded, {counts['unknown']} with ids not in {args.dbc}, "
                    f"{counts['remote']} remote, {counts['error']} error frames, "
                    f"{counts['failed']} failed to decode")
         print(summary, file=sys.stderr)
