@@ -9,10 +9,11 @@ import argparse
 import sys
 
 from hil.cli import run as run_cmd
+from hil.cli import timing as timing_cmd
 from hil.cli import trace as trace_cmd
 from hil.errors import RailhilError
 
-SUBCOMMANDS = (run_cmd, trace_cmd)
+SUBCOMMANDS = (run_cmd, trace_cmd, timing_cmd)
 
 
 def build_parser() -> argparse.ArgumentParser:
