@@ -161,6 +161,7 @@ def test_dropped_frame(tmp_path, dbc, capsys):
 @pytest.mark.parametrize(("shifts_ms", "missed", "verdict"), [
     ({50: 7.0}, 0, "PASS"),                  # 17 ms then 3 ms: a late frame, not a missed one
     ({50: 16.0, 51: 6.2}, 0, "PASS"),        # 26 ms, 0.2 ms, 3.8 ms: a sender catching up after a stall
+    ({50: 7.7, 51: 12.1, 52: 2.3}, 0, "PASS"),   # 17.7, 14.4, 0.2, 7.7 ms: two late periods, then caught up
     ({k: 12.0 for k in range(50, 200)}, 1, "FAIL"),   # 22 ms then 10 ms on: the schedule slipped
     ({199: 30.0}, 0, "PASS"),                # the trace's last frame 40 ms late: teardown, not judged
 ])
