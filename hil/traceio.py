@@ -13,6 +13,7 @@ readers skip lines they do not understand without a word.
 from __future__ import annotations
 
 import gzip
+import importlib.util
 import logging
 import pathlib
 import sys
@@ -99,6 +100,9 @@ def open_trace(path: str | pathlib.Path) -> Trace:
     if compressed:
         expected += ", gzip-compressed"
     lines = None
+    if suffix == ".mf4" and importlib.util.find_spec("asammdf") is None:
+        raise TraceError(f"{path}: cannot read {expected} here: python-can reads MF4 through asammdf, "
+                         f"which is not installed")
     try:
         if suffix == ".log":  # counted lines: a parse error names its line
             stream = gzip.open(path, "rt") if compressed else path.open("r")
@@ -106,8 +110,6 @@ def open_trace(path: str | pathlib.Path) -> Trace:
             reader = can.CanutilsLogReader(lines)
         else:
             reader = can.LogReader(path)
-    except NotImplementedError as exc:  # MF4 without asammdf
-        raise TraceError(f"{path}: cannot read {expected} here: {' '.join(str(exc).split())}") from exc
     except Exception as exc:  # python-can raises many types; all mean "not readable as expected"
         raise TraceError(f"{path}: not readable as {expected}: {_one_line(exc)}") from exc
     empty_ok = path.stat().st_size == 0

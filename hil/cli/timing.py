@@ -44,8 +44,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
         description="For each DBC message with GenMsgCycleTime > 0: the periods between its data "
                     "frames in the trace (11- and 29-bit ids apart), late / missed / burst periods "
                     "and a verdict. PASS: at least 2 frames, mean period within ±tolerance of the "
-                    "cycle time, no missed frame (no period of 1.5 cycles or more) and no silence of "
-                    "1.5 cycles or more before the end of the trace; else FAIL; MISSING when no "
+                    "cycle time, no missed frame (a gap of 1.5 cycles or more that the sender does "
+                    "not make up within 10 periods; the last 0.2 s, a run's teardown, not judged) "
+                    "and no silence of 1.5 cycles + 0.2 s before the end of the trace; else FAIL; "
+                    "MISSING when no "
                     "frame is in the trace. Exit 0 if all PASS, 1 if any FAIL/MISSING, 2 for bad "
                     "input. Bus load: worst-case-stuffed frame lengths (Davis et al. 2007), average "
                     "over the trace and peak over a sliding window.",
