@@ -50,7 +50,6 @@ encode(values)
 
 from __future__ import annotations
 
-import difflib
 import math
 import operator
 import struct
@@ -62,6 +61,7 @@ from cantools.database.can import Database, Message, Signal
 from cantools.database.conversion import BaseConversion, IdentityConversion, LinearIntegerConversion
 from cantools.database.errors import DecodeError
 
+from hil.dbc import closest
 from hil.errors import RailhilError
 
 __all__ = ["Codec", "FrameCodec", "FrameError"]
@@ -462,15 +462,18 @@ class FrameCodec:
 
     # The generated methods replace these two on the fast path; these are the cantools fallback.
 
-    def encode(self, values: Mapping[str, float]) -> bytes:
-        """Physical values -> payload; saturates instead of raising (module docstring)."""
+    def _sanitized(self, values: Mapping[str, Any]) -> dict[str, int | float]:
+        """Raw values of every signal, saturated and counted in `clamped` (module docstring)."""
         raw: dict[str, int | float] = {}
-        clamped = 0
         for name, plan in self._plans.items():
             raw[name], k = plan.sanitize(values.get(name))
-            clamped += k
-        clamped += self._fix_multiplexers(self.message.signal_tree, raw)
-        self.clamped += clamped
+            self.clamped += k
+        return raw
+
+    def encode(self, values: Mapping[str, float]) -> bytes:
+        """Physical values -> payload; saturates instead of raising (module docstring)."""
+        raw = self._sanitized(values)
+        self.clamped += self._fix_multiplexers(self.message.signal_tree, raw)
         try:
             return self.message.encode(raw, scaling=False, padding=False, strict=False)
         except Exception:  # cantools cannot pack overlapping signals (a DBC loaded with strict=False)
@@ -496,13 +499,7 @@ class FrameCodec:
 
     def _encode_careful(self, values: Mapping[str, Any]) -> bytes:
         """The fast path's encode for values of unexpected types: one signal at a time."""
-        raw: dict[str, int | float] = {}
-        clamped = 0
-        for name, plan in self._plans.items():
-            raw[name], k = plan.sanitize(values.get(name))
-            clamped += k
-        self.clamped += clamped
-        return self._pack(raw)
+        return self._pack(self._sanitized(values))
 
     def _pack(self, raw: Mapping[str, int | float]) -> bytes:
         """Raw values -> payload, every signal's bits OR-ed in (no multiplexing)."""
@@ -562,9 +559,8 @@ class Codec:
         try:
             return self._by_name[name]
         except KeyError:
-            close = difflib.get_close_matches(name, list(self._by_name), n=3, cutoff=0.5)
-            hint = f"; did you mean {', '.join(close)}?" if close else ""
-            raise KeyError(f"no frame named {name!r} in the DBC{hint}") from None
+            raise KeyError(f"no frame named {name!r} in the DBC; closest: "
+                           f"{closest(name, list(self._by_name))}") from None
 
     def __contains__(self, frame_id: object) -> bool:
         return frame_id in self._by_id

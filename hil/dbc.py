@@ -28,14 +28,6 @@ def load_dbc(path: str | Path = DEFAULT_DBC) -> Database:
     return db
 
 
-def bitrate_of(db: Database, path: str | Path = "DBC") -> int:
-    attrs = getattr(db, "dbc", None)
-    attr = attrs.attributes.get("Baudrate") if attrs is not None else None
-    if attr is None:
-        raise DbcError(f"{path}: no 'Baudrate' attribute: cannot tell the bus bitrate")
-    return int(attr.value)
-
-
 def closest(name: str, candidates: list[str], n: int = 3) -> str:
     found = difflib.get_close_matches(name, candidates, n=n, cutoff=0.5)
     return ", ".join(found) if found else "(nothing close)"

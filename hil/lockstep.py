@@ -70,7 +70,6 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
     plant_node = nodes[0]
     plant: PlantController = plant_node.controller
     bus = LockstepBus(nodes, writer)
-    sent = {n.name: 0 for n in nodes}
 
     max_us = round(scenario.max_duration_s * 1e6)
     linger_us = round(scenario.end_after_standstill_s * 1e6)
@@ -89,7 +88,6 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
             frames = node.cycle(now)
             for fc, data in frames:
                 bus.send(now, fc, data)
-            sent[node.name] += len(frames)
             heapq.heappush(heap, (now + node.period_us, k))
             if node is plant_node:
                 if plant.standstill:
@@ -102,6 +100,7 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                 if progress is not None and now >= next_progress:
                     progress(now, plant.glance())
                     next_progress += 500_000
-    return RunOutcome(mode="lockstep", end_us=now, reason=reason, truth=plant.truth, frames_by_node=sent,
+    return RunOutcome(mode="lockstep", end_us=now, reason=reason, truth=plant.truth,
+                      frames_by_node={n.name: n.stats.frames_sent for n in nodes},
                       node_stats={n.name: vars(n.stats).copy() for n in nodes},
                       wall_s=time.perf_counter() - wall0)

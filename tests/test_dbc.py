@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from hil.dbc import DEFAULT_DBC, bitrate_of, load_dbc
+from hil.busload import declared_bitrate
+from hil.dbc import DEFAULT_DBC, load_dbc
 from hil.errors import DbcError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -26,7 +27,7 @@ def test_dbc_matches_its_generator():
 
 def test_schema_content():
     db = load_dbc()
-    assert bitrate_of(db) == 500_000
+    assert declared_bitrate(db) == 500_000
     assert {n.name for n in db.nodes} == {"PLANT", "BCU", "ACD", "DESK"} | {f"BECU{i}" for i in range(1, 9)}
     for m in db.messages:
         assert m.cycle_time and m.cycle_time > 0, m.name
