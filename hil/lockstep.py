@@ -1,11 +1,19 @@
-"""Lockstep runner: one process, integer-microsecond simulated time, a discrete-event schedule of node
-cycles and plant steps, and an in-process bus that delivers every frame, in order, to its receivers
-and to the trace.  Same scenario and seed -> byte-identical trace.
+"""Lockstep runner: one process, a discrete-event schedule of node cycles, plant steps and bus events
+in integer nanoseconds (node times are integer microseconds), and an in-process bus.  Same scenario
+and seed -> byte-identical trace.
 
-Event order at equal times is fixed by the node order of `assembly.node_names` (PLANT first, so the
-plant integrates with the commands received up to that instant).  A frame sent at t is delivered at
-t; a receiver that runs later at the same t sees it (no bus timing model yet: frame durations and
-arbitration come with the bit-timed bus).
+The bus (scenario ``[bus] timing``):
+
+* ``bit`` (default) — hil.bustiming: each node's frames enter its transmit queue when released
+  (hil.release: cycle phase, drift, jitter, extra delay); when the bus is idle the lowest pending
+  identifier wins arbitration and occupies the bus for its frame length at the scenario's bitrate;
+  receivers and the trace get the frame at the end of its EOF.
+* ``ideal`` — a frame sent at t is delivered at t (no frame durations, no arbitration).
+
+Event order at equal times: frame deliveries first (a node running at that instant sees the frame),
+then node cycles in the node order of `assembly.node_names` (PLANT first, so the plant integrates
+with the commands received up to that instant), then delayed releases, then arbitration (so every
+frame released at an instant competes in the arbitration that starts then).
 """
 
 from __future__ import annotations
@@ -19,11 +27,17 @@ import can
 from cantools.database.can import Database
 
 from hil.assembly import build_node, node_names
+from hil.busload import declared_bitrate
+from hil.bustiming import BitTimedBus, Pending
 from hil.codec import Codec, FrameCodec
 from hil.gctune import loop_gc
 from hil.node import Node
 from hil.plant_node import PlantController, TruthLog
+from hil.release import message_delays, node_releases
 from hil.scenario import Scenario
+
+DEFAULT_BITRATE = 500_000   # bit/s, when neither the scenario nor the DBC gives one
+DELIVER, CYCLE, RELEASE, ARBITRATE = 0, 1, 2, 3   # event phases: their order at equal times
 
 
 @dataclass
@@ -37,10 +51,13 @@ class RunOutcome:
     frames_by_node: dict[str, int]
     node_stats: dict[str, dict] = field(default_factory=dict)
     wall_s: float = 0.0
+    bus: dict | None = None                   # bit-timed lockstep bus: load and per-message timing
+    frames_in_flight: int = 0                 # sent, but queued or on the wire when the run ended
+    frames_overwritten: int = 0               # replaced in a transmit queue by a newer instance
 
 
 class LockstepBus:
-    """In-process bus: decodes each frame once and hands the values to every subscribed node."""
+    """In-process delivery: decodes each frame once and hands the values to every subscribed node."""
 
     def __init__(self, nodes: list[Node], writer: can.Listener | None) -> None:
         self.writer = writer
@@ -50,17 +67,41 @@ class LockstepBus:
                 self.subscribers.setdefault(fid, []).append(node)
         self.frames = 0
 
-    def send(self, t_us: int, fc: FrameCodec, data: bytes) -> None:
+    def send(self, t_ns: int, fc: FrameCodec, data: bytes) -> None:
         self.frames += 1
         if self.writer is not None:
             self.writer.on_message_received(can.Message(
-                timestamp=t_us / 1e6, arbitration_id=fc.frame_id, is_extended_id=fc.is_extended_id,
+                timestamp=t_ns / 1e9, arbitration_id=fc.frame_id, is_extended_id=fc.is_extended_id,
                 data=data, dlc=len(data), channel=0, check=False))
         subs = self.subscribers.get(fc.frame_id)
         if subs:
             values = fc.decode(data)
+            t_us = t_ns // 1000
             for node in subs:
                 node.receive_values(fc.frame_id, values, t_us)
+
+
+def bus_bitrate(scenario: Scenario, db: Database) -> int:
+    return scenario.bus.bitrate or declared_bitrate(db) or DEFAULT_BITRATE
+
+
+def bus_report(bus: BitTimedBus, db: Database, end_ns: int) -> dict:
+    """The bit-timed bus's figures for the run folder: load and per-message response times [µs]."""
+    names = {m.frame_id: m.name for m in db.messages}
+    messages = {}
+    for fid, s in sorted(bus.stats.items()):
+        messages[names.get(fid, hex(fid))] = {
+            "frame_id": fid,
+            "frames": s.frames,
+            "response_max_us": s.response_max_ns / 1e3,
+            "response_mean_us": s.response_sum_ns / s.frames / 1e3 if s.frames else None,
+            "queued_max_us": s.queued_max_ns / 1e3,
+            "deadline_misses": s.deadline_misses,
+            "overwritten": s.overwritten,
+        }
+    return {"bitrate_bps": bus.bitrate_bps, "stuffing": bus.stuffing,
+            "load": bus.busy_ns / max(end_ns, bus.idle_at_ns) if end_ns > 0 else None,
+            "messages": messages}
 
 
 def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Listener | None,
@@ -69,38 +110,94 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
     nodes = [build_node(name, scenario, db, codec, dbc_name) for name in node_names(scenario)]
     plant_node = nodes[0]
     plant: PlantController = plant_node.controller
-    bus = LockstepBus(nodes, writer)
+    releases = node_releases(scenario, db, nodes)
+    delays = message_delays(scenario, db)
+    delivery = LockstepBus(nodes, writer)
+    timed = scenario.bus.timing == "bit"
+    bus = None
+    if timed:
+        deadlines = {m.frame_id: int(m.cycle_time) * 1_000_000 for m in db.messages if m.cycle_time}
+        bus = BitTimedBus(bus_bitrate(scenario, db), len(nodes), scenario.bus.stuffing, deadlines)
 
-    max_us = round(scenario.max_duration_s * 1e6)
-    linger_us = round(scenario.end_after_standstill_s * 1e6)
-    heap = [(n.offset_us, k) for k, n in enumerate(nodes)]
+    max_ns = round(scenario.max_duration_s * 1e9)
+    linger_ns = round(scenario.end_after_standstill_s * 1e9)
+    heap: list[tuple] = []
+    nominal = [0] * len(nodes)
+    window = [0] * len(nodes)
+    for k, rel in enumerate(releases):
+        t_ns, nominal[k], window[k] = rel.next()
+        heap.append((t_ns, CYCLE, k, None))
     heapq.heapify(heap)
+    seq = len(nodes)                     # tie-breaker of bus events, after every node index
+    arbitration_at: int | None = None    # time of the arbitration event in the heap, if any
     stopped_since: int | None = None
     reason = "max_duration"
     next_progress = 0
     now = 0
+
+    def release(t_ns: int, k: int, fc: FrameCodec, data: bytes, window_ns: int) -> None:
+        nonlocal seq, arbitration_at
+        if not timed:
+            delivery.send(t_ns, fc, data)
+            return
+        bus.enqueue(Pending(k, fc.frame_id, fc.is_extended_id, data, t_ns, window_ns, fc))
+        if arbitration_at is None:
+            arbitration_at = max(t_ns, bus.idle_at_ns)
+            seq += 1
+            heapq.heappush(heap, (arbitration_at, ARBITRATE, seq, None))
+
     with loop_gc():
         while heap:
-            now, k = heapq.heappop(heap)
-            if now > max_us:
+            now, phase, k, item = heapq.heappop(heap)
+            if now > max_ns:
                 break
+            if phase == DELIVER:
+                delivery.send(now, item.item, item.data)
+                continue
+            if phase == ARBITRATE:
+                arbitration_at = None
+                started = bus.arbitrate(now)
+                if started is not None:
+                    frame, deliver_ns, idle_ns = started
+                    seq += 1
+                    heapq.heappush(heap, (deliver_ns, DELIVER, seq, frame))
+                    if bus.pending():
+                        arbitration_at = idle_ns
+                        seq += 1
+                        heapq.heappush(heap, (idle_ns, ARBITRATE, seq, None))
+                continue
+            if phase == RELEASE:
+                node_k, fc, data, window_ns = item
+                release(now, node_k, fc, data, window_ns)
+                continue
             node = nodes[k]
-            frames = node.cycle(now)
+            frames = node.cycle(now // 1000, nominal[k])
             for fc, data in frames:
-                bus.send(now, fc, data)
-            heapq.heappush(heap, (now + node.period_us, k))
+                delay = delays.get(fc.frame_id)
+                if delay is None:
+                    release(now, k, fc, data, window[k])
+                else:
+                    seq += 1
+                    heapq.heappush(heap, (now + delay.next_ns(), RELEASE, seq,
+                                          (k, fc, data, window[k] + delay.delay_min_us * 1000)))
+            t_next, nominal[k], window[k] = releases[k].next()
+            heapq.heappush(heap, (t_next, CYCLE, k, None))
             if node is plant_node:
                 if plant.standstill:
                     stopped_since = now if stopped_since is None else stopped_since
-                    if now - stopped_since >= linger_us:
+                    if now - stopped_since >= linger_ns:
                         reason = "standstill"
                         break
                 else:
                     stopped_since = None
                 if progress is not None and now >= next_progress:
-                    progress(now, plant.glance())
-                    next_progress += 500_000
-    return RunOutcome(mode="lockstep", end_us=now, reason=reason, truth=plant.truth,
+                    progress(now // 1000, plant.glance())
+                    next_progress += 500_000_000
+    in_flight = sum(1 for e in heap if e[1] in (DELIVER, RELEASE)) + (bus.waiting() if bus else 0)
+    overwritten = sum(s.overwritten for s in bus.stats.values()) if bus else 0
+    return RunOutcome(mode="lockstep", end_us=now // 1000, reason=reason, truth=plant.truth,
                       frames_by_node={n.name: n.stats.frames_sent for n in nodes},
                       node_stats={n.name: vars(n.stats).copy() for n in nodes},
-                      wall_s=time.perf_counter() - wall0)
+                      wall_s=time.perf_counter() - wall0,
+                      bus=bus_report(bus, db, now) if bus is not None else None,
+                      frames_in_flight=in_flight, frames_overwritten=overwritten)

@@ -189,8 +189,12 @@ class Node:
             self.rx.update(pairs, values, t_us)
             self.stats.frames_received += 1
 
-    def cycle(self, now_us: int) -> list[tuple[FrameCodec, bytes]]:
-        """Run one controller step and return the frames due now as (codec, payload)."""
+    def cycle(self, now_us: int, nominal_us: int | None = None) -> list[tuple[FrameCodec, bytes]]:
+        """Run one controller step at `now_us` and return the frames due as (codec, payload).
+
+        Which frames are due is decided on `nominal_us`, the cycle's place on the node's own
+        schedule (default `now_us`): a cycle released early or late by jitter still sends the
+        frames of its slot."""
         stats = self.stats
         stats.cycles += 1
         try:
@@ -206,10 +210,11 @@ class Node:
                 value = self.safe.get(key, 0.0)
             outputs[key] = value
         frames = []
-        if now_us < self._next_due_us:          # the plant steps at 1 ms, its frames are due every 10
+        slot_us = now_us if nominal_us is None else nominal_us
+        if slot_us < self._next_due_us:         # the plant steps at 1 ms, its frames are due every 10
             return frames
         for tx in self.tx:
-            if now_us < tx.next_due_us:
+            if slot_us < tx.next_due_us:
                 continue
             values = {sig: outputs.get(key, 0.0) for sig, key in tx.fields}
             if tx.counter:
@@ -217,8 +222,8 @@ class Node:
             frames.append((tx.codec, tx.codec.encode(values)))
             tx.count += 1
             tx.next_due_us += tx.cycle_us
-            if tx.next_due_us <= now_us:          # overrun: skip missed slots, keep the phase
-                missed = (now_us - tx.next_due_us) // tx.cycle_us + 1
+            if tx.next_due_us <= slot_us:         # overrun: skip missed slots, keep the phase
+                missed = (slot_us - tx.next_due_us) // tx.cycle_us + 1
                 tx.next_due_us += missed * tx.cycle_us
         stats.frames_sent += len(frames)
         self._next_due_us = min(tx.next_due_us for tx in self.tx)

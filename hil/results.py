@@ -55,7 +55,8 @@ def _per_car(cols: dict[str, np.ndarray], key: str, n: int) -> np.ndarray:
 
 
 def compute_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[np.ndarray, np.ndarray],
-                 brake_start_s: float | None, frames_sent: dict[str, int], frames_recorded: int) -> dict:
+                 brake_start_s: float | None, frames_sent: dict[str, int], frames_recorded: int,
+                 in_flight: int = 0, overwritten: int = 0) -> dict:
     n = scenario.train.cars
     t = cols["t_s"]
     x = _per_car(cols, "x_m", n)
@@ -95,7 +96,9 @@ def compute_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[
         "mean_abs_decel_error_mps2": round(float(decel_err.mean()), 4) if decel_err.size else None,
         "frames_sent": int(sum(frames_sent.values())),
         "frames_recorded": int(frames_recorded),          # in the trace
-        "frames_lost": int(sum(frames_sent.values())) - int(frames_recorded),
+        "frames_in_flight": int(in_flight),               # queued or on the wire at the end
+        "frames_overwritten": int(overwritten),           # replaced in a full transmit queue
+        "frames_lost": int(sum(frames_sent.values())) - int(frames_recorded) - in_flight - overwritten,
         "frames_sent_by_node": dict(frames_sent),
     }
     if n > 1:
@@ -144,8 +147,16 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
         f"WSP activations per car {per_car(kpis['wsp_activations'], '{:d}')}",
         "mean |decel error|      " + (f"{kpis['mean_abs_decel_error_mps2']:.3f} m/s²"
                                       if kpis["mean_abs_decel_error_mps2"] is not None else "—"),
-        f"frames sent             {kpis['frames_sent']} ({kpis['frames_lost']} not in the trace)",
+        f"frames sent             {kpis['frames_sent']} ({kpis['frames_lost']} not in the trace"
+        + (f", {kpis['frames_in_flight']} still queued at the end" if kpis.get("frames_in_flight") else "")
+        + (f", {kpis['frames_overwritten']} overwritten in a transmit queue"
+           if kpis.get("frames_overwritten") else "") + ")",
     ]
+    bus = kpis.get("bus")
+    if bus:
+        lines.append(f"bus ({bus['bitrate_bps'] // 1000} kbit/s)       load {100 * bus['load']:.1f} %, "
+                     f"worst response {bus['worst_response_us']:.0f} us ({bus['worst_response_message']}), "
+                     f"{bus['deadline_misses']} deadline misses")
     lines.append("files: " + ", ".join(str(f) for f in files))
     return lines
 

@@ -56,7 +56,18 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
                                     speed=trace_speed)
     brake_us = DeskScript(scenario.desk).first_brake_us()
     kpis = compute_kpis(scenario, cols, target, None if brake_us is None else brake_us / 1e6,
-                        outcome.frames_by_node, recorded)
+                        outcome.frames_by_node, recorded, outcome.frames_in_flight,
+                        outcome.frames_overwritten)
+    if outcome.bus is not None:
+        worst = max(outcome.bus["messages"].items(), key=lambda kv: kv[1]["response_max_us"],
+                    default=(None, {"response_max_us": 0.0}))
+        kpis["bus"] = {
+            "bitrate_bps": outcome.bus["bitrate_bps"],
+            "load": round(outcome.bus["load"], 5) if outcome.bus["load"] is not None else None,
+            "worst_response_us": worst[1]["response_max_us"],
+            "worst_response_message": worst[0],
+            "deadline_misses": sum(m["deadline_misses"] for m in outcome.bus["messages"].values()),
+        }
     kpis["mode"] = outcome.mode
     kpis["seed"] = scenario.seed
     kpis["simulated_s"] = outcome.end_us / 1e6
@@ -74,6 +85,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
         "platform": platform.platform(),
         "trace_t0_s": trace_t0_s,
         "node_stats": outcome.node_stats,
+        "bus": outcome.bus,
         **(extra or {}),
     }
     run_json = out_dir / "run.json"

@@ -114,6 +114,51 @@ class RealtimeSpec(_Strict):
     speed: Annotated[float, Field(gt=0, le=1)] = 1.0
 
 
+class BusSpec(_Strict):
+    """The lockstep bus.  Real-time runs get their timing from the real bus instead."""
+
+    # "bit": frame durations, arbitration, transmit queues, delivery at end of frame (hil.bustiming);
+    # "ideal": every frame delivered the instant it is sent (no bus timing at all)
+    timing: Literal["bit", "ideal"] = "bit"
+    bitrate: Annotated[int, Field(ge=10_000, le=1_000_000)] | None = None   # bit/s; default: DBC Baudrate
+    stuffing: Literal["exact", "worst", "none"] = "exact"
+
+
+class NodeTiming(_Strict):
+    """Release jitter, clock drift and start delay of one node's cycle (lockstep).
+
+    Cycle k of a node with period T and phase offset o is released at
+    start_delay + o + k·T·(1 + drift_ppm·1e-6) + U(jitter_min_us, jitter_max_us), seeded; the jitter
+    does not accumulate.  Without a value here, the sender node's CANdb++ attributes CANoeStartDelay
+    [ms], CANoeDrift [%] and CANoeJitterMin/Max [% of the period] are used when the DBC has them."""
+
+    jitter_min_us: Annotated[int, Field(ge=-1_000_000, le=1_000_000)] | None = None
+    jitter_max_us: Annotated[int, Field(ge=-1_000_000, le=1_000_000)] | None = None
+    drift_ppm: Annotated[float, Field(ge=-100_000, le=100_000)] | None = None
+    start_delay_us: Annotated[int, Field(ge=0, le=60_000_000)] | None = None
+
+    @model_validator(mode="after")
+    def _ordered(self) -> NodeTiming:
+        lo, hi = self.jitter_min_us, self.jitter_max_us
+        if lo is not None and hi is not None and hi < lo:
+            raise ValueError(f"jitter_max_us {hi} is below jitter_min_us {lo}")
+        return self
+
+
+class MessageTiming(_Strict):
+    """Extra delay between a node producing a frame and the frame entering its transmit queue:
+    uniform in [delay_min_us, delay_max_us], seeded (equal bounds: a fixed delay)."""
+
+    delay_min_us: Annotated[int, Field(ge=0, le=1_000_000)] = 0
+    delay_max_us: Annotated[int, Field(ge=0, le=1_000_000)] = 0
+
+    @model_validator(mode="after")
+    def _ordered(self) -> MessageTiming:
+        if self.delay_max_us < self.delay_min_us:
+            raise ValueError(f"delay_max_us {self.delay_max_us} is below delay_min_us {self.delay_min_us}")
+        return self
+
+
 class Scenario(_Strict):
     name: str = "unnamed"
     description: str = ""
@@ -125,6 +170,9 @@ class Scenario(_Strict):
     track: TrackSpec = Field(default_factory=TrackSpec)
     desk: list[DeskEvent] = Field(default_factory=list)
     realtime: RealtimeSpec = Field(default_factory=RealtimeSpec)
+    bus: BusSpec = Field(default_factory=BusSpec)
+    nodes: dict[str, NodeTiming] = Field(default_factory=dict)        # by node name, e.g. BECU3
+    messages: dict[str, MessageTiming] = Field(default_factory=dict)  # by DBC message name
 
     @field_validator("desk")
     @classmethod

@@ -1,0 +1,279 @@
+"""The bit-timed CAN bus of lockstep mode: frame durations, arbitration and per-node transmit queues.
+
+Pure logic, no I/O: `hil.lockstep` drives it from its event schedule.  Times are integer nanoseconds.
+
+Frame duration (classic CAN, ISO 11898-1 frame layout), in bit times, interframe space included:
+
+* ``exact``  — the frame's real bits: SOF, arbitration and control fields, data, CRC-15 (polynomial
+  0x4599 of the CAN 2.0 specification, over SOF..data) are built, and a stuff bit is counted after
+  every 5 equal bits from SOF to the end of the CRC sequence (stuff bits count towards the next run);
+  plus the 13 unstuffed bits (CRC delimiter, ACK slot and delimiter, 7 EOF bits, 3 interframe bits).
+* ``worst``  — Davis et al. 2007 eq. (15): 55 + 10 s bits (11-bit id), 80 + 10 s (29-bit), s bytes.
+* ``none``   — no stuff bits: 47 + 8 s (11-bit), 67 + 8 s (29-bit).
+
+An 8-byte 11-bit frame at 500 kbit/s therefore occupies the bus 222 µs (no stuffing) to 270 µs
+(worst case).  A frame is delivered to its receivers (and the trace) at the end of its EOF, 3 bit
+times before the bus is idle again.
+
+Arbitration (`BitTimedBus.arbitrate`): when the bus is idle, the head of every node's transmit queue
+competes; the lowest arbitration field wins, compared bit by bit as on the wire: 11 base-id bits,
+then an 11-bit frame's RTR/IDE (dominant) beat a 29-bit frame's SRR/IDE (recessive), then the 18
+extension bits.  Each node's queue is ordered by that same priority (the queue Davis et al. assume);
+a frame released while an older frame of the same id still waits in that node's queue replaces it
+(one transmit buffer per message, as AUTOSAR CanIf buffers a PDU): the older one is *overwritten*,
+counted, and is a deadline miss.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+from hil.busload import frame_bits
+
+__all__ = ["STUFFING_MODES", "BitTimedBus", "Pending", "arbitration_key", "crc15", "exact_frame_bits",
+           "frame_duration_bits", "stuff_bits"]
+
+STUFFING_MODES = ("exact", "worst", "none")
+CRC15_POLY = 0x4599          # x^15 + x^14 + x^10 + x^8 + x^7 + x^4 + x^3 + 1 (CAN 2.0 spec, §3.1.1)
+UNSTUFFED_TAIL_BITS = 13     # CRC delimiter, ACK slot, ACK delimiter, EOF (7), interframe space (3)
+IFS_BITS = 3                 # interframe space: after delivery, before the bus is idle
+
+
+def _crc15_table() -> list[int]:
+    table = []
+    for byte in range(256):
+        crc = byte << 7
+        for _ in range(8):
+            crc = ((crc << 1) ^ CRC15_POLY) if crc & 0x4000 else (crc << 1)
+        table.append(crc & 0x7FFF)
+    return table
+
+
+_CRC_TABLE = _crc15_table()
+
+
+def crc15(value: int, nbits: int) -> int:
+    """CRC-15/CAN of the `nbits`-bit stream `value` (most significant bit first).
+
+    A generic CRC library works on whole bytes; the CAN CRC runs over 19 + 8s (11-bit) or 39 + 8s
+    (29-bit) bits, so the leading nbits mod 8 bits go one at a time and the rest by table.
+    """
+    crc = 0
+    lead = nbits % 8
+    for i in range(nbits - 1, nbits - 1 - lead, -1):
+        bit = (value >> i) & 1
+        top = (crc >> 14) & 1
+        crc = (crc << 1) & 0x7FFF
+        if top ^ bit:
+            crc ^= CRC15_POLY
+    for shift in range(nbits - lead - 8, -1, -8):
+        crc = ((crc << 8) & 0x7FFF) ^ _CRC_TABLE[((crc >> 7) ^ (value >> shift)) & 0xFF]
+    return crc
+
+
+# Stuffing as a state machine over (last bit, run length 0..5), 8 bits at a time: state index
+# last * 6 + run; run 0 only before the first bit.  One table per chunk width 1..8.
+def _stuff_tables() -> list[list[tuple[int, int]]]:
+    tables: list[list[tuple[int, int]]] = [[]]
+    for width in range(1, 9):
+        table = []
+        for state in range(12):
+            for chunk in range(1 << width):
+                last, run = divmod(state, 6)
+                stuffs = 0
+                for i in range(width - 1, -1, -1):
+                    bit = (chunk >> i) & 1
+                    if run and bit == last:
+                        run += 1
+                    else:
+                        last, run = bit, 1
+                    if run == 5:            # five equal bits: a complement bit follows
+                        stuffs += 1
+                        last, run = 1 - last, 1
+                table.append((last * 6 + run, stuffs))
+        tables.append(table)
+    return tables
+
+
+_STUFF = _stuff_tables()
+
+
+def stuff_bits(value: int, nbits: int) -> int:
+    """Number of stuff bits a transmitter inserts into the `nbits`-bit stream `value` (MSB first)."""
+    state, total = 0, 0
+    lead = nbits % 8
+    if lead:
+        state, total = _STUFF[lead][(state << lead) | (value >> (nbits - lead))]
+    table = _STUFF[8]
+    for shift in range(nbits - lead - 8, -1, -8):
+        state, n = table[(state << 8) | ((value >> shift) & 0xFF)]
+        total += n
+    return total
+
+
+def exact_frame_bits(frame_id: int, extended: bool, data: bytes, remote: bool = False,
+                     dlc: int | None = None) -> int:
+    """Bit times of one classic CAN frame with its real stuff bits, interframe space included."""
+    dlc = len(data) if dlc is None else dlc
+    payload = b"" if remote else bytes(data[:8])
+    rtr = 1 if remote else 0
+    if extended:
+        base, ext = frame_id >> 18, frame_id & 0x3FFFF
+        # SOF, 11 base bits, SRR=1, IDE=1, 18 extension bits, RTR, r1=0, r0=0, DLC
+        head = (((((base << 2) | 0b11) << 18 | ext) << 3 | rtr << 2) << 4) | (dlc & 0xF)
+        head_bits = 1 + 11 + 2 + 18 + 3 + 4
+    else:
+        # SOF, 11 id bits, RTR, IDE=0, r0=0, DLC
+        head = ((frame_id << 3 | rtr << 2) << 4) | (dlc & 0xF)
+        head_bits = 1 + 11 + 3 + 4
+    nbits = head_bits + 8 * len(payload)
+    value = (head << (8 * len(payload))) | int.from_bytes(payload, "big")
+    stuffed = (value << 15) | crc15(value, nbits)
+    return nbits + 15 + stuff_bits(stuffed, nbits + 15) + UNSTUFFED_TAIL_BITS
+
+
+def frame_duration_bits(frame_id: int, extended: bool, data: bytes, stuffing: str = "exact") -> int:
+    """Bit times one data frame occupies the bus, by the chosen stuffing model (module docstring)."""
+    if stuffing == "exact":
+        return exact_frame_bits(frame_id, extended, data)
+    if stuffing == "worst":
+        return frame_bits(len(data), extended)
+    if stuffing == "none":
+        return frame_bits(len(data), extended, worst_case_stuffing=False)
+    raise ValueError(f"stuffing must be one of {', '.join(STUFFING_MODES)}, got {stuffing!r}")
+
+
+def arbitration_key(frame_id: int, extended: bool) -> int:
+    """An int that orders frames as arbitration does: smaller wins (see the module docstring)."""
+    if extended:
+        return ((frame_id >> 18) << 19) | (1 << 18) | (frame_id & 0x3FFFF)
+    return frame_id << 19
+
+
+@dataclass(slots=True)
+class Pending:
+    """A frame in a node's transmit queue."""
+
+    node: int
+    frame_id: int
+    extended: bool
+    data: bytes
+    released_ns: int          # entered the transmit queue
+    window_ns: int            # start of its release window (nominal release - max early jitter)
+    item: object = None       # what the runner needs at delivery (the frame's codec)
+    key: int = 0
+    overwritten: bool = False
+
+
+@dataclass
+class MessageBusStats:
+    """What the bus did to one message: frames carried, response times, losses."""
+
+    frames: int = 0
+    overwritten: int = 0       # a newer instance replaced it in the queue before it was sent
+    deadline_misses: int = 0   # response > deadline, plus the overwritten ones
+    response_max_ns: int = 0   # end of frame (with interframe space) - start of its release window
+    response_sum_ns: int = 0
+    queued_max_ns: int = 0     # start of transmission - release into the queue
+    bits: int = 0
+
+
+@dataclass
+class BitTimedBus:
+    """Transmit queues, arbitration and frame timing; `hil.lockstep` calls enqueue/arbitrate."""
+
+    bitrate_bps: int
+    n_nodes: int
+    stuffing: str = "exact"
+    deadlines_ns: dict[int, int] = field(default_factory=dict)   # frame id -> deadline (its cycle)
+    idle_at_ns: int = 0
+    busy_ns: int = 0
+    stats: dict[int, MessageBusStats] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.stuffing not in STUFFING_MODES:
+            raise ValueError(f"stuffing must be one of {', '.join(STUFFING_MODES)}, got {self.stuffing!r}")
+        if self.bitrate_bps <= 0:
+            raise ValueError(f"bitrate must be positive, got {self.bitrate_bps}")
+        self._queues: list[list[tuple[int, int, Pending]]] = [[] for _ in range(self.n_nodes)]
+        self._waiting: dict[tuple[int, int, bool], Pending] = {}
+        self._seq = 0
+        self._worst = {}          # (dlc, extended) -> bits, for the "worst"/"none" models
+
+    def duration_ns(self, bits: int) -> int:
+        return (bits * 1_000_000_000 + self.bitrate_bps // 2) // self.bitrate_bps
+
+    def frame_bits(self, p: Pending) -> int:
+        if self.stuffing == "exact":
+            return exact_frame_bits(p.frame_id, p.extended, p.data)
+        key = (len(p.data), p.extended)
+        bits = self._worst.get(key)
+        if bits is None:
+            bits = self._worst[key] = frame_duration_bits(p.frame_id, p.extended, p.data, self.stuffing)
+        return bits
+
+    def _stats(self, frame_id: int) -> MessageBusStats:
+        s = self.stats.get(frame_id)
+        if s is None:
+            s = self.stats[frame_id] = MessageBusStats()
+        return s
+
+    def enqueue(self, p: Pending) -> None:
+        """Put a released frame into its node's transmit queue (replacing a waiting older instance)."""
+        p.key = arbitration_key(p.frame_id, p.extended)
+        slot = (p.node, p.frame_id, p.extended)
+        old = self._waiting.get(slot)
+        if old is not None:
+            old.overwritten = True          # lazily dropped from the queue heap
+            s = self._stats(p.frame_id)
+            s.overwritten += 1
+            s.deadline_misses += 1
+        self._waiting[slot] = p
+        self._seq += 1
+        heapq.heappush(self._queues[p.node], (p.key, self._seq, p))
+
+    def pending(self) -> bool:
+        return bool(self._waiting)
+
+    def waiting(self) -> int:
+        """Frames in the transmit queues."""
+        return len(self._waiting)
+
+    def heads(self) -> Iterator[Pending]:
+        """The frame each node offers to arbitration now (its highest-priority waiting frame)."""
+        for q in self._queues:
+            while q and q[0][2].overwritten:
+                heapq.heappop(q)
+            if q:
+                yield q[0][2]
+
+    def arbitrate(self, now_ns: int) -> tuple[Pending, int, int] | None:
+        """Start the winning frame at `now_ns` (bus idle): (frame, delivery time, bus idle again)."""
+        if now_ns < self.idle_at_ns:
+            raise ValueError(f"arbitration at {now_ns} ns while the bus is busy until {self.idle_at_ns} ns")
+        best = None
+        for p in self.heads():
+            if best is None or p.key < best.key:
+                best = p
+        if best is None:
+            return None
+        heapq.heappop(self._queues[best.node])
+        del self._waiting[(best.node, best.frame_id, best.extended)]
+        bits = self.frame_bits(best)
+        end = now_ns + self.duration_ns(bits)
+        deliver = now_ns + self.duration_ns(bits - IFS_BITS)
+        self.idle_at_ns = end
+        self.busy_ns += end - now_ns
+        s = self._stats(best.frame_id)
+        s.frames += 1
+        s.bits += bits
+        response = end - best.window_ns
+        s.response_max_ns = max(s.response_max_ns, response)
+        s.response_sum_ns += response
+        s.queued_max_ns = max(s.queued_max_ns, now_ns - best.released_ns)
+        deadline = self.deadlines_ns.get(best.frame_id)
+        if deadline is not None and response > deadline:
+            s.deadline_misses += 1
+        return best, deliver, end
