@@ -125,12 +125,14 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         from hil.assembly import build_node
         from hil.codec import Codec
         from hil.dbc import load_dbc
+        from hil.release import node_release
         from hil.scenario import Scenario as _Scenario
 
         scenario = _Scenario.model_validate_json(scenario_json)
         db = load_dbc(dbc_path)
         codec = Codec(db)
         node = build_node(name, scenario, db, codec, dbc_path)
+        release = node_release(scenario, db, node)       # jitter, drift, start delay (hil.release)
         bus = open_bus(cfg)
         _raise_priority(REALTIME_NICE)
         results.put(("ready", name, None))
@@ -145,23 +147,27 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         max_us = round(scenario.max_duration_s * 1e6)
         stopped_since = None
         speed = scenario.realtime.speed
-        next_us = node.offset_us
+        release_ns, nominal_us, _ = release.next()
+        next_us = release_ns // 1000
         next_progress = 0
         late = missed = 0
         while not stop.is_set():
-            _wait_and_receive(bus, node, t0 + round(next_us * 1000 / speed), t0, speed)
-            frames = node.cycle(next_us)
+            _wait_and_receive(bus, node, t0 + round(release_ns / speed), t0, speed)
+            frames = node.cycle(release_ns // 1000, nominal_us)
             for fc, data in frames:
                 bus.send(can.Message(arbitration_id=fc.frame_id, is_extended_id=fc.is_extended_id,
                                      data=data, check=False))
-            next_us += node.period_us
+            release_ns, nominal_us, _ = release.next()
+            next_us = release_ns // 1000
             lag_us = _monotonic_us(t0, speed) - next_us
             if lag_us > 0:
                 late += 1
                 if lag_us > CATCH_UP_CYCLES * node.period_us and not is_plant:
                     skipped = lag_us // node.period_us
                     missed += skipped
-                    next_us += skipped * node.period_us
+                    for _ in range(skipped):
+                        release_ns, nominal_us, _ = release.next()
+                    next_us = release_ns // 1000
             if is_plant:
                 now = next_us - node.period_us
                 if plant.standstill:
@@ -361,9 +367,13 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
     db = load_dbc(dbc_path)                       # bad DBC: one line, before any process starts
     codec = Codec(db)
     from hil.assembly import build_node, node_names
+    from hil.release import node_releases
 
-    for name in node_names(scenario):             # bad bindings: one line, before any process starts
-        build_node(name, scenario, db, codec, str(dbc_path))
+    nodes = [build_node(name, scenario, db, codec, str(dbc_path)) for name in node_names(scenario)]
+    node_releases(scenario, db, nodes)            # bad bindings or [nodes.*]: one line, before any process
+    if scenario.messages:
+        print("notice: [messages.*] extra delays apply to lockstep runs only; the real-time bus has its own",
+              file=sys.stderr)
     out_dir = check_out_dir(out_dir)
     trace = out_dir / TRACE_NAME
     outcome, epoch_t0, failure = run_realtime(scenario, str(dbc_path), trace, cfg, progress=progress)

@@ -29,7 +29,8 @@ from hil.dbc import closest
 from hil.errors import ScenarioError
 from hil.scenario import MessageTiming, NodeTiming, Scenario
 
-__all__ = ["MessageDelay", "NodeRelease", "dbc_node_timing", "message_delays", "node_releases"]
+__all__ = ["MessageDelay", "NodeRelease", "dbc_node_timing", "message_delays", "node_release",
+           "node_releases"]
 
 #: nodes whose clock is the simulation's own: the plant integrates physics at a fixed step
 FIXED_CLOCK_NODES = ("PLANT",)
@@ -98,35 +99,37 @@ class NodeRelease:
         return max(0, clock_ns + jitter_ns), nominal_us, window_ns
 
 
+def node_release(scenario: Scenario, db: Database, node) -> NodeRelease:
+    """The NodeRelease of one node: scenario values over DBC attributes over zero."""
+    given = scenario.nodes.get(node.name, NodeTiming())
+    fixed = node.name in FIXED_CLOCK_NODES
+    if fixed and given != NodeTiming():
+        raise ScenarioError(f"scenario key 'nodes.{node.name}': the plant steps the physics on a fixed "
+                            f"clock and cannot jitter; delay its frames under [messages.NAME] instead")
+    dbc = NodeTiming() if fixed else dbc_node_timing(db, node.name, node.period_us)
+
+    def pick(key: str):
+        value = getattr(given, key)
+        return value if value is not None else getattr(dbc, key)
+
+    jmin, jmax = pick("jitter_min_us") or 0, pick("jitter_max_us") or 0
+    if jmax < jmin:
+        raise ScenarioError(f"node {node.name}: jitter_max_us {jmax} is below jitter_min_us {jmin}")
+    if jmax - jmin >= node.period_us:
+        raise ScenarioError(f"scenario key 'nodes.{node.name}': jitter range {jmax - jmin} us must be "
+                            f"shorter than the node's period {node.period_us} us")
+    return NodeRelease(node.name, node.period_us, node.offset_us, int(pick("start_delay_us") or 0),
+                       float(pick("drift_ppm") or 0.0), int(jmin), int(jmax), scenario.seed)
+
+
 def node_releases(scenario: Scenario, db: Database, nodes: list) -> list[NodeRelease]:
-    """One NodeRelease per node (same order), scenario values over DBC attributes over zero."""
+    """One NodeRelease per node (same order); a scenario key naming no node is an error."""
     names = [n.name for n in nodes]
     unknown = sorted(set(scenario.nodes) - set(names))
     if unknown:
         raise ScenarioError(f"scenario key 'nodes.{unknown[0]}': no such node in this scenario; "
                             f"nodes are {', '.join(names)}")
-    out = []
-    for node in nodes:
-        given = scenario.nodes.get(node.name, NodeTiming())
-        if node.name in FIXED_CLOCK_NODES and given != NodeTiming():
-            raise ScenarioError(f"scenario key 'nodes.{node.name}': the plant steps the physics on a fixed "
-                                f"clock and cannot jitter; delay its frames under [messages.NAME] instead")
-        fixed = node.name in FIXED_CLOCK_NODES
-        dbc = NodeTiming() if fixed else dbc_node_timing(db, node.name, node.period_us)
-
-        def pick(key: str, _given=given, _dbc=dbc):
-            value = getattr(_given, key)
-            return value if value is not None else getattr(_dbc, key)
-
-        jmin, jmax = pick("jitter_min_us") or 0, pick("jitter_max_us") or 0
-        if jmax < jmin:
-            raise ScenarioError(f"node {node.name}: jitter_max_us {jmax} is below jitter_min_us {jmin}")
-        if jmax - jmin >= node.period_us:
-            raise ScenarioError(f"scenario key 'nodes.{node.name}': jitter range {jmax - jmin} us must be "
-                                f"shorter than the node's period {node.period_us} us")
-        out.append(NodeRelease(node.name, node.period_us, node.offset_us, int(pick("start_delay_us") or 0),
-                               float(pick("drift_ppm") or 0.0), int(jmin), int(jmax), scenario.seed))
-    return out
+    return [node_release(scenario, db, node) for node in nodes]
 
 
 @dataclass

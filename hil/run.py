@@ -85,7 +85,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
         "platform": platform.platform(),
         "trace_t0_s": trace_t0_s,
         "node_stats": outcome.node_stats,
-        "bus": outcome.bus,
+        "bus_timing": outcome.bus,
         **(extra or {}),
     }
     run_json = out_dir / "run.json"
