@@ -27,7 +27,6 @@ counted, and is a deadline miss.
 from __future__ import annotations
 
 import heapq
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 from hil.busload import frame_bits
@@ -197,17 +196,26 @@ class BitTimedBus:
             raise ValueError(f"stuffing must be one of {', '.join(STUFFING_MODES)}, got {self.stuffing!r}")
         if self.bitrate_bps <= 0:
             raise ValueError(f"bitrate must be positive, got {self.bitrate_bps}")
-        self._queues: list[list[tuple[int, int, Pending]]] = [[] for _ in range(self.n_nodes)]
+        # Every node's queue is ordered by priority, so the head that wins arbitration is the lowest
+        # key among all waiting frames: one heap of them all gives the same winner in O(log n).
+        self._heap: list[tuple[int, int, Pending]] = []
         self._waiting: dict[tuple[int, int, bool], Pending] = {}
         self._seq = 0
         self._worst = {}          # (dlc, extended) -> bits, for the "worst"/"none" models
+        self._exact: dict[tuple[int, bool, bytes], int] = {}
 
     def duration_ns(self, bits: int) -> int:
         return (bits * 1_000_000_000 + self.bitrate_bps // 2) // self.bitrate_bps
 
     def frame_bits(self, p: Pending) -> int:
         if self.stuffing == "exact":
-            return exact_frame_bits(p.frame_id, p.extended, p.data)
+            key = (p.frame_id, p.extended, p.data)
+            bits = self._exact.get(key)
+            if bits is None:
+                if len(self._exact) > 65_536:    # a cache of recent payloads, not of the whole run
+                    self._exact.clear()
+                bits = self._exact[key] = exact_frame_bits(p.frame_id, p.extended, p.data)
+            return bits
         key = (len(p.data), p.extended)
         bits = self._worst.get(key)
         if bits is None:
@@ -232,7 +240,7 @@ class BitTimedBus:
             s.deadline_misses += 1
         self._waiting[slot] = p
         self._seq += 1
-        heapq.heappush(self._queues[p.node], (p.key, self._seq, p))
+        heapq.heappush(self._heap, (p.key, self._seq, p))
 
     def pending(self) -> bool:
         return bool(self._waiting)
@@ -241,25 +249,16 @@ class BitTimedBus:
         """Frames in the transmit queues."""
         return len(self._waiting)
 
-    def heads(self) -> Iterator[Pending]:
-        """The frame each node offers to arbitration now (its highest-priority waiting frame)."""
-        for q in self._queues:
-            while q and q[0][2].overwritten:
-                heapq.heappop(q)
-            if q:
-                yield q[0][2]
-
     def arbitrate(self, now_ns: int) -> tuple[Pending, int, int] | None:
         """Start the winning frame at `now_ns` (bus idle): (frame, delivery time, bus idle again)."""
         if now_ns < self.idle_at_ns:
             raise ValueError(f"arbitration at {now_ns} ns while the bus is busy until {self.idle_at_ns} ns")
-        best = None
-        for p in self.heads():
-            if best is None or p.key < best.key:
-                best = p
-        if best is None:
+        heap = self._heap
+        while heap and heap[0][2].overwritten:
+            heapq.heappop(heap)
+        if not heap:
             return None
-        heapq.heappop(self._queues[best.node])
+        best = heapq.heappop(heap)[2]
         del self._waiting[(best.node, best.frame_id, best.extended)]
         bits = self.frame_bits(best)
         end = now_ns + self.duration_ns(bits)
