@@ -77,6 +77,20 @@ def describe_bus(cfg: dict) -> str:
     return f"interface={cfg.get('interface')} channel={cfg.get('channel')}{extra}"
 
 
+def watch_command(cfg: dict, dbc_path: str) -> str:
+    """The cantools monitor command line that shows this bus live (python-can's bus flags; the DBC
+    comes first because --bus-kwargs takes every word after it)."""
+    cmd = f"cantools monitor {dbc_path} -i {cfg.get('interface')}"
+    if cfg.get("channel") is not None:
+        cmd += f" -c {cfg['channel']}"
+    extra = [f"{k}={v}" for k, v in cfg.items() if k not in ("interface", "channel", "bitrate")]
+    if cfg.get("bitrate"):
+        cmd += f" -b {cfg['bitrate']}"
+    if extra:
+        cmd += " --bus-kwargs " + " ".join(extra)
+    return cmd
+
+
 def open_bus(cfg: dict) -> can.BusABC:
     try:
         return can.Bus(**cfg)
@@ -280,6 +294,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         go.set()
         print(f"realtime: {len(procs)} processes on {describe_bus(cfg)}; pids "
               + " ".join(f"{n}={p.pid}" for n, p in procs.items()), file=sys.stderr, flush=True)
+        print(f"realtime: watch it live with: {watch_command(cfg, dbc_path)}", file=sys.stderr, flush=True)
         limit = time.monotonic() + START_MARGIN_S + scenario.max_duration_s / scenario.realtime.speed + 30.0
         while True:
             if progress_q is not None:

@@ -12,6 +12,7 @@ import subprocess
 import sys
 
 import can
+import can.cli
 import numpy as np
 import pytest
 from conftest import DEFAULT, ROOT
@@ -110,10 +111,40 @@ def wait_for_frames(start_line: str, count: int, timeout_s: float = 30.0) -> int
         bus.shutdown()
 
 
+def watch_like_cantools_monitor(proc, count: int = 200) -> set[str]:
+    """Read the runner's 'watch it live with: cantools monitor DBC -i .. -c .. --bus-kwargs ..' line,
+    open the bus from those flags exactly as cantools monitor does (python-can's CLI helpers) and
+    decode `count` frames with the DBC it names; return the message names seen."""
+    import argparse
+    import shlex
+
+    import cantools
+
+    line = proc.stderr.readline()
+    assert "watch it live with: cantools monitor " in line, line
+    words = shlex.split(line.split("with: ", 1)[1])
+    dbc, flags = words[2], words[3:]
+    parser = argparse.ArgumentParser()
+    can.cli.add_bus_arguments(parser)
+    bus = can.cli.create_bus_from_namespace(parser.parse_args(flags))
+    db = cantools.database.load_file(dbc)
+    names = set()
+    try:
+        for _ in range(count):
+            msg = bus.recv(timeout=30.0)
+            assert msg is not None, "no frame within 30 s on the bus the runner named"
+            names.add(db.get_message_by_frame_id(msg.arbitration_id).name)
+            db.decode_message(msg.arbitration_id, bytes(msg.data))
+    finally:
+        bus.shutdown()
+    return names
+
+
 def test_interrupt_closes_the_trace_and_writes_the_run_folder(tmp_path):
     proc = railhil_popen("run", str(DEFAULT), "--realtime", "--out", str(tmp_path), "-q")
     try:
         _, line = wait_for_start(proc)
+        assert {"BCU_DEMAND", "PLANT_CAR1_SENSORS", "BECU6_PRESS_CMD"} <= watch_like_cantools_monitor(proc)
         assert wait_for_frames(line, 500) == 500              # the run is under way
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=90)
