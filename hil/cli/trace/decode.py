@@ -1,0 +1,194 @@
+"""`railhil trace decode TRACE --dbc DBC` — the frames of a trace decoded with a DBC, with filters."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import can
+
+from hil.cli.trace.common import (
+    Output,
+    TraceArgError,
+    check_window,
+    id_text,
+    jsonable,
+    kind_of,
+    lookup,
+    notice_skipped,
+    parse_id,
+)
+from hil.codec import Codec
+from hil.dbc import closest, load_dbc
+from hil.traceio import open_trace
+
+FORMAT_CHOICES = ("table", "csv", "jsonl")
+
+
+def add_parser(tsub: argparse._SubParsersAction) -> None:
+    d = tsub.add_parser(
+        "decode",
+        help="decode the frames of a trace with a DBC",
+        description="Decode each frame with the DBC. table: one line per frame, signals as name=value; "
+                    "csv: one row per (frame, signal) with columns t,id,name,signal,value,error; "
+                    "jsonl: one object per frame {t, id, name, signals}. Frames of ids the DBC does "
+                    "not know, remote and error frames are shown raw (hex data) unless a filter "
+                    "excludes them; a frame that does not decode is shown raw with the reason, "
+                    "counted, and decoding goes on. A summary goes to stderr.",
+    )
+    d.add_argument("trace", help="trace file, or '-' for candump -L text on stdin")
+    d.add_argument("--dbc", type=Path, required=True, help="DBC file")
+    d.add_argument("--id", dest="ids", action="append", default=[], metavar="ID",
+                   help="only frames with this arbitration id, hex (0x123) or decimal; repeatable")
+    d.add_argument("--message", dest="messages", action="append", default=[], metavar="NAME",
+                   help="only frames of this DBC message; repeatable")
+    d.add_argument("--signal", dest="signals", action="append", default=[], metavar="NAME",
+                   help="only these signals (and only frames that carry one); repeatable")
+    d.add_argument("--start", type=float, default=None, metavar="S",
+                   help="only frames with timestamp >= S (the trace's own time, seconds)")
+    d.add_argument("--end", type=float, default=None, metavar="S",
+                   help="only frames with timestamp <= S (the trace's own time, seconds)")
+    d.add_argument("--format", choices=FORMAT_CHOICES, default="table", help="output format (default table)")
+    d.set_defaults(func=run)
+
+
+@dataclass
+class Selection:
+    ids: set[int] | None
+    names: set[str] | None  # message names, from --message and --signal
+    signals: set[str] | None
+
+    @property
+    def by_dbc(self) -> bool:
+        return self.names is not None
+
+
+def select(args: argparse.Namespace, codec: Codec) -> Selection:
+    ids = {parse_id(t) for t in args.ids} or None
+    all_names = [fc.name for fc in codec]
+    carriers: dict[str, set[str]] = {}  # signal name -> the messages that carry it
+    for fc in codec:
+        for s in fc.signal_names:
+            carriers.setdefault(s, set()).add(fc.name)
+    problems = [f"no message named {n!r} (closest: {closest(n, all_names)})"
+                for n in args.messages if n not in all_names]
+    problems += [f"no signal named {s!r} (closest: {closest(s, list(carriers))})"
+                 for s in args.signals if s not in carriers]
+    if problems:
+        raise TraceArgError(f"{args.dbc}: " + "; ".join(problems))
+    names = set(args.messages) or None
+    signals = None
+    if args.signals:
+        signals = set(args.signals)
+        with_signal = set().union(*(carriers[s] for s in signals))
+        names = with_signal if names is None else names & with_signal
+    return Selection(ids, names, signals)
+
+
+@dataclass
+class Row:
+    t: float
+    id: str
+    name: str | None
+    signals: dict[str, float] | None
+    data: str | None = None
+    kind: str = "data"
+    error: str | None = None
+    dlc: int = 0
+
+
+def decoded_rows(frames: Iterable[can.Message], codec: Codec, sel: Selection, start: float | None,
+                 end: float | None, counts: dict[str, int]) -> Iterator[Row]:
+    for msg in frames:
+        t = msg.timestamp
+        if start is not None and t < start:
+            continue
+        if end is not None and t > end:
+            continue
+        if sel.ids is not None and (msg.is_error_frame or msg.arbitration_id not in sel.ids):
+            continue
+        fc = lookup(codec, msg)
+        if sel.by_dbc and (fc is None or fc.name not in sel.names):
+            continue
+        kind = kind_of(msg)
+        ident = "" if msg.is_error_frame else id_text(msg.arbitration_id, msg.is_extended_id)
+        data = bytes(msg.data).hex().upper()
+        if fc is None:
+            counts[kind if kind != "data" else "unknown"] += 1
+            yield Row(t, ident, None, None, data, kind, dlc=msg.dlc)
+            continue
+        try:
+            values = fc.decode(bytes(msg.data))
+        except Exception as exc:  # FrameError, or whatever cantools raises on a multiplexed message
+            counts["failed"] += 1
+            yield Row(t, ident, fc.name, None, data, kind, " ".join(str(exc).split()) or type(exc).__name__)
+            continue
+        if sel.signals is not None:
+            values = {k: v for k, v in values.items() if k in sel.signals}
+        counts["decoded"] += 1
+        yield Row(t, ident, fc.name, values)
+
+
+def run(args: argparse.Namespace) -> int:
+    codec = Codec(load_dbc(args.dbc))
+    sel = select(args, codec)
+    check_window(args.start, args.end)
+    frames = open_trace(args.trace)
+    counts = {"decoded": 0, "unknown": 0, "remote": 0, "error": 0, "failed": 0}
+    out = Output()
+    rows = decoded_rows(frames, codec, sel, args.start, args.end, counts)
+    if args.format == "csv":
+        writer = csv.writer(out, lineterminator="\n")
+        writer.writerow(("t", "id", "name", "signal", "value", "error"))
+        for r in rows:
+            if r.signals is None:
+                writer.writerow((f"{r.t:.6f}", r.id, r.name or ("" if r.kind == "data" else r.kind), "",
+                                 r.data, r.error or ""))
+            else:
+                for sig, value in r.signals.items():
+                    writer.writerow((f"{r.t:.6f}", r.id, r.name, sig, repr(value), ""))
+            if out.closed:
+                break
+    elif args.format == "jsonl":
+        for r in rows:
+            obj: dict = {"t": r.t, "id": r.id, "name": r.name}
+            if r.signals is not None:
+                obj["signals"] = {k: jsonable(v) for k, v in r.signals.items()}
+            else:
+                obj["data"] = r.data
+                if r.kind != "data":
+                    obj["kind"] = r.kind
+                if r.kind == "remote":
+                    obj["dlc"] = r.dlc
+                if r.error:
+                    obj["error"] = r.error
+            out.write(json.dumps(obj) + "\n")
+            if out.closed:
+                break
+    else:
+        width = max([len(fc.name) for fc in codec] + [6])
+        out.write(f"{'t_s':>17}  {'id':<10}  {'name':<{width}}  signals\n")
+        for r in rows:
+            if r.signals is not None:
+                body = " ".join(f"{k}={v:.10g}" for k, v in r.signals.items())
+                name = r.name
+            else:
+                body = {"remote": f"remote frame dlc={r.dlc}", "error": "error frame"}.get(
+                    r.kind, f"data={r.data}" + (f"  ({r.error})" if r.error else ""))
+                name = r.name or ("?" if r.kind == "data" else r.kind.upper())
+            out.write(f"{r.t:17.6f}  {r.id:<10}  {name:<{width}}  {body}\n")
+            if out.closed:
+                break
+    out.flush()
+    notice_skipped(frames)
+    if not out.closed:
+        summary = (f"{counts['decoded']} frames decoded, {counts['unknown']} with ids not in {args.dbc}, "
+                   f"{counts['remote']} remote, {counts['error']} error frames, "
+                   f"{counts['failed']} failed to decode")
+        print(summary, file=sys.stderr)
+    return 0
