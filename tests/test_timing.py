@@ -14,7 +14,15 @@ import pytest
 
 from hil.cli.main import main
 from hil.dbc import load_dbc
-from hil.timing import analyse, bus_load, frame_arrays, measure_periods
+from hil.timing import (
+    analyse,
+    analyse_chains,
+    bus_load,
+    frame_arrays,
+    measure_periods,
+    parse_chain,
+    period_histogram,
+)
 from hil.traceio import open_trace
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -319,6 +327,18 @@ def test_cli_on_a_lockstep_run_passes_when_unsent_frames_are_ignored(tmp_path, c
     assert main(args + ignore + ["--format", "json"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert len(report["messages"]) == 22 and {m["verdict"] for m in report["messages"]} == {"PASS"}
+    # the bit-timed lockstep bus never exceeds the response-time bound, and the driver's brake step
+    # (at 0.5 s) reaches the first car's brake cylinder within 50 ms
+    chain = "DESK_CMD.BrakeStep -> BCU_DEMAND.TargetDecel -> BECU1_PRESS_CMD.CylPressureSet -> " \
+            "PLANT_CAR1_SENSORS.CylPressure"
+    assert main(args + ignore + ["--rta", "--chain", chain, "--chain-max-ms", "50", "--format", "json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    rta = report["rta"]["messages"]
+    assert len(rta) == 22 and all(m["schedulable"] and m["verdict"] == "PASS" for m in rta)
+    assert all(m["c_us"] <= m["measured"]["max_us"] <= m["response_us"] for m in rta)
+    (chain_report,) = report["chains"]
+    assert chain_report["instances"] == chain_report["completed"] == 1 and chain_report["verdict"] == "PASS"
+    assert 0 < chain_report["end_to_end"]["max_ms"] <= 50
     assert main(args + ["--ignore", "RADO_*"]) == 2      # a pattern that matches nothing is a typo
     assert "RADO_*" in capsys.readouterr().err
 
@@ -342,3 +362,264 @@ def test_million_frames_analysed_fast():
     assert len(periods) == n_ids and periods[(0x100, False)].mean_ms == pytest.approx(10.0)
     assert load.bits == n * 135
     assert elapsed < 5.0, f"{elapsed:.2f} s"
+
+
+# --- period histograms -------------------------------------------------------------------------------
+
+
+def test_histogram_counts(tmp_path, dbc, capsys):
+    """FAST: 200 frames at 10 ms, frame 50 dropped (one 20 ms period), frame 100 sent twice 0.4 ms
+    apart (0.4 + 9.6 ms): 196 periods of 10 ms, one each of 9.6, 20 and 0.4 ms."""
+    frames = all_three()
+    fast = [k for k, (_, m) in enumerate(frames) if m == FAST]
+    frames.append((frames[fast[100]][0] + 0.0004, FAST))
+    del frames[fast[50]]
+    trace = write_blf(tmp_path / "t.blf", frames)
+    m = by_name(report_of(trace, dbc))["FAST"]
+    h = period_histogram(m.stats.periods_ms, m.cycle_ms, m.tolerance)
+    assert h.bin_ms == pytest.approx(0.2)  # tolerance 10 % of 10 ms / 5
+    assert len(h.counts) == 51
+    assert h.edges_ms[0] == pytest.approx(4.9) and h.edges_ms[-1] == pytest.approx(15.1)
+    assert h.counts[25] == 196 and h.edges_ms[25] < 10 < h.edges_ms[26]  # the middle bin holds T
+    assert h.counts[23] == 1 and h.edges_ms[23] <= 9.6 < h.edges_ms[24]
+    assert (h.below, h.above, h.total) == (1, 1, 199)
+    assert int(h.counts.sum()) == 197
+    tight = period_histogram(m.stats.periods_ms, 10, 0.05)
+    assert tight.bin_ms == pytest.approx(0.1) and tight.counts[len(tight.counts) // 2] == 196
+    assert main(["timing", str(trace), "--dbc", str(dbc), "--histogram", "FAST"]) == 1  # a frame missed
+    out = capsys.readouterr().out
+    assert "periods of FAST (0x100), cycle 10 ms, bin 0.200 ms, 199 periods" in out
+    bars = {line.split("ms")[0].strip(): line for line in out.splitlines() if " ms  " in line}
+    assert "#" * 40 in bars["9.900 - 10.100"] and bars["9.900 - 10.100"].split()[4] == "196"
+    assert "< 4.900" in bars and ">= 15.100" in bars
+    assert main(["timing", str(trace), "--dbc", str(dbc), "--format", "json"]) == 1
+    obj = json.loads(capsys.readouterr().out)
+    hist = {x["name"]: x["histogram"] for x in obj["messages"]}
+    assert hist["FAST"]["counts"][25] == 196 and (hist["FAST"]["below"], hist["FAST"]["above"]) == (1, 1)
+    assert len(hist["FAST"]["edges_ms"]) == 52 and sum(hist["SLOW"]["counts"]) == 19
+
+
+# --- latency chains ----------------------------------------------------------------------------------
+
+CHAIN_DBC = """VERSION ""
+
+NS_ :
+
+BS_:
+
+BU_: ECU
+
+BO_ 256 CAUSE: 2 ECU
+ SG_ a : 0|8@1+ (1,0) [0|255] "" Vector__XXX
+ SG_ a2 : 8|8@1+ (1,0) [0|255] "" Vector__XXX
+
+BO_ 512 RESP: 1 ECU
+ SG_ b : 0|8@1+ (1,0) [0|255] "" Vector__XXX
+
+BO_ 768 EFFECT: 1 ECU
+ SG_ c : 0|8@1+ (1,0) [0|255] "" Vector__XXX
+
+BA_DEF_ BO_ "GenMsgCycleTime" INT 0 65535;
+BA_DEF_ "Baudrate" INT 10000 1000000;
+BA_DEF_DEF_ "GenMsgCycleTime" 0;
+BA_DEF_DEF_ "Baudrate" 500000;
+BA_ "Baudrate" 500000;
+BA_ "GenMsgCycleTime" BO_ 256 10;
+BA_ "GenMsgCycleTime" BO_ 512 10;
+BA_ "GenMsgCycleTime" BO_ 768 10;
+"""
+
+
+def step(t_ms: float, changes: list[tuple[float, int]]) -> int:
+    """The value at t_ms of a signal that takes value v from time t on, for each (t, v)."""
+    value = 0
+    for at, v in changes:
+        if t_ms >= at:
+            value = v
+    return value
+
+
+def chain_trace(path: Path, db, end_ms: int = 1000) -> Path:
+    """CAUSE at 0, 10, ... ms, a (and a2 in the same frame) 1 from 100 ms, 2 from 500, 3 from 900;
+    RESP at 3, 13, ... ms, b 1 from 123 ms, 2 from 513; EFFECT at 7, 17, ... ms, c 1 from 137, 2 from
+    517.  Noise that must not count: 29-bit frames of id 0x200 changing every time, and a CAUSE frame
+    too short to decode."""
+    cause, resp, effect = (db.get_message_by_name(n) for n in ("CAUSE", "RESP", "EFFECT"))
+    a_steps = [(100, 1), (500, 2), (900, 3)]
+    frames = []
+    for k in range(end_ms // 10):
+        t = 10.0 * k
+        a = step(t, a_steps)
+        frames.append((t, 0x100, False, cause.encode({"a": a, "a2": a})))
+        frames.append((t + 3, 0x200, False, resp.encode({"b": step(t + 3, [(123, 1), (513, 2)])})))
+        frames.append((t + 7, 0x300, False, effect.encode({"c": step(t + 7, [(137, 1), (517, 2)])})))
+        frames.append((t + 5, 0x200, True, bytes([k % 256])))
+    frames.append((55.0, 0x100, False, b"\x07"))
+    with can.BLFWriter(str(path)) as writer:
+        for t, arb, ext, data in sorted(frames, key=lambda f: f[0]):
+            writer.on_message_received(can.Message(timestamp=T0 + t / 1e3, arbitration_id=arb,
+                                                   is_extended_id=ext, dlc=len(data), data=data))
+    return path
+
+
+@pytest.fixture
+def chain_files(tmp_path):
+    dbc_path = tmp_path / "chain.dbc"
+    dbc_path.write_text(CHAIN_DBC)
+    db = load_dbc(dbc_path)
+    return dbc_path, db, chain_trace(tmp_path / "chain.blf", db)
+
+
+def chains_of(trace: Path, db, texts: list[str], max_ms: float | None = None):
+    frames = list(open_trace(trace))
+    end = max(m.timestamp for m in frames)
+    return analyse_chains(frames, [parse_chain(t, db) for t in texts], end, max_ms)
+
+
+def test_chain_exact_latencies(chain_files):
+    _, db, trace = chain_files
+    (r,) = chains_of(trace, db, ["CAUSE.a -> RESP.b -> EFFECT.c"])
+    # instances at 100 ms (-> 123 -> 137) and 500 ms (-> 513 -> 517); the one at 900 ms never gets a b
+    assert (r.instances, r.completed, r.incomplete) == (3, 2, 1)
+    first, second = r.links
+    assert first.count == 2 and first.max_ms == pytest.approx(23, abs=1e-6)
+    assert first.p50_ms == pytest.approx(18, abs=1e-6)  # linear percentile of 13 and 23
+    assert second.count == 2 and second.max_ms == pytest.approx(14, abs=1e-6)
+    assert r.end_to_end.count == 2 and r.end_to_end.max_ms == pytest.approx(37, abs=1e-6)
+    assert r.end_to_end.p50_ms == pytest.approx(27, abs=1e-6) and r.end_to_end.p99_ms == pytest.approx(36.8)
+    assert r.verdict is None and r.undecodable == 1  # the 1-byte CAUSE frame
+    bare, same, every = chains_of(trace, db, ["CAUSE.a -> RESP", "CAUSE.a -> CAUSE.a2", "CAUSE -> CAUSE"])
+    assert (bare.completed, bare.end_to_end.max_ms, bare.end_to_end.p50_ms) == (3, pytest.approx(3),
+                                                                                 pytest.approx(3))
+    assert same.completed == 3 and same.end_to_end.max_ms == 0  # the same frame: latency 0
+    assert every.instances == 101 and every.end_to_end.max_ms == 0  # 100 frames + the short one
+
+
+@pytest.mark.parametrize(("max_ms", "verdict", "why"), [
+    (100.0, "PASS", ""),                        # the incomplete instance began 97 ms before the end
+    (40.0, "FAIL", "1 instance not completed within 40 ms"),  # 900 ms < 997 - 40: overdue
+    (30.0, "FAIL", "1 instance over 30 ms (max 37.000 ms)"),
+])
+def test_chain_verdicts(chain_files, max_ms, verdict, why):
+    _, db, trace = chain_files
+    (r,) = chains_of(trace, db, ["CAUSE.a -> RESP.b -> EFFECT.c"], max_ms)
+    assert r.verdict == verdict and why in r.reason
+
+
+def test_chain_cli_outputs(chain_files, tmp_path, capsys):
+    dbc_path, _, trace = chain_files
+    base = ["timing", str(trace), "--dbc", str(dbc_path), "--chain", "CAUSE.a -> RESP.b -> EFFECT.c"]
+    assert main(base + ["--chain-max-ms", "100"]) == 0
+    out = capsys.readouterr().out
+    assert "chain 1: CAUSE.a -> RESP.b -> EFFECT.c" in out
+    assert "3 instances, 2 completed, 1 incomplete, 1 frames did not decode; PASS (limit 100 ms)" in out
+    e2e = next(line for line in out.splitlines() if line.startswith("end to end")).split()
+    assert e2e[3:] == ["2", "27.000", "36.800", "37.000"]
+    assert main(base + ["--chain", "CAUSE.a -> RESP", "--chain-max-ms", "30", "--format", "json"]) == 1
+    obj = json.loads(capsys.readouterr().out)
+    first, second = obj["chains"]
+    assert first["verdict"] == "FAIL" and second["verdict"] == "PASS" and not obj["ok"]
+    assert first["link_latency"][0] == {"from": "CAUSE.a", "to": "RESP.b", "count": 2, "p50_ms": 18.0,
+                                        "p99_ms": 22.9, "max_ms": 23.0}
+    xml_path = tmp_path / "chains.xml"
+    assert main(base + ["--chain", "CAUSE.a -> RESP", "--chain-max-ms", "30", "--format", "junit",
+                        "-o", str(xml_path)]) == 1
+    suite = ET.parse(xml_path).getroot()
+    chains = [c for c in suite.findall("testcase") if c.get("classname") == "railhil.timing.chain"]
+    assert [c.get("name") for c in chains] == ["CAUSE.a -> RESP.b -> EFFECT.c", "CAUSE.a -> RESP"]
+    assert chains[0].find("failure") is not None and chains[1].find("failure") is None
+    assert json.loads(chains[1].find("system-out").text)["end_to_end"]["count"] == 3
+    assert int(suite.get("tests")) == 5 and int(suite.get("failures")) == 1  # 3 messages + 2 chains
+
+
+@pytest.mark.parametrize(("argv", "words"), [
+    (["--chain", "NOPE.a -> RESP.b"], ["'NOPE'", "closest"]),
+    (["--chain", "CAUSE.zz -> RESP.b"], ["CAUSE", "no signal 'zz'"]),
+    (["--chain", "CAUSE.a"], ["at least two links"]),
+    (["--chain", "CAUSE. -> RESP"], ["no signal name"]),
+    (["--chain-max-ms", "5"], ["--chain-max-ms"]),
+    (["--chain", "CAUSE -> RESP", "--chain-max-ms", "-1"], ["--chain-max-ms -1"]),
+    (["--jitter", "CAUSE=5"], ["--rta"]),
+    (["--rta", "--jitter", "CAUSE=x"], ["CAUSE=x", "µs"]),
+    (["--rta", "--jitter", "NOPE=5"], ["NOPE", "closest"]),
+    (["--histogram", "NOPE"], ["NOPE", "closest"]),
+])
+def test_chain_and_rta_option_errors(chain_files, capsys, argv, words):
+    dbc_path, _, trace = chain_files
+    assert main(["timing", str(trace), "--dbc", str(dbc_path), *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1
+    for word in words:
+        assert word in err
+
+
+@pytest.mark.parametrize(("argv", "words"), [
+    ([], ["a trace file is required"]),
+    (["--rta"], ["--rta needs --dbc"]),
+    (["--rta", "--dbc", "{dbc}", "--chain", "FAST -> MID"], ["--chain needs a trace"]),
+    (["--rta", "--dbc", "{dbc}", "--histogram", "FAST"], ["--histogram needs a trace"]),
+])
+def test_no_trace_errors(dbc, capsys, argv, words):
+    assert main(["timing", *[a.format(dbc=dbc) for a in argv]]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and all(w in err for w in words)
+
+
+# --- response-time analysis in the CLI ----------------------------------------------------------------
+
+
+def test_rta_alone_on_the_train_dbc(tmp_path, capsys):
+    from hil.busload import static_load
+
+    db_path = ROOT / "dbc" / "train_brake.dbc"
+    db = load_dbc(db_path)
+    cyclic = [m.name for m in db.messages if m.cycle_time]
+    assert main(["timing", "--rta", "--dbc", str(db_path)]) == 0
+    out = capsys.readouterr().out
+    assert f"utilisation {100 * static_load(db).total:.2f} %" in out
+    rows = [line.split() for line in out.splitlines() if line.split() and line.split()[0] in cyclic]
+    assert len(rows) == len(cyclic) and all(r[-1] == "PASS" for r in rows)
+    assert f"{len(cyclic)} of {len(cyclic)} schedulable" in out
+    assert main(["timing", "--rta", "--dbc", str(db_path), "--format", "json"]) == 0
+    rta = json.loads(capsys.readouterr().out)["rta"]
+    assert rta["ok"] and rta["schedulable"] == len(cyclic) == len(rta["messages"])
+    assert all(m["response_us"] <= m["deadline_us"] for m in rta["messages"])
+    xml_path = tmp_path / "rta.xml"
+    assert main(["timing", "--rta", "--dbc", str(db_path), "--format", "junit", "-o", str(xml_path)]) == 0
+    suite = ET.parse(xml_path).getroot()
+    assert int(suite.get("tests")) == len(cyclic) and suite.get("failures") == "0"
+    assert {c.get("classname") for c in suite.findall("testcase")} == {"railhil.timing.rta"}
+
+
+def test_rta_alone_overloaded_exit_1(dbc, capsys):
+    """At 10 kbit/s a worst-case 8-byte frame takes 13.5 ms: FAST (10 ms) alone overloads the bus."""
+    assert main(["timing", "--rta", "--dbc", str(dbc), "--bitrate", "10000", "--format", "json"]) == 1
+    msgs = {m["name"]: m for m in json.loads(capsys.readouterr().out)["rta"]["messages"]}
+    assert msgs["FAST"]["unbounded"] and msgs["FAST"]["response_us"] is None
+    assert msgs["FAST"]["verdict"] == "FAIL" and "100 %" in msgs["FAST"]["reason"]
+
+
+def test_rta_against_a_trace(tmp_path, dbc, capsys):
+    """500 kbit/s: C = 270 µs (FAST, 8 bytes), 150 (MID, 2), 240 (SLOW, 29-bit 4 bytes); FAST's bound
+    is B + C = 240 + 270 = 510 µs.  Exact periods: every frame measures C.  FAST frames 0.6 ms late
+    in two of every ten cycles measure 870 µs: FAIL, until --jitter FAST=600 raises the bound to 1110 µs."""
+    trace = write_blf(tmp_path / "t.blf", all_three())
+    assert main(["timing", str(trace), "--dbc", str(dbc), "--rta", "--format", "json"]) == 0
+    rta = {m["name"]: m for m in json.loads(capsys.readouterr().out)["rta"]["messages"]}
+    assert rta["FAST"]["response_us"] == 510 and rta["SLOW"]["response_us"] == 660
+    for m in rta.values():
+        assert m["measured"]["max_us"] == pytest.approx(m["c_us"], abs=0.01) and m["verdict"] == "PASS"
+    frames = all_three()
+    fast = [k for k, (_, m) in enumerate(frames) if m == FAST]
+    for n, k in enumerate(fast):
+        if n % 10 in (4, 5):  # symmetric about the middle of the 200 frames: the fitted slope is exact
+            frames[k] = (frames[k][0] + 0.0006, FAST)
+    late = write_blf(tmp_path / "late.blf", frames)
+    assert main(["timing", str(late), "--dbc", str(dbc), "--rta"]) == 1
+    out = capsys.readouterr().out
+    line = next(x for x in out.splitlines() if x.startswith("  FAST: FAIL: measured response"))
+    assert "FAST: FAIL: measured response 0.870 ms > bound 0.510 ms" in line
+    assert main(["timing", str(late), "--dbc", str(dbc), "--rta", "--jitter", "FAST=600", "--format",
+                 "json"]) == 0
+    fast_rta = json.loads(capsys.readouterr().out)["rta"]["messages"][0]
+    assert fast_rta["response_us"] == 1110 and fast_rta["measured"]["max_us"] == pytest.approx(870, abs=0.01)

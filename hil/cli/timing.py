@@ -5,6 +5,12 @@ missed and burst periods, and a verdict PASS / FAIL / MISSING (defined in hil.ti
 bus load the trace put on the bus.  Exit 0 when every message PASSes, 1 when any is FAIL or
 MISSING (a verdict, not an error), 2 for bad input.  ``--periods-only`` needs no DBC: the periods
 of every id of the trace, no verdict.
+
+``--rta``: the worst-case response time of every cyclic message from the DBC alone (hil.rta, Davis
+et al. 2007) — with no trace, the analysis only (exit 0 when every message is schedulable); with a
+trace, also the response each message shows in it (FAIL when above its bound).  ``--chain``:
+cause -> effect latencies (hil.timing.analyse_chains), with a verdict under ``--chain-max-ms``.
+``--histogram NAME``: the periods of NAME as text bars (the JSON output has every histogram).
 """
 
 from __future__ import annotations
@@ -14,33 +20,54 @@ import json
 import math
 import sys
 import xml.etree.ElementTree as ET
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+
+import can
+import numpy as np
+from cantools.database.can import Database
 
 from hil.busload import declared_bitrate
 from hil.cli.trace import Output, id_text, notice_skipped, num
 from hil.dbc import closest, load_dbc
+from hil.rta import RtaReport, messages_from_dbc
+from hil.rta import analyse as rta_analyse
 from hil.timing import (
+    MEASURE_SLACK_US,
     BusLoadMeasured,
+    Chain,
+    ChainResult,
+    LatencyStats,
     MessageTiming,
+    PeriodHistogram,
     PeriodStats,
+    RtaCheck,
     TimingArgError,
     TimingReport,
     analyse,
+    analyse_chains,
     bus_load,
+    chain_frame_keys,
     check_tolerance,
     frame_arrays,
     measure_periods,
+    parse_chain,
+    period_histogram,
+    rta_against_trace,
+    rta_check,
 )
 from hil.traceio import open_trace
 
 FORMAT_CHOICES = ("table", "json", "junit")
 SUITE = "railhil.timing"
+BAR_WIDTH = 40  # characters of the longest histogram bar
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "timing",
-        help="cycle-time conformance of a trace's cyclic frames against the DBC, and bus load",
+        help="cycle-time conformance of a trace against the DBC, bus load, response-time analysis, "
+             "latency chains",
         description="For each DBC message with GenMsgCycleTime > 0: the periods between its data "
                     "frames in the trace (11- and 29-bit ids apart), late / missed / burst periods "
                     "and a verdict. PASS: at least 2 frames, mean period within ±tolerance of the "
@@ -50,9 +77,14 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                     "MISSING when no "
                     "frame is in the trace. Exit 0 if all PASS, 1 if any FAIL/MISSING, 2 for bad "
                     "input. Bus load: worst-case-stuffed frame lengths (Davis et al. 2007), average "
-                    "over the trace and peak over a sliding window.",
+                    "over the trace and peak over a sliding window. --rta adds the worst-case "
+                    "response time of every cyclic message from the DBC (Davis et al. 2007, revised "
+                    "analysis; without a trace: the analysis alone, exit 0 when all are schedulable); "
+                    "--chain adds cause -> effect latencies.",
     )
-    p.add_argument("trace", help="trace file python-can reads, or '-' for candump -L text on stdin")
+    p.add_argument("trace", nargs="?", default=None,
+                   help="trace file python-can reads, or '-' for candump -L text on stdin "
+                        "(optional with --rta: then the DBC alone is analysed)")
     p.add_argument("--dbc", type=Path, default=None, help="DBC file (required unless --periods-only)")
     p.add_argument("--tolerance", type=float, default=0.10, metavar="FRACTION",
                    help="allowed deviation of the mean period from the cycle time (default 0.10)")
@@ -60,13 +92,30 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="tolerance for one message; repeatable")
     p.add_argument("--ignore", action="append", default=[], metavar="PATTERN",
                    help="do not judge messages matching this shell pattern, e.g. 'RADIO_*' (frames a run "
-                        "does not send by design); repeatable")
+                        "does not send by design; --rta leaves them off the bus too); repeatable")
     p.add_argument("--bitrate", type=int, default=None, metavar="BPS",
                    help="bus bitrate in bit/s (default: the DBC's Baudrate attribute)")
     p.add_argument("--window", type=float, default=0.1, metavar="S",
                    help="length of the sliding window of the peak bus load, seconds (default 0.1)")
     p.add_argument("--periods-only", action="store_true",
                    help="no DBC, no verdict: period statistics of every id of the trace")
+    p.add_argument("--rta", action="store_true",
+                   help="worst-case response time of every cyclic DBC message (Davis et al. 2007: "
+                        "blocking, busy period, queued instances, jitter; D = cycle time) and the bus "
+                        "utilisation; with a trace also the measured response, FAIL when above the bound")
+    p.add_argument("--jitter", action="append", default=[], metavar="NAME=US",
+                   help="queuing jitter of one message for --rta, in µs (default: from the sender's "
+                        "CANoeJitterMin/Max node attributes, in %% of the cycle time, else 0); repeatable")
+    p.add_argument("--chain", action="append", default=[], metavar="'A.SIG -> B.SIG -> C.SIG'",
+                   help="cause -> effect latency chain: an event of a link is a frame of its message in "
+                        "which the signal changed (a bare MESSAGE: every frame); each event of the first "
+                        "link is followed to the next link's first event after it; repeatable")
+    p.add_argument("--chain-max-ms", type=float, default=None, metavar="MS",
+                   help="verdict of every --chain: FAIL when an instance took longer than MS from first "
+                        "to last link (or never completed though MS passed before the end of the trace)")
+    p.add_argument("--histogram", action="append", default=[], metavar="NAME",
+                   help="print the period histogram of this message as text bars (table format; the "
+                        "JSON output has every message's); repeatable")
     p.add_argument("--format", choices=FORMAT_CHOICES, default="table", help="output format (default table)")
     p.add_argument("-o", "--output", type=Path, default=None, metavar="FILE",
                    help="write the report to FILE instead of stdout")
@@ -88,6 +137,24 @@ def parse_overrides(items: list[str], names: list[str]) -> dict[str, float]:
             raise TimingArgError(f"--override {item!r}: no message named {name!r} "
                                  f"(closest: {closest(name, names)})")
         out[name] = fraction
+    return out
+
+
+def parse_jitters(items: list[str]) -> dict[str, int]:
+    """--jitter NAME=US items; the names are checked against the DBC by hil.rta.messages_from_dbc."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            if not sep or not name:
+                raise ValueError
+            us = int(value)
+            if us < 0:
+                raise ValueError
+        except ValueError:
+            raise TimingArgError(f"--jitter {item!r}: expected NAME=US, a whole number of µs >= 0, "
+                                 f"e.g. BCU_DEMAND=500") from None
+        out[name] = us
     return out
 
 
@@ -165,23 +232,215 @@ def summary_line(report: TimingReport) -> str:
             f"(no verdict); {report.non_cyclic} frames of non-cyclic DBC messages")
 
 
-def junit(report: TimingReport, trace_name: str) -> str:
-    c = report.counts()
-    suite = ET.Element("testsuite", name=SUITE, tests=str(len(report.messages)),
-                       failures=str(c["FAIL"] + c["MISSING"]), errors="0", skipped="0")
+# --- period histograms -------------------------------------------------------------------------------
+
+
+def histogram_of(m: MessageTiming) -> PeriodHistogram | None:
+    if m.stats is None or m.stats.count < 2:
+        return None
+    return period_histogram(m.stats.periods_ms, m.cycle_ms, m.tolerance)
+
+
+def histogram_obj(h: PeriodHistogram | None) -> dict | None:
+    if h is None:
+        return None
+    return {"cycle_ms": h.cycle_ms, "bin_ms": jnum(h.bin_ms), "edges_ms": [jnum(e) for e in h.edges_ms],
+            "counts": [int(c) for c in h.counts], "below": h.below, "above": h.above}
+
+
+def histogram_text(m: MessageTiming, h: PeriodHistogram | None) -> str:
+    """Text bars from the first to the last occupied bin, plus the periods outside the bins."""
+    title = f"periods of {m.name} ({id_text(m.arbitration_id, m.extended)}), cycle {m.cycle_ms:g} ms"
+    if h is None:
+        return f"{title}: fewer than 2 frames, no period\n"
+    rows = []
+    occupied = np.flatnonzero(h.counts)
+    peak = max([int(h.counts.max()) if len(h.counts) else 0, h.below, h.above, 1])
+
+    def bar(count: int) -> str:
+        return "#" * (max(1, round(BAR_WIDTH * count / peak)) if count else 0)
+
+    if h.below:
+        rows.append((f"< {h.edges_ms[0]:.3f}", h.below))
+    if len(occupied):
+        for i in range(occupied[0], occupied[-1] + 1):
+            rows.append((f"{h.edges_ms[i]:.3f} - {h.edges_ms[i + 1]:.3f}", int(h.counts[i])))
+    if h.above:
+        rows.append((f">= {h.edges_ms[-1]:.3f}", h.above))
+    width = max(len(label) for label, _ in rows)
+    digits = max(len(str(count)) for _, count in rows)
+    lines = [f"{title}, bin {h.bin_ms:.3f} ms, {h.total} periods"]
+    lines += [f"  {label.rjust(width)} ms  {str(count).rjust(digits)}  {bar(count)}".rstrip()
+              for label, count in rows]
+    return "\n".join(lines) + "\n"
+
+
+# --- response-time analysis --------------------------------------------------------------------------
+
+
+def ms3(us: float) -> str:
+    return "inf" if math.isinf(us) else f"{us / 1e3:.3f}"
+
+
+RTA_COLUMNS = ("name", "id", "dlc", "period_ms", "jitter_ms", "c_ms", "b_ms", "busy_ms", "q", "r_ms", "d_ms")
+
+
+def rta_row(c: RtaCheck, with_trace: bool) -> dict:
+    r, m = c.result, c.result.message
+    row = {"name": m.name, "id": id_text(m.frame_id, m.extended), "dlc": m.dlc,
+           "period_ms": f"{m.period_us / 1e3:g}", "jitter_ms": f"{m.jitter_us / 1e3:g}", "c_ms": ms3(r.c_us),
+           "b_ms": ms3(r.blocking_us), "busy_ms": ms3(r.busy_period_us), "q": r.instances or "-",
+           "r_ms": ms3(r.response_us), "d_ms": f"{m.deadline_us / 1e3:g}", "verdict": c.verdict}
+    if with_trace:
+        row["measured_ms"] = "" if c.measured is None else ms3(c.measured.max_us)
+    return row
+
+
+def rta_obj(c: RtaCheck) -> dict:
+    r, m = c.result, c.result.message
+    obj = {"name": m.name, "id": id_text(m.frame_id, m.extended), "extended": m.extended, "dlc": m.dlc,
+           "sender": m.sender, "period_us": m.period_us, "deadline_us": m.deadline_us,
+           "jitter_us": m.jitter_us, "c_us": jnum(r.c_us), "blocking_us": jnum(r.blocking_us),
+           "busy_period_us": jnum(r.busy_period_us),
+           "instances": r.instances, "response_us": jnum(r.response_us), "unbounded": r.unbounded,
+           "schedulable": r.schedulable}
+    if c.measured is not None:
+        mr = c.measured
+        obj["measured"] = {"frames": mr.frames, "cycles": mr.cycles, "missed": mr.missed,
+                           "period_us": jnum(mr.period_us), "drift_ppm": jnum(mr.drift_ppm),
+                           "p50_us": jnum(mr.p50_us), "p99_us": jnum(mr.p99_us), "max_us": jnum(mr.max_us)}
+    return {**obj, "verdict": c.verdict, "reason": c.reason}
+
+
+def rta_section_obj(report: RtaReport, checks: tuple[RtaCheck, ...]) -> dict:
+    return {"bitrate_bps": report.bitrate_bps, "utilisation": jnum(report.utilisation),
+            "worst_case_stuffing": True, "messages": [rta_obj(c) for c in checks],
+            "schedulable": sum(c.result.schedulable for c in checks),
+            "ok": all(c.verdict == "PASS" for c in checks)}
+
+
+def rta_text(report: RtaReport, checks: tuple[RtaCheck, ...], with_trace: bool) -> str:
+    columns = RTA_COLUMNS + (("measured_ms",) if with_trace else ()) + ("verdict",)
+    schedulable = sum(c.result.schedulable for c in checks)
+    failed = [c for c in checks if c.verdict != "PASS"]
+    head = (f"response-time analysis (Davis et al. 2007, revised): {len(checks)} cyclic messages at "
+            f"{report.bitrate_bps} bit/s, worst-case stuffing, D = cycle time; "
+            f"utilisation {100 * report.utilisation:.2f} %\n")
+    tail = f"{schedulable} of {len(checks)} schedulable"
+    if with_trace:
+        measured = [c for c in checks if c.measured is not None]
+        within = sum(c.measured.max_us <= c.result.response_us + MEASURE_SLACK_US for c in measured)
+        tail += f"; measured response within the bound for {within} of {len(measured)} messages in the trace"
+    return (head + render_table(columns, [rta_row(c, with_trace) for c in checks], {"name", "id", "verdict"})
+            + "".join(f"  {c.result.message.name}: FAIL: {c.reason}\n" for c in failed) + tail + "\n")
+
+
+def rta_messages(db: Database, args: argparse.Namespace, bitrate: int) -> RtaReport:
+    from fnmatch import fnmatchcase
+
+    messages = [m for m in messages_from_dbc(db, parse_jitters(args.jitter))
+                if not any(fnmatchcase(m.name, g) for g in args.ignore)]
+    return rta_analyse(messages, bitrate)
+
+
+# --- latency chains ----------------------------------------------------------------------------------
+
+
+def latency_obj(s: LatencyStats) -> dict:
+    return {"count": s.count, "p50_ms": jnum(s.p50_ms), "p99_ms": jnum(s.p99_ms), "max_ms": jnum(s.max_ms)}
+
+
+def chain_obj(r: ChainResult) -> dict:
+    links = r.chain.links
+    return {"chain": str(r.chain), "links": [str(x) for x in links], "instances": r.instances,
+            "completed": r.completed, "incomplete": r.incomplete, "overdue": r.overdue,
+            "undecodable_frames": r.undecodable,
+            "link_latency": [{"from": str(a), "to": str(b), **latency_obj(s)}
+                             for a, b, s in zip(links[:-1], links[1:], r.links, strict=True)],
+            "end_to_end": latency_obj(r.end_to_end), "max_ms": r.max_ms, "verdict": r.verdict,
+            "reason": r.reason}
+
+
+CHAIN_COLUMNS = ("link", "count", "p50_ms", "p99_ms", "max_ms")
+
+
+def chain_text(n: int, r: ChainResult) -> str:
+    links = r.chain.links
+
+    def row(label: str, s: LatencyStats) -> dict:
+        return {"link": label, "count": s.count, "p50_ms": num(s.p50_ms, ".3f"),
+                "p99_ms": num(s.p99_ms, ".3f"), "max_ms": num(s.max_ms, ".3f")}
+
+    rows = [row(f"{a} -> {b}", s) for a, b, s in zip(links[:-1], links[1:], r.links, strict=True)]
+    rows.append(row("end to end", r.end_to_end))
+    verdict = (f"{r.verdict} (limit {r.max_ms:g} ms)" + (f": {r.reason}" if r.reason else "")
+               if r.verdict else "no verdict (no --chain-max-ms)")
+    extra = f", {r.undecodable} frames did not decode" if r.undecodable else ""
+    return (f"chain {n}: {r.chain}\n" + render_table(CHAIN_COLUMNS, rows, {"link"})
+            + f"  {plural(r.instances, 'instance')}, {r.completed} completed, {r.incomplete} incomplete"
+              f"{extra}; {verdict}\n")
+
+
+def plural(n: int, word: str) -> str:
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
+def tap(frames: Iterable[can.Message], keys: set[tuple[int, bool]], sink: list) -> Iterator[can.Message]:
+    """Pass every frame on, keeping those of `keys` in `sink` (one read of the trace for both)."""
+    for msg in frames:
+        if (msg.arbitration_id, bool(msg.is_extended_id)) in keys:
+            sink.append(msg)
+        yield msg
+
+
+# --- JUnit ---------------------------------------------------------------------------------------------
+
+
+def junit(report: TimingReport | None, trace_name: str | None, rta: tuple[RtaCheck, ...] = (),
+          chains: tuple[ChainResult, ...] = (), rta_report: RtaReport | None = None,
+          dbc_name: str | None = None) -> str:
+    """One <testsuite>: a testcase per cyclic message (classname railhil.timing), per --rta message
+    (railhil.timing.rta) and per --chain (railhil.timing.chain)."""
+    cases: list[tuple[str, str, str | None, str, str]] = []  # classname, name, failure type, message, detail
+    if report is not None:
+        for m in report.messages:
+            cases.append((SUITE, f"{m.name} ({id_text(m.arbitration_id, m.extended)})",
+                          None if m.verdict == "PASS" else m.verdict, f"{m.verdict}: {m.reason}",
+                          json.dumps(timing_obj(m))))
+    for c in rta:
+        m = c.result.message
+        cases.append((f"{SUITE}.rta", f"{m.name} ({id_text(m.frame_id, m.extended)})",
+                      None if c.verdict == "PASS" else c.verdict, f"{c.verdict}: {c.reason}",
+                      json.dumps(rta_obj(c))))
+    for r in chains:
+        cases.append((f"{SUITE}.chain", str(r.chain), "FAIL" if r.verdict == "FAIL" else None,
+                      f"FAIL: {r.reason}", json.dumps(chain_obj(r))))
+    failures = sum(1 for c in cases if c[2] is not None)
+    suite = ET.Element("testsuite", name=SUITE, tests=str(len(cases)), failures=str(failures), errors="0",
+                       skipped="0")
     props = ET.SubElement(suite, "properties")
-    ET.SubElement(props, "property", name="trace", value=trace_name)
-    if report.load is not None:
+    if trace_name is not None:
+        ET.SubElement(props, "property", name="trace", value=trace_name)
+    if dbc_name is not None:
+        ET.SubElement(props, "property", name="dbc", value=dbc_name)
+    if report is not None and report.load is not None:
         ET.SubElement(props, "property", name="bus_load_average", value=f"{report.load.average:.6f}")
         ET.SubElement(props, "property", name="bus_load_peak", value=f"{report.load.peak:.6f}")
-    for m in report.messages:
-        case = ET.SubElement(suite, "testcase", classname=SUITE,
-                             name=f"{m.name} ({id_text(m.arbitration_id, m.extended)})")
-        if m.verdict != "PASS":
-            failure = ET.SubElement(case, "failure", message=f"{m.verdict}: {m.reason}", type=m.verdict)
-            failure.text = json.dumps(timing_obj(m))
+    if rta_report is not None:
+        ET.SubElement(props, "property", name="bitrate_bps", value=str(rta_report.bitrate_bps))
+        ET.SubElement(props, "property", name="utilisation", value=f"{rta_report.utilisation:.6f}")
+    for classname, name, failure_type, message, detail in cases:
+        case = ET.SubElement(suite, "testcase", classname=classname, name=name)
+        if failure_type is not None:
+            failure = ET.SubElement(case, "failure", message=message, type=failure_type)
+            failure.text = detail
+        elif classname != SUITE:
+            ET.SubElement(case, "system-out").text = detail
     ET.indent(suite)
     return ET.tostring(suite, encoding="unicode", xml_declaration=True) + "\n"
+
+
+# --- the command ---------------------------------------------------------------------------------------
 
 
 PERIOD_COLUMNS = ("id", "frame", "count", "mean_ms", "sigma_ms", "p50_ms", "p99_ms", "min_ms", "max_ms")
@@ -200,50 +459,132 @@ def periods_report(periods: dict[tuple[int, bool], PeriodStats], fmt: str, trace
     return render_table(PERIOD_COLUMNS, rows, {"id", "frame"}) + (load_line(load) + "\n" if load else "")
 
 
+def bitrate_of(args: argparse.Namespace, db: Database, why: str) -> int:
+    bitrate = args.bitrate if args.bitrate is not None else declared_bitrate(db)
+    if bitrate is None:
+        raise TimingArgError(f"{args.dbc}: no 'Baudrate' attribute: pass --bitrate BPS for {why}")
+    return bitrate
+
+
+def check_histogram_names(names: list[str], db: Database, ignore: list[str]) -> None:
+    from fnmatch import fnmatchcase
+
+    cyclic = [m.name for m in db.messages if m.cycle_time and m.cycle_time > 0]
+    for name in names:
+        if name not in cyclic:
+            raise TimingArgError(f"--histogram {name!r}: no cyclic message named {name!r} in the DBC "
+                                 f"(closest: {closest(name, cyclic)})")
+        if any(fnmatchcase(name, g) for g in ignore):
+            raise TimingArgError(f"--histogram {name!r}: the message is left out by --ignore")
+
+
+def rta_only(args: argparse.Namespace) -> tuple[str, int]:
+    """`railhil timing --rta --dbc DBC`: the analysis of the DBC alone."""
+    if args.dbc is None:
+        raise TimingArgError("--rta needs --dbc DBC")
+    for option, given in (("--chain", args.chain), ("--histogram", args.histogram),
+                          ("--periods-only", args.periods_only), ("--chain-max-ms", args.chain_max_ms)):
+        if given:
+            raise TimingArgError(f"{option} needs a trace: railhil timing TRACE --dbc DBC {option} ...")
+    db = load_dbc(args.dbc)
+    report = rta_messages(db, args, bitrate_of(args, db, "the response-time analysis"))
+    checks = tuple(rta_check(r) for r in report.results)
+    code = 0 if all(c.verdict == "PASS" for c in checks) else 1
+    if args.format == "json":
+        text = json.dumps({"dbc": str(args.dbc), "rta": rta_section_obj(report, checks), "ok": code == 0},
+                          indent=2) + "\n"
+    elif args.format == "junit":
+        text = junit(None, None, checks, rta_report=report, dbc_name=str(args.dbc))
+    else:
+        text = f"{args.dbc}:\n" + rta_text(report, checks, with_trace=False)
+    return text, code
+
+
+def trace_report(args: argparse.Namespace, trace_name: str) -> tuple[str, int]:
+    """`railhil timing TRACE --dbc DBC [--rta] [--chain ...] [--histogram ...]`."""
+    if args.dbc is None:
+        raise TimingArgError("--dbc DBC is required (or --periods-only for periods without a DBC)")
+    check_tolerance(args.tolerance, "--tolerance")
+    db = load_dbc(args.dbc)
+    overrides = parse_overrides(args.override, [m.name for m in db.messages])
+    bitrate = bitrate_of(args, db, "the bus load")
+    chains: list[Chain] = [parse_chain(text, db) for text in args.chain]
+    check_histogram_names(args.histogram, db, args.ignore)
+    rta_report = rta_messages(db, args, bitrate) if args.rta else None
+    trace = open_trace(args.trace)
+    kept: list[can.Message] = []
+    arrays = frame_arrays(tap(trace, chain_frame_keys(chains), kept) if chains else trace)
+    notice_skipped(trace)
+    report = analyse(arrays, db, args.tolerance, overrides, bitrate, args.window, ignore=args.ignore)
+    rta = rta_against_trace(arrays, rta_report) if rta_report is not None else ()
+    end_s = float(arrays.t.max()) if len(arrays) else 0.0  # the end of the trace, as hil.timing.analyse
+    chain_results = analyse_chains(kept, chains, end_s, args.chain_max_ms) if chains else ()
+    ok = (report.ok and all(c.verdict == "PASS" for c in rta)
+          and all(r.verdict != "FAIL" for r in chain_results))
+    code = 0 if ok else 1
+    by_name = {m.name: m for m in report.messages}
+    if args.format == "json":
+        obj = {"trace": trace_name, "dbc": str(args.dbc), "tolerance": args.tolerance,
+               "frames": report.frames, "duration_s": report.duration_s,
+               "messages": [{**timing_obj(m), "histogram": histogram_obj(histogram_of(m))}
+                            for m in report.messages],
+               "unknown_ids": {id_text(i, e): n for (i, e), n in report.unknown.items()},
+               "non_cyclic_frames": report.non_cyclic, "bus_load": load_obj(report.load),
+               "summary": report.counts()}
+        if rta_report is not None:
+            obj["rta"] = rta_section_obj(rta_report, rta)
+        if chains:
+            obj["chains"] = [chain_obj(r) for r in chain_results]
+        obj["ok"] = ok
+        text = json.dumps(obj, indent=2) + "\n"
+    elif args.format == "junit":
+        text = junit(report, trace_name, rta, chain_results, rta_report, str(args.dbc))
+    else:
+        rows = [timing_row(m) for m in report.messages]
+        text = (f"{trace_name}: {report.frames} frames over {report.duration_s:.6f} s "
+                f"against {args.dbc}, tolerance ±{100 * args.tolerance:g} %\n"
+                + render_table(TIMING_COLUMNS, rows, {"name", "id", "verdict"})
+                + "".join(f"  {m.name}: {m.verdict}: {m.reason}\n" for m in report.messages if m.reason)
+                + summary_line(report) + "\n" + load_line(report.load) + "\n")
+        for name in args.histogram:
+            text += "\n" + histogram_text(by_name[name], histogram_of(by_name[name]))
+        if rta_report is not None:
+            text += "\n" + rta_text(rta_report, rta, with_trace=True)
+        for n, r in enumerate(chain_results, 1):
+            text += "\n" + chain_text(n, r)
+    return text, code
+
+
 def timing(args: argparse.Namespace) -> int:
     if not args.window > 0 or not math.isfinite(args.window):
         raise TimingArgError(f"--window {args.window}: expected a positive number of seconds")
     if args.bitrate is not None and args.bitrate <= 0:
         raise TimingArgError(f"--bitrate {args.bitrate}: expected a positive bitrate in bit/s")
-    trace_name = "<stdin>" if args.trace == "-" else str(args.trace)
-    if args.periods_only:
-        if args.override:
-            raise TimingArgError("--override needs a DBC verdict, not --periods-only")
+    if args.chain_max_ms is not None:
+        if not (math.isfinite(args.chain_max_ms) and args.chain_max_ms > 0):
+            raise TimingArgError(f"--chain-max-ms {args.chain_max_ms}: expected a positive number of ms")
+        if not args.chain:
+            raise TimingArgError("--chain-max-ms is the limit of --chain: give at least one --chain")
+    if args.jitter and not args.rta:
+        raise TimingArgError("--jitter is an input of the response-time analysis: add --rta")
+    if args.trace is None:
+        if not args.rta:
+            raise TimingArgError("a trace file is required (or --rta --dbc DBC for the response-time "
+                                 "analysis of the DBC alone)")
+        text, code = rta_only(args)
+    elif args.periods_only:
+        for option, given in (("--override", args.override), ("--rta", args.rta), ("--chain", args.chain),
+                              ("--histogram", args.histogram)):
+            if given:
+                raise TimingArgError(f"{option} needs a DBC verdict, not --periods-only")
+        trace_name = "<stdin>" if args.trace == "-" else str(args.trace)
         trace = open_trace(args.trace)
         arrays = frame_arrays(trace)
         notice_skipped(trace)
         load = bus_load(arrays, args.bitrate, args.window) if args.bitrate is not None else None
         text, code = periods_report(measure_periods(arrays), args.format, trace_name, load), 0
     else:
-        if args.dbc is None:
-            raise TimingArgError("--dbc DBC is required (or --periods-only for periods without a DBC)")
-        check_tolerance(args.tolerance, "--tolerance")
-        db = load_dbc(args.dbc)
-        overrides = parse_overrides(args.override, [m.name for m in db.messages])
-        bitrate = args.bitrate if args.bitrate is not None else declared_bitrate(db)
-        if bitrate is None:
-            raise TimingArgError(f"{args.dbc}: no 'Baudrate' attribute: pass --bitrate BPS for the bus load")
-        trace = open_trace(args.trace)
-        arrays = frame_arrays(trace)
-        notice_skipped(trace)
-        report = analyse(arrays, db, args.tolerance, overrides, bitrate, args.window, ignore=args.ignore)
-        code = 0 if report.ok else 1
-        if args.format == "json":
-            text = json.dumps({"trace": trace_name, "dbc": str(args.dbc), "tolerance": args.tolerance,
-                               "frames": report.frames, "duration_s": report.duration_s,
-                               "messages": [timing_obj(m) for m in report.messages],
-                               "unknown_ids": {id_text(i, e): n for (i, e), n in report.unknown.items()},
-                               "non_cyclic_frames": report.non_cyclic, "bus_load": load_obj(report.load),
-                               "summary": report.counts(), "ok": report.ok}, indent=2) + "\n"
-        elif args.format == "junit":
-            text = junit(report, trace_name)
-        else:
-            rows = [timing_row(m) for m in report.messages]
-            text = (f"{trace_name}: {report.frames} frames over {report.duration_s:.6f} s "
-                    f"against {args.dbc}, tolerance ±{100 * args.tolerance:g} %\n"
-                    + render_table(TIMING_COLUMNS, rows, {"name", "id", "verdict"})
-                    + "".join(f"  {m.name}: {m.verdict}: {m.reason}\n" for m in report.messages if m.reason)
-                    + summary_line(report) + "\n" + load_line(report.load) + "\n")
+        text, code = trace_report(args, "<stdin>" if args.trace == "-" else str(args.trace))
     if args.output is not None:
         try:
             args.output.write_text(text)
