@@ -1,0 +1,424 @@
+"""AUTOSAR E2E Profile 1 and Profile 2 protection of CAN payloads: pure functions, no I/O, no clock.
+
+Reference: AUTOSAR "E2E Protocol Specification" (PRS_E2EProtocol, R20-11; the functional part of the
+former "Specification of SW-C End-to-End Communication Protection Library", SWS_E2ELibrary),
+§6.3 Profile 1 and §6.4 Profile 2.  Bit offsets below are AUTOSAR's: bit ``k`` of a payload is bit
+``k % 8`` of byte ``k // 8`` (so offset 8 is the low nibble of byte 1, offset 12 its high nibble).
+
+Profile 1 (``P01Config``)
+    CRC-8 SAE J1850 (polynomial 0x1D) over the implicit 16-bit data id and every payload byte but the
+    CRC byte; a 4-bit alive counter 0..14 (15 is never sent); CRC byte and counter nibble at
+    configurable offsets.  The data id enters the CRC by ``DataIdMode``: BOTH (low byte, then high
+    byte), ALT (low byte on even counters, high byte on odd ones), LOW (low byte only), NIBBLE (low
+    byte, then a zero byte; the low nibble of the high byte is sent explicitly in the payload and
+    checked, so the data id has 12 bits).  The spec chains ``Crc_CalculateCRC8(.., Start=0xFF,
+    IsFirstCall=FALSE)`` and XORs the result with 0xFF: the J1850 register therefore starts at 0x00
+    and the final XOR cancels, i.e. CRC-8/GSM-A parameters (init 0x00, no final XOR) -- not the J1850
+    catalogue CRC.  That is what the published examples need (0xCC for data id 0x123, zero payload).
+Profile 2 (``P02Config``)
+    CRC-8H2F (polynomial 0x2F, init 0xFF, final XOR 0xFF: CRC-8/AUTOSAR) over payload bytes 1..n-1
+    and then one data id byte taken from a 16-entry DataIDList indexed by the counter; CRC in byte 0,
+    4-bit counter 0..15 in the low nibble of byte 1 (fixed by the spec).  This is the checksum of
+    VW MQB frames, whose per-message "magic" bytes are the DataIDList.
+    The sender increments the counter *before* it writes it (spec), so its first frame carries 1;
+    Profile 1 writes, then increments, so its first frame carries 0.
+
+CRCs are computed by ``fastcrc`` (Rust, maintained): 134 ns per 9-byte CRC against 448 ns for a
+256-entry table in Python and 270 ns for crcmod's C extension (measured on the 2-core dev machine).
+
+Sender and receiver
+    ``protect(config, state, payload) -> bytes`` fills counter (and data-id nibble) and CRC and
+    advances ``state`` (a mutable ``ProtectState``: a sender must never resend a counter by
+    forgetting to store the next one, which every receiver would report as REPEATED).
+    ``check(config, state, payload) -> (new_state, Status)`` is the spec's receiver state machine as a
+    pure transition function on an immutable ``CheckState`` (table-testable, replayable, and a state can
+    be logged).  Call it once per receiver cycle with the newest payload received since the last
+    call, or ``None`` when nothing arrived: the spec's ``NewDataAvailable`` flag.  Timeouts are
+    counted in those cycles (``max_no_new_or_repeated_data``), not in microseconds.
+
+Statuses (``Status``): the spec's E2E_P01CheckStatusType / E2E_P02CheckStatusType.  WRONGCRC is
+called ``ERROR`` here (the issue's name): a CRC mismatch, a wrong data-id nibble, a payload of the
+wrong length, or a P01 counter of 15 (where the spec returns E2E_E_INPUTERR_WRONG without a status).
+An ERROR frame changes only MaxDeltaCounter (the one step every cycle takes); unlike a missing frame
+it does not count towards MaxNoNewOrRepeatedData.
+``Status.usable`` says whether the payload may be used, per E2E_P0xMapStatusToSM with the current
+(R4.2.2+) ``profileBehavior``: OK, OKSOMELOST and SYNC are usable; INITIAL (first frame, sequence not
+yet known) is not.
+
+Error detection: any single-bit error is an ERROR, except a flip of the counter bit that selects the
+data id (P01 ALT: the counter's LSB; P02: any counter bit) where the data id changes too and the two
+changes can cancel: ``counter_flip_collisions`` lists where a P02 DataIDList lets that happen.
+
+Receivers never raise on received data: any ``bytes`` (any length, any content) or ``None`` gives
+a status.  Configurations are validated when built and raise ``E2EConfigError`` (one line).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import fastcrc
+
+from hil.errors import RailhilError
+
+__all__ = [
+    "CheckState",
+    "DataIdMode",
+    "E2EConfigError",
+    "P01Config",
+    "P02Config",
+    "PCheckStatus",
+    "ProtectState",
+    "Status",
+    "check",
+    "counter_flip_collisions",
+    "crc8_h2f",
+    "crc8_sae_j1850",
+    "map_status_to_sm",
+    "protect",
+]
+
+_J1850 = fastcrc.crc8.sae_j1850   # poly 0x1D, init 0xFF, xorout 0xFF; `initial` = a previous result
+_H2F = fastcrc.crc8.autosar       # poly 0x2F, init 0xFF, xorout 0xFF; `initial` = a previous result
+
+P01_COUNTER_MODULO = 15           # PRS §6.3: the Profile 1 counter runs 0..14, 15 is invalid
+P02_COUNTER_MODULO = 16           # PRS §6.4: the Profile 2 counter runs 0..15
+P01_MAX_LENGTH = 30               # bytes; Profile 1 DataLength is at most 240 bits
+P02_MAX_LENGTH = 256              # bytes; Profile 2 DataLength is at most 2048 bits
+NO_NEW_COUNTER_CAP = 14           # the spec's NoNewOrRepeatedDataCounter saturates at 14
+P01_MAX_DELTA_CAP = 14            # MaxDeltaCounter saturates at the largest possible counter delta
+P02_MAX_DELTA_CAP = 15
+
+
+class E2EConfigError(RailhilError, ValueError):
+    """An E2E configuration that the profile does not allow (the message names the field)."""
+
+
+class DataIdMode(enum.Enum):
+    """How Profile 1 puts its 16-bit data id into the CRC (E2E_P01DataIDMode)."""
+
+    BOTH = 0
+    ALT = 1
+    LOW = 2
+    NIBBLE = 3
+
+
+class Status(enum.Enum):
+    """Result of one receiver cycle (E2E_P0xCheckStatusType; WRONGCRC is called ERROR)."""
+
+    OK = "OK"                        # new data, counter +1
+    NONEWDATA = "NONEWDATA"          # nothing received this cycle
+    ERROR = "ERROR"                  # CRC / data-id nibble / length / counter value wrong: discard
+    SYNC = "SYNC"                    # valid, but resynchronising after a timeout or a wrong sequence
+    INITIAL = "INITIAL"              # first valid frame: its sequence cannot be judged yet
+    REPEATED = "REPEATED"            # same counter as the last valid frame
+    OKSOMELOST = "OKSOMELOST"        # valid, 1..MaxDeltaCounter-1 frames lost before it
+    WRONGSEQUENCE = "WRONGSEQUENCE"  # valid CRC, but more frames lost than MaxDeltaCounter allows
+
+    @property
+    def usable(self) -> bool:
+        """True if the payload may be used: E2E_P0xMapStatusToSM (profileBehavior TRUE) gives E2E_P_OK."""
+        return map_status_to_sm(self) is PCheckStatus.OK
+
+
+class PCheckStatus(enum.Enum):
+    """Profile-independent status (E2E_PCheckStatusType), the input of the E2E state machine."""
+
+    OK = "OK"
+    REPEATED = "REPEATED"
+    WRONGSEQUENCE = "WRONGSEQUENCE"
+    ERROR = "ERROR"
+    NONEWDATA = "NONEWDATA"
+
+
+_SM_NEW = {Status.OK: PCheckStatus.OK, Status.OKSOMELOST: PCheckStatus.OK, Status.SYNC: PCheckStatus.OK,
+           Status.INITIAL: PCheckStatus.WRONGSEQUENCE, Status.WRONGSEQUENCE: PCheckStatus.WRONGSEQUENCE,
+           Status.REPEATED: PCheckStatus.REPEATED, Status.NONEWDATA: PCheckStatus.NONEWDATA,
+           Status.ERROR: PCheckStatus.ERROR}
+_SM_LEGACY = {**_SM_NEW, Status.INITIAL: PCheckStatus.OK, Status.SYNC: PCheckStatus.WRONGSEQUENCE}
+
+
+def map_status_to_sm(status: Status, profile_behavior: bool = True) -> PCheckStatus:
+    """E2E_P01MapStatusToSM / E2E_P02MapStatusToSM: ``profile_behavior`` True is the R4.2.2+ mapping
+    (INITIAL -> WRONGSEQUENCE, SYNC -> OK), False the legacy one (INITIAL -> OK, SYNC -> WRONGSEQUENCE)."""
+    return (_SM_NEW if profile_behavior else _SM_LEGACY)[status]
+
+
+def crc8_sae_j1850(data: bytes, start: int = 0xFF, first_call: bool = True) -> int:
+    """AUTOSAR Crc_CalculateCRC8: CRC-8 SAE J1850 (poly 0x1D, init 0xFF, final XOR 0xFF).
+
+    With ``first_call`` False the CRC continues from ``start``, the result of an earlier call (the
+    spec XORs it with 0xFF back into the register)."""
+    return _J1850(data) if first_call else _J1850(data, initial=start)
+
+
+def crc8_h2f(data: bytes, start: int = 0xFF, first_call: bool = True) -> int:
+    """AUTOSAR Crc_CalculateCRC8H2F: CRC-8H2F (poly 0x2F, init 0xFF, final XOR 0xFF); chaining as
+    ``crc8_sae_j1850``."""
+    return _H2F(data) if first_call else _H2F(data, initial=start)
+
+
+def _check_int(where: str, name: str, value: object, low: int, high: int, unit: str = "") -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise E2EConfigError(f"{where}: {name} = {value!r}, expected an integer {low}..{high}{unit}")
+    return value
+
+
+@dataclass(frozen=True, slots=True)
+class P01Config:
+    """Profile 1 configuration of one protected frame (E2E_P01ConfigType).
+
+    Offsets are in bits from the start of the payload (AUTOSAR numbering, module docstring); the
+    defaults are railhil's DBC layout: CHECKSUM = byte 0, COUNTER = low nibble of byte 1, and in
+    NIBBLE mode the data-id nibble in the high nibble of byte 1.
+    """
+
+    data_id: int                                   # 16-bit data id (12-bit in NIBBLE mode)
+    data_id_mode: DataIdMode = DataIdMode.BOTH
+    length: int = 8                                # payload bytes protected (DataLength / 8)
+    crc_offset: int = 0                            # bits, multiple of 8
+    counter_offset: int = 8                        # bits, multiple of 4
+    data_id_nibble_offset: int = 12                # bits, multiple of 4; NIBBLE mode only
+    max_delta_counter_init: int = 1                # counter steps allowed between two valid frames
+    max_no_new_or_repeated_data: int = 14          # cycles without new data before a resync (SYNC)
+    sync_counter_init: int = 0                     # valid frames reported SYNC after a resync
+    name: str = "E2E profile 1"                    # frame name, used in error messages only
+    _id_even: bytes = field(init=False, repr=False, compare=False)
+    _id_odd: bytes = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        w = self.name
+        if not isinstance(self.data_id_mode, DataIdMode):
+            raise E2EConfigError(f"{w}: data_id_mode = {self.data_id_mode!r}, expected one of "
+                                 f"{', '.join(m.name for m in DataIdMode)}")
+        nibble = self.data_id_mode is DataIdMode.NIBBLE
+        _check_int(w, "data_id", self.data_id, 0, 0x0FFF if nibble else 0xFFFF,
+                   " (12 bits in NIBBLE mode)" if nibble else "")
+        _check_int(w, "length", self.length, 2, P01_MAX_LENGTH, " bytes")
+        bits = self.length * 8
+        _check_int(w, "crc_offset", self.crc_offset, 0, bits - 8, " bits")
+        _check_int(w, "counter_offset", self.counter_offset, 0, bits - 4, " bits")
+        _check_int(w, "max_delta_counter_init", self.max_delta_counter_init, 1, P01_MAX_DELTA_CAP)
+        _check_int(w, "max_no_new_or_repeated_data", self.max_no_new_or_repeated_data, 0, NO_NEW_COUNTER_CAP)
+        _check_int(w, "sync_counter_init", self.sync_counter_init, 0, P01_MAX_DELTA_CAP)
+        if self.crc_offset % 8:
+            raise E2EConfigError(f"{w}: crc_offset = {self.crc_offset}, expected a multiple of 8 bits")
+        if self.counter_offset % 4:
+            raise E2EConfigError(f"{w}: counter_offset = {self.counter_offset}, "
+                                 "expected a multiple of 4 bits")
+        if self.counter_offset // 8 == self.crc_offset // 8:
+            raise E2EConfigError(f"{w}: counter_offset {self.counter_offset} lies in the CRC byte "
+                                 f"(crc_offset {self.crc_offset})")
+        if nibble:
+            _check_int(w, "data_id_nibble_offset", self.data_id_nibble_offset, 0, bits - 4, " bits")
+            if self.data_id_nibble_offset % 4:
+                raise E2EConfigError(f"{w}: data_id_nibble_offset = {self.data_id_nibble_offset}, "
+                                     "expected a multiple of 4 bits")
+            if self.data_id_nibble_offset // 8 == self.crc_offset // 8 \
+                    or self.data_id_nibble_offset == self.counter_offset:
+                raise E2EConfigError(f"{w}: data_id_nibble_offset {self.data_id_nibble_offset} overlaps "
+                                     "the CRC byte or the counter nibble")
+        low, high = self.data_id & 0xFF, self.data_id >> 8
+        even = {DataIdMode.BOTH: (low, high), DataIdMode.ALT: (low,), DataIdMode.LOW: (low,),
+                DataIdMode.NIBBLE: (low, 0)}[self.data_id_mode]
+        odd = (high,) if self.data_id_mode is DataIdMode.ALT else even
+        object.__setattr__(self, "_id_even", bytes(even))
+        object.__setattr__(self, "_id_odd", bytes(odd))
+
+
+@dataclass(frozen=True, slots=True)
+class P02Config:
+    """Profile 2 configuration of one protected frame (E2E_P02ConfigType).
+
+    CRC in byte 0, counter in the low nibble of byte 1 (fixed by the profile).
+    """
+
+    data_id_list: tuple[int, ...]                  # 16 data id bytes, indexed by the counter
+    length: int = 8                                # payload bytes protected (DataLength / 8)
+    max_delta_counter_init: int = 1                # counter steps allowed between two valid frames
+    max_no_new_or_repeated_data: int = 14          # cycles without new data before a resync (SYNC)
+    sync_counter_init: int = 0                     # valid frames reported SYNC after a resync
+    name: str = "E2E profile 2"                    # frame name, used in error messages only
+    _ids: tuple[bytes, ...] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        w = self.name
+        ids = self.data_id_list
+        if isinstance(ids, (str, bytes)) or not hasattr(ids, "__len__") or len(ids) != 16:
+            raise E2EConfigError(f"{w}: data_id_list = {ids!r}, expected 16 data id bytes (one per counter)")
+        for i, value in enumerate(ids):
+            _check_int(w, f"data_id_list[{i}]", value, 0, 255)
+        object.__setattr__(self, "data_id_list", tuple(ids))
+        _check_int(w, "length", self.length, 2, P02_MAX_LENGTH, " bytes")
+        _check_int(w, "max_delta_counter_init", self.max_delta_counter_init, 1, P02_MAX_DELTA_CAP)
+        _check_int(w, "max_no_new_or_repeated_data", self.max_no_new_or_repeated_data, 0, NO_NEW_COUNTER_CAP)
+        _check_int(w, "sync_counter_init", self.sync_counter_init, 0, P02_MAX_DELTA_CAP)
+        object.__setattr__(self, "_ids", tuple(bytes((v,)) for v in ids))
+
+
+Config = P01Config | P02Config
+
+
+@dataclass(slots=True)
+class ProtectState:
+    """Sender state (E2E_P0xProtectStateType): the counter the next ``protect`` starts from."""
+
+    counter: int = 0
+
+
+class CheckState(NamedTuple):
+    """Receiver state (E2E_P0xCheckStateType without Status and NewDataAvailable, which are the
+    output and the input of ``check``).  The default is the spec's E2E_P0xCheckInit.
+
+    Immutable (a NamedTuple: built in 0.3 µs against 1.1 µs for a frozen dataclass, and ``check``
+    builds one per frame); ``state._replace(...)`` derives a changed copy.
+    """
+
+    last_valid_counter: int = 0
+    max_delta_counter: int = 0
+    wait_for_first_data: bool = True
+    lost_data: int = 0                             # frames lost before the last OK/OKSOMELOST one
+    no_new_or_repeated_data_counter: int = 0
+    sync_counter: int = 0
+
+
+# --- CRC over a payload -----------------------------------------------------------------------------
+
+def _p01_crc(cfg: P01Config, data: bytes, counter: int) -> int:
+    """E2E_P01Protect's CRC (PRS §6.3): over the data id (per mode), then the payload bytes before and
+    after the CRC byte, each Crc_CalculateCRC8 call continuing the last (start 0xFF, not first call),
+    and the result XORed with 0xFF."""
+    crc = _J1850(cfg._id_odd if counter & 1 else cfg._id_even, initial=0xFF)
+    i = cfg.crc_offset >> 3
+    if i:
+        crc = _J1850(data[:i], initial=crc)
+    if i + 1 < cfg.length:
+        crc = _J1850(data[i + 1:cfg.length], initial=crc)
+    return crc ^ 0xFF
+
+
+def _p02_crc(cfg: P02Config, data: bytes, counter: int) -> int:
+    """E2E_P02Protect's CRC (PRS §6.4): Crc_CalculateCRC8H2F over bytes 1..length-1 (first call), then over
+    DataIDList[counter] continuing it."""
+    return _H2F(data[1:cfg.length] + cfg._ids[counter])
+
+
+def _nibble(data: bytes, offset: int) -> int:
+    return (data[offset >> 3] >> (offset & 4)) & 0x0F
+
+
+def _with_nibble(data: bytearray, offset: int, value: int) -> None:
+    i, shift = offset >> 3, offset & 4
+    data[i] = (data[i] & ~(0x0F << shift) & 0xFF) | ((value & 0x0F) << shift)
+
+
+# --- sender -----------------------------------------------------------------------------------------
+
+def protect(config: Config, state: ProtectState, payload: bytes) -> bytes:
+    """E2E_P01Protect / E2E_P02Protect: ``payload`` with its counter (and, in P01 NIBBLE mode, the
+    data-id nibble) and CRC filled in; advances ``state.counter``.
+
+    ``payload`` has ``config.length`` bytes (or more: bytes past the protected length are returned
+    unchanged); the CHECKSUM/COUNTER fields' old contents are ignored.  A payload that is too short
+    or a state counter out of range is a programming error of the sender: ``E2EConfigError``.
+    """
+    n = len(payload)
+    if n < config.length:
+        raise E2EConfigError(f"{config.name}: payload of {n} bytes, expected {config.length}")
+    data = bytearray(payload)
+    if isinstance(config, P01Config):
+        counter = state.counter
+        if not 0 <= counter < P01_COUNTER_MODULO:
+            raise E2EConfigError(f"{config.name}: sender counter {counter!r}, expected 0..14")
+        _with_nibble(data, config.counter_offset, counter)
+        if config.data_id_mode is DataIdMode.NIBBLE:
+            _with_nibble(data, config.data_id_nibble_offset, config.data_id >> 8)
+        data[config.crc_offset >> 3] = _p01_crc(config, data, counter)
+        state.counter = (counter + 1) % P01_COUNTER_MODULO
+        return bytes(data)
+    if not 0 <= state.counter < P02_COUNTER_MODULO:
+        raise E2EConfigError(f"{config.name}: sender counter {state.counter!r}, expected 0..15")
+    counter = state.counter = (state.counter + 1) % P02_COUNTER_MODULO
+    data[1] = (data[1] & 0xF0) | counter
+    data[0] = _p02_crc(config, data, counter)
+    return bytes(data)
+
+
+# --- receiver ---------------------------------------------------------------------------------------
+
+def check(config: Config, state: CheckState, payload: bytes | None) -> tuple[CheckState, Status]:
+    """E2E_P01Check / E2E_P02Check as a pure function: (new state, status) for one receiver cycle.
+
+    ``payload`` is the newest frame received since the last call, or ``None`` when nothing arrived
+    (the spec's NewDataAvailable = FALSE).  Never raises on the payload's length or contents.
+    """
+    p01 = isinstance(config, P01Config)
+    max_delta = min(state.max_delta_counter + 1, P01_MAX_DELTA_CAP if p01 else P02_MAX_DELTA_CAP)
+    if payload is None:
+        return CheckState(state.last_valid_counter, max_delta, state.wait_for_first_data, state.lost_data,
+                          min(state.no_new_or_repeated_data_counter + 1, NO_NEW_COUNTER_CAP),
+                          state.sync_counter), Status.NONEWDATA
+    if len(payload) == config.length:
+        if p01:
+            received = _nibble(payload, config.counter_offset)
+            if received != 0x0F \
+                    and (config.data_id_mode is not DataIdMode.NIBBLE
+                         or _nibble(payload, config.data_id_nibble_offset) == config.data_id >> 8) \
+                    and payload[config.crc_offset >> 3] == _p01_crc(config, payload, received):
+                return _sequence(config, state, max_delta, received, P01_COUNTER_MODULO)
+        else:
+            received = payload[1] & 0x0F
+            if payload[0] == _p02_crc(config, payload, received):
+                return _sequence(config, state, max_delta, received, P02_COUNTER_MODULO)
+    return state._replace(max_delta_counter=max_delta), Status.ERROR
+
+
+def _sequence(config: Config, state: CheckState, max_delta: int, received: int,
+              modulo: int) -> tuple[CheckState, Status]:
+    """The counter part of the check, for a frame whose CRC (and data-id nibble) is right."""
+    if state.wait_for_first_data:
+        return CheckState(received, config.max_delta_counter_init, False, state.lost_data,
+                          state.no_new_or_repeated_data_counter, state.sync_counter), Status.INITIAL
+    delta = (received - state.last_valid_counter) % modulo
+    no_new = state.no_new_or_repeated_data_counter
+    if delta == 0:
+        return CheckState(state.last_valid_counter, max_delta, False, state.lost_data,
+                          min(no_new + 1, NO_NEW_COUNTER_CAP), state.sync_counter), Status.REPEATED
+    if delta > max_delta:
+        sync = config.sync_counter_init
+        if sync > 0:
+            return CheckState(received, config.max_delta_counter_init, False, state.lost_data, 0,
+                              sync), Status.WRONGSEQUENCE
+        return CheckState(state.last_valid_counter, max_delta, False, state.lost_data, 0,
+                          sync), Status.WRONGSEQUENCE
+    init, lost = config.max_delta_counter_init, delta - 1
+    if no_new > config.max_no_new_or_repeated_data:
+        return CheckState(received, init, False, lost, 0, config.sync_counter_init), Status.SYNC
+    if state.sync_counter > 0:
+        return CheckState(received, init, False, lost, 0, state.sync_counter - 1), Status.SYNC
+    return CheckState(received, init, False, lost, 0, 0), Status.OK if delta == 1 else Status.OKSOMELOST
+
+
+def counter_flip_collisions(config: P02Config) -> tuple[tuple[int, int], ...]:
+    """(counter, bit) pairs where flipping that bit of the counter nibble leaves the CRC valid.
+
+    CRC-8H2F detects every single-bit error of a fixed message, but in Profile 2 a counter bit flip
+    also swaps the data id byte (DataIDList[c] for DataIDList[c ^ 1 << bit]): the two changes can
+    cancel.  The CRC is affine in the payload, so whether they cancel depends only on the list and
+    the length, not on the payload; a DataIDList for which this returns pairs lets such a flip
+    through as a valid frame (about one random list in eight does).  Use it to vet a list.
+    """
+    found = []
+    zero = bytearray(config.length)
+    for counter in range(P02_COUNTER_MODULO):
+        zero[1] = counter
+        crc = _p02_crc(config, zero, counter)
+        for bit in range(4):
+            flipped = counter ^ (1 << bit)
+            zero[1] = flipped
+            if _p02_crc(config, zero, flipped) == crc:
+                found.append((counter, bit))
+            zero[1] = counter
+    return tuple(found)
