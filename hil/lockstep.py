@@ -78,7 +78,7 @@ class LockstepBus:
             values = fc.decode(data)
             t_us = t_ns // 1000
             for node in subs:
-                node.receive_values(fc.frame_id, values, t_us)
+                node.receive_values(fc.frame_id, values, t_us, data)
 
 
 def bus_bitrate(scenario: Scenario, db: Database) -> int:

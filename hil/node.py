@@ -2,8 +2,13 @@
 
 Received frames are decoded into a latest-value table with reception times (`RxTable`); each cycle
 the node calls `controller.step(now_us, rx)` and encodes the frames that are due at their DBC cycle
-time.  The same Node runs in lockstep (driven by the discrete-event runner) and in real time (driven
-by a process loop on a python-can bus): only the clock and the bus differ.
+time.  Frames the DBC marks for E2E protection (message attributes `E2EProfile` = P01/P02 and
+`E2EDataID`, see `e2e_config`) are protected by the sender (counter and CRC, hil.e2e) and checked by
+every receiver: a frame whose status is not usable (ERROR, REPEATED, WRONGSEQUENCE, INITIAL) does
+not reach the controller, and the status of each protected message is counted and given to the
+controller each cycle (`RxTable.e2e`).  The same Node runs in lockstep (driven by the
+discrete-event runner) and in real time (driven by a process loop on a python-can bus): only the
+clock and the bus differ.
 
 Signal names.  A controller declares `inputs` and `outputs`.  A name is either a bare DBC signal name
 (`AxleSpeed`), resolved among the messages the binding lists for the node, or a qualified
@@ -19,9 +24,10 @@ from dataclasses import dataclass
 
 from cantools.database.can import Database
 
+from hil import e2e
 from hil.codec import Codec, FrameCodec, FrameError
 from hil.dbc import closest
-from hil.errors import BindingError
+from hil.errors import BindingError, DbcError
 
 NAN = float("nan")
 E2E_COUNTER = "COUNTER"
@@ -35,6 +41,7 @@ class RxTable(Mapping[str, float]):
         self._values: dict[str, float] = {n: NAN for n in names}
         self._times: dict[str, int] = {}
         self.version = 0            # bumps on every update: lets a node cache derived arrays
+        self.e2e: dict[str, e2e.Status] = {}   # E2E status of each protected message, this cycle
 
     def __getitem__(self, name: str) -> float:
         return self._values[name]
@@ -65,6 +72,61 @@ class TxFrame:
     counter: bool                          # the runtime fills the E2E alive counter
     next_due_us: int = 0
     count: int = 0
+    e2e: e2e.P01Config | e2e.P02Config | None = None
+    e2e_state: e2e.ProtectState | None = None
+
+
+def _attribute(msg, name: str):
+    attrs = getattr(getattr(msg, "dbc", None), "attributes", None) or {}
+    a = attrs.get(name)
+    if a is None:
+        return None
+    choices = getattr(a.definition, "choices", None)
+    if choices and isinstance(a.value, int) and not isinstance(a.value, bool):
+        return choices[a.value] if isinstance(choices, (list, tuple)) else choices.get(a.value, a.value)
+    return a.value
+
+
+def e2e_config(msg) -> e2e.P01Config | e2e.P02Config | None:
+    """The E2E configuration the DBC gives a message, or None.
+
+    Message attributes: `E2EProfile` ("NONE", "P01", "P02"); `E2EDataID` (P01: 16-bit data id, mode
+    BOTH, CRC in byte 0 and counter in the low nibble of byte 1 as the CHECKSUM/COUNTER signals of
+    our DBC); P02 needs `E2EDataIDList` (16 bytes as hex, e.g. "1F1F...", one per counter value)."""
+    profile = _attribute(msg, "E2EProfile")
+    if profile in (None, "NONE", "None", 0):
+        return None
+    where = f"message {msg.name}"
+    try:
+        if profile == "P01":
+            data_id = _attribute(msg, "E2EDataID")
+            if data_id is None:
+                raise DbcError(f"{where}: E2EProfile P01 needs the E2EDataID attribute")
+            return e2e.P01Config(int(data_id), length=msg.length, name=msg.name)
+        if profile == "P02":
+            text = _attribute(msg, "E2EDataIDList")
+            try:
+                ids = tuple(bytes.fromhex(str(text)))
+            except ValueError:
+                ids = ()
+            if len(ids) != 16:
+                raise DbcError(f"{where}: E2EProfile P02 needs E2EDataIDList = 16 bytes as 32 hex digits, "
+                               f"got {text!r}")
+            return e2e.P02Config(ids, length=msg.length, name=msg.name)
+    except e2e.E2EConfigError as exc:
+        raise DbcError(f"{where}: {exc}") from None
+    raise DbcError(f"{where}: E2EProfile {profile!r} is not one of NONE, P01, P02")
+
+
+@dataclass
+class RxCheck:
+    """Receiver side of one E2E-protected message."""
+
+    name: str
+    config: e2e.P01Config | e2e.P02Config
+    state: e2e.CheckState
+    cycle_us: int              # the message's DBC cycle time: one check per cycle of the message
+    last_us: int = 0           # time of the last check (a frame, or a cycle without one)
 
 
 @dataclass
@@ -136,6 +198,8 @@ class NodeStats:
     frames_received: int = 0
     bad_frames: int = 0            # received frames that did not decode (wrong length, bad mux)
     bad_outputs: int = 0           # non-finite controller outputs replaced by the safe value
+    e2e_discarded: int = 0         # protected frames not given to the controller (status not usable)
+    e2e_status: dict | None = None  # E2E status -> count (frames and cycles without a frame)
     step_errors: int = 0           # exceptions inside step(), caught: the node sends safe values
     last_error: str = ""
 
@@ -161,11 +225,20 @@ class Node:
             cycle_us = int(msg.cycle_time or 0) * 1000
             if cycle_us <= 0:
                 continue                  # event frames are not sent cyclically by v1 nodes
-            has_counter = any(s.name == E2E_COUNTER for s in msg.signals) and \
+            protection = e2e_config(msg)
+            has_counter = protection is None and any(s.name == E2E_COUNTER for s in msg.signals) and \
                 all(sig != E2E_COUNTER for sig, _ in fields)
             self.tx.append(TxFrame(codec.by_name(msg_name), cycle_us, fields, has_counter,
-                                   next_due_us=offset_us))
-        self.stats = NodeStats()
+                                   next_due_us=offset_us, e2e=protection,
+                                   e2e_state=e2e.ProtectState() if protection else None))
+        self._checks: dict[int, RxCheck] = {}
+        for fid in binding.rx:
+            msg = db.get_message_by_frame_id(fid)
+            protection = e2e_config(msg)
+            if protection is not None:
+                cycle_us = int(msg.cycle_time or 0) * 1000 or period_us
+                self._checks[fid] = RxCheck(msg.name, protection, e2e.CheckState(), cycle_us, offset_us)
+        self.stats = NodeStats(e2e_status={} if self._checks else None)
         self._next_due_us = min((tx.next_due_us for tx in self.tx), default=1 << 62)
 
     @property
@@ -181,13 +254,28 @@ class Node:
         except FrameError:           # short or malformed frame on a real bus: counted, not raised
             self.stats.bad_frames += 1
             return
-        self.receive_values(frame_id, values, t_us)
+        self.receive_values(frame_id, values, t_us, data)
 
-    def receive_values(self, frame_id: int, values: Mapping[str, float], t_us: int) -> None:
+    def receive_values(self, frame_id: int, values: Mapping[str, float], t_us: int,
+                       data: bytes | None = None) -> None:
         pairs = self._rx_map.get(frame_id)
-        if pairs is not None:
-            self.rx.update(pairs, values, t_us)
-            self.stats.frames_received += 1
+        if pairs is None:
+            return
+        self.stats.frames_received += 1
+        chk = self._checks.get(frame_id)
+        if chk is not None:
+            chk.state, status = e2e.check(chk.config, chk.state, data if data is not None else b"")
+            chk.last_us = t_us
+            self._count_e2e(chk, status)
+            if not status.usable:
+                self.stats.e2e_discarded += 1
+                return
+        self.rx.update(pairs, values, t_us)
+
+    def _count_e2e(self, chk: RxCheck, status: e2e.Status) -> None:
+        self.rx.e2e[chk.name] = status
+        counts = self.stats.e2e_status
+        counts[status.value] = counts.get(status.value, 0) + 1
 
     def cycle(self, now_us: int, nominal_us: int | None = None) -> list[tuple[FrameCodec, bytes]]:
         """Run one controller step at `now_us` and return the frames due as (codec, payload).
@@ -197,6 +285,11 @@ class Node:
         frames of its slot."""
         stats = self.stats
         stats.cycles += 1
+        for chk in self._checks.values():   # E2E: each message cycle without a frame is NONEWDATA
+            if 2 * (now_us - chk.last_us) >= 3 * chk.cycle_us:
+                chk.state, status = e2e.check(chk.config, chk.state, None)
+                chk.last_us += chk.cycle_us
+                self._count_e2e(chk, status)
         try:
             result = self.controller.step(now_us, self.rx)
         except Exception as exc:  # a controller bug must not take the bus down: send safe values
@@ -219,7 +312,10 @@ class Node:
             values = {sig: outputs.get(key, 0.0) for sig, key in tx.fields}
             if tx.counter:
                 values[E2E_COUNTER] = tx.count % E2E_COUNTER_MODULO
-            frames.append((tx.codec, tx.codec.encode(values)))
+            data = tx.codec.encode(values)
+            if tx.e2e is not None:
+                data = e2e.protect(tx.e2e, tx.e2e_state, data)
+            frames.append((tx.codec, data))
             tx.count += 1
             tx.next_due_us += tx.cycle_us
             if tx.next_due_us <= slot_us:         # overrun: skip missed slots, keep the phase

@@ -11,7 +11,9 @@ and commit both files; tests/test_dbc.py fails when they disagree.
 Conventions
 - Units are SI; scaled integers.  Every signal has a comment.
 - Safety frames (emergency, demands, pressure commands) have the lowest identifiers and carry
-  `CHECKSUM` (byte 0) and `COUNTER` (low nibble of byte 1): the AUTOSAR E2E profile 1 layout.
+  `CHECKSUM` (byte 0) and `COUNTER` (low nibble of byte 1): the AUTOSAR E2E profile 1 layout.  The
+  message attributes `E2EProfile` ("P01") and `E2EDataID` (the frame id: unique on this bus, data id
+  mode BOTH) tell the node runtime to protect and check them (hil/e2e.py).
 - Names: message `<SENDER>_<WHAT>`, per-car messages `<SENDER><n>_<WHAT>` / `PLANT_CAR<n>_<WHAT>`,
   signals CamelCase with no car index, so a binding can substitute the index.
 """
@@ -55,8 +57,9 @@ class Msg:
 
 def e2e(comment_what: str) -> list[Sig]:
     return [
-        Sig("CHECKSUM", 0, 8, maximum=255, comment=f"E2E CRC-8 over {comment_what} (filled by the codec)"),
-        Sig("COUNTER", 8, 4, maximum=15, comment="E2E alive counter, incremented every transmission"),
+        Sig("CHECKSUM", 0, 8, maximum=255,
+            comment=f"E2E profile 1 CRC-8 (SAE J1850) over data id and {comment_what} (filled by the sender)"),
+        Sig("COUNTER", 8, 4, maximum=15, comment="E2E profile 1 alive counter 0..14, +1 every transmission"),
     ]
 
 
@@ -232,10 +235,14 @@ def render() -> str:
     out += [
         'BA_DEF_ BO_ "GenMsgCycleTime" INT 0 65535;',
         'BA_DEF_ BO_ "GenMsgSendType" ENUM "Cyclic","NoMsgSendType";',
+        'BA_DEF_ BO_ "E2EProfile" ENUM "NONE","P01","P02";',
+        'BA_DEF_ BO_ "E2EDataID" INT 0 65535;',
         'BA_DEF_ "Baudrate" INT 10000 1000000;',
         'BA_DEF_ "BusType" STRING ;',
         'BA_DEF_DEF_ "GenMsgCycleTime" 0;',
         'BA_DEF_DEF_ "GenMsgSendType" "NoMsgSendType";',
+        'BA_DEF_DEF_ "E2EProfile" "NONE";',
+        'BA_DEF_DEF_ "E2EDataID" 0;',
         'BA_DEF_DEF_ "Baudrate" 500000;',
         'BA_DEF_DEF_ "BusType" "CAN";',
         f'BA_ "Baudrate" {BITRATE_BPS};',
@@ -244,6 +251,9 @@ def render() -> str:
     for m in msgs:
         out.append(f'BA_ "GenMsgCycleTime" BO_ {m.frame_id} {m.cycle_ms};')
         out.append(f'BA_ "GenMsgSendType" BO_ {m.frame_id} 0;')
+        if any(s.name == "CHECKSUM" for s in m.signals):
+            out.append(f'BA_ "E2EProfile" BO_ {m.frame_id} 1;')
+            out.append(f'BA_ "E2EDataID" BO_ {m.frame_id} {m.frame_id};')
     for m in msgs:
         for s in m.signals:
             if s.choices:

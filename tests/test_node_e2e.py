@@ -1,0 +1,133 @@
+"""E2E protection in the node runtime: senders fill counter and CRC of the frames the DBC marks,
+receivers check them and keep unusable frames from the controllers."""
+
+import can
+import cantools
+import pytest
+from conftest import DEFAULT
+
+from hil import e2e
+from hil.assembly import build_node
+from hil.codec import Codec
+from hil.dbc import DEFAULT_DBC, load_dbc
+from hil.errors import DbcError
+from hil.node import e2e_config
+from hil.scenario import load_scenario
+
+SAFETY = {"BCU_EMERGENCY", "DESK_CMD", "ACD_BRAKE_REQ", "BCU_DEMAND"} | {f"BECU{i}_PRESS_CMD" for i in range(1, 9)}
+
+
+def test_the_dbc_marks_exactly_the_safety_frames_profile_1_with_their_id_as_data_id():
+    db = load_dbc(DEFAULT_DBC)
+    marked = {m.name: e2e_config(m) for m in db.messages if e2e_config(m) is not None}
+    assert set(marked) == SAFETY
+    for name, cfg in marked.items():
+        assert isinstance(cfg, e2e.P01Config) and cfg.data_id == db.get_message_by_name(name).frame_id
+
+
+def test_every_safety_frame_of_a_lockstep_trace_checks_ok(default_lockstep):
+    db = load_dbc(DEFAULT_DBC)
+    configs = {m.frame_id: e2e_config(m) for m in db.messages if e2e_config(m) is not None}
+    states = {fid: e2e.CheckState() for fid in configs}
+    statuses: dict[str, dict[str, int]] = {}
+    with can.LogReader(str(default_lockstep.out_dir / "trace.blf")) as reader:
+        for msg in reader:
+            cfg = configs.get(msg.arbitration_id)
+            if cfg is None:
+                continue
+            states[msg.arbitration_id], status = e2e.check(cfg, states[msg.arbitration_id], bytes(msg.data))
+            per = statuses.setdefault(cfg.name, {})
+            per[status.value] = per.get(status.value, 0) + 1
+    assert set(statuses) == SAFETY - {"ACD_BRAKE_REQ"} - {f"BECU{i}_PRESS_CMD" for i in (7, 8)}
+    for name, per in statuses.items():
+        assert per.get("INITIAL") == 1 and set(per) == {"INITIAL", "OK"}, (name, per)
+    stats = default_lockstep.outcome.node_stats
+    assert stats["BECU1"]["e2e_status"]["OK"] > 4000
+    assert stats["BECU1"]["e2e_discarded"] == 2                # the first frame of each of its 2 inputs
+
+
+@pytest.fixture
+def becu():
+    scenario = load_scenario(DEFAULT)
+    db = load_dbc(DEFAULT_DBC)
+    return build_node("BECU1", scenario, db, Codec(db)), db
+
+
+def demand_frames(db, n, decel=0.5):
+    msg = db.get_message_by_name("BCU_DEMAND")
+    cfg, state = e2e_config(msg), e2e.ProtectState()
+    out = []
+    for k in range(n):
+        raw = msg.encode({"CHECKSUM": 0, "COUNTER": 0, "Mode": 1, "BrakeStep": 7,
+                          "TargetDecel": decel + 0.01 * k}, strict=False)
+        out.append(e2e.protect(cfg, state, raw))
+    return msg, out
+
+
+def test_receiver_discards_corrupt_repeated_and_initial_frames(becu):
+    node, db = becu
+    msg, frames = demand_frames(db, 4)
+    fid = msg.frame_id
+    node.receive(fid, frames[0], 0)
+    assert node.rx.e2e["BCU_DEMAND"] is e2e.Status.INITIAL
+    assert node.rx["TargetDecel"] != node.rx["TargetDecel"]         # NaN: the first frame is not used
+    node.receive(fid, frames[1], 10_000)
+    assert node.rx.e2e["BCU_DEMAND"] is e2e.Status.OK
+    assert node.rx["TargetDecel"] == pytest.approx(0.51, abs=0.01)
+    corrupt = bytearray(frames[2])
+    corrupt[3] ^= 0x10                                              # one bit of the payload
+    node.receive(fid, bytes(corrupt), 20_000)
+    assert node.rx.e2e["BCU_DEMAND"] is e2e.Status.ERROR
+    assert node.rx["TargetDecel"] == pytest.approx(0.51, abs=0.01)  # kept the last good value
+    node.receive(fid, frames[1], 21_000)                           # a replayed old frame
+    assert node.rx.e2e["BCU_DEMAND"] in (e2e.Status.REPEATED, e2e.Status.WRONGSEQUENCE)
+    assert node.rx["TargetDecel"] == pytest.approx(0.51, abs=0.01)
+    node.receive(fid, frames[3], 30_000)                           # frame 2 lost: still usable
+    assert node.rx.e2e["BCU_DEMAND"] is e2e.Status.OKSOMELOST
+    assert node.rx["TargetDecel"] == pytest.approx(0.53, abs=0.01)
+    assert node.stats.e2e_discarded == 3
+
+
+def test_a_silent_sender_gives_nonewdata_once_per_message_cycle(becu):
+    node, db = becu
+    msg, frames = demand_frames(db, 2)
+    node.receive(msg.frame_id, frames[0], 3_000)
+    node.receive(msg.frame_id, frames[1], 13_000)
+    for k in range(2, 8):                                           # BECU1 runs every 10 ms
+        node.cycle(3_000 + 10_000 * k)
+    assert node.rx.e2e["BCU_DEMAND"] is e2e.Status.NONEWDATA
+    assert node.stats.e2e_status["NONEWDATA"] >= 5                  # BCU_DEMAND (10 ms): one per cycle
+
+
+def test_sender_fills_counter_and_crc(becu):
+    node, db = becu
+    frames = [d for _ in range(3) for fc, d in node.cycle(3_000 + 10_000 * _) if fc.name == "BECU1_PRESS_CMD"]
+    msg = db.get_message_by_name("BECU1_PRESS_CMD")
+    cfg, state = e2e_config(msg), e2e.CheckState()
+    seen = []
+    for data in frames:
+        state, status = e2e.check(cfg, state, data)
+        seen.append(status)
+    assert seen == [e2e.Status.INITIAL, e2e.Status.OK, e2e.Status.OK]
+    assert [msg.decode(d)["COUNTER"] for d in frames] == [0, 1, 2]
+
+
+@pytest.mark.parametrize("attrs, needle", [
+    ('BA_ "E2EProfile" BO_ 1800 1;', "E2EProfile P01 needs the E2EDataID attribute"),
+    ('BA_ "E2EProfile" BO_ 1800 2;', "E2EDataIDList"),
+])
+def test_incomplete_e2e_attributes_are_one_line_dbc_errors(tmp_path, attrs, needle):
+    text = """VERSION ""
+BU_: A B
+BO_ 1800 X: 8 A
+ SG_ CHECKSUM : 0|8@1+ (1,0) [0|255] "" B
+ SG_ COUNTER : 8|4@1+ (1,0) [0|15] "" B
+BA_DEF_ BO_ "E2EProfile" ENUM "NONE","P01","P02";
+BA_DEF_ BO_ "E2EDataID" INT 0 65535;
+BA_DEF_DEF_ "E2EProfile" "NONE";
+""" + attrs + "\n"
+    path = tmp_path / "x.dbc"
+    path.write_text(text)
+    db = cantools.database.load_file(str(path))
+    with pytest.raises(DbcError, match=needle):
+        e2e_config(db.get_message_by_name("X"))
