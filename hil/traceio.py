@@ -8,6 +8,13 @@ The file is checked and its reader opened when ``open_trace`` is called, so a mi
 unknown suffix fails at once; corrupt content fails while iterating.  A non-empty file in which the
 reader finds no frame at all (a text file of another format) is an error too: python-can's text
 readers skip lines they do not understand without a word.
+
+candump -L text is read by python-can's ``CanutilsLogReader`` with one shortcut (``CandumpReader``):
+the common line, a classic data frame written as ``(seconds) channel ID#HEXDATA`` with an optional
+`` R``/`` T``, single spaces, a 3- or 8-digit id without the error flag, whole data bytes, is parsed
+by one regular expression into the very ``can.Message`` python-can makes of it (about 2.5x faster);
+any other line (remote, CAN FD, error frames, other spacing, anything malformed) goes to python-can's
+own parser, so what it yields or raises is python-can's.
 """
 
 from __future__ import annotations
@@ -16,16 +23,18 @@ import gzip
 import importlib.util
 import logging
 import pathlib
+import re
 import sys
 from collections.abc import Iterator
 from typing import TextIO
 
 import can
+from can.io.canutils import CAN_ERR_FLAG
 from can.io.player import MESSAGE_READERS
 
 from hil.errors import RailhilError
 
-__all__ = ["FORMATS", "Trace", "TraceError", "open_trace"]
+__all__ = ["FORMATS", "CandumpReader", "Trace", "TraceError", "open_trace"]
 
 #: what each suffix is expected to hold, for error messages
 FORMATS = {
@@ -64,6 +73,46 @@ class _Lines:
             self.stream.close()
 
 
+# (seconds) channel ID#HEXDATA [R|T], exactly one space apart: python-can's CanutilsLogReader gives
+# timestamp=float(seconds), channel=int if all digits, extended = more than 3 id digits, data = the bytes
+_CANDUMP_LINE = re.compile(r"\((\d+\.\d+)\) (\w+) ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})#((?:[0-9A-Fa-f]{2})*)"
+                           r"(?: ([RrTt]))?", re.ASCII)
+
+
+class _OneLine:
+    """A reader stand-in whose ``file`` is one line, for python-can's generator to parse it."""
+
+    def __init__(self, line: str) -> None:
+        self.file = (line,)
+
+    def stop(self) -> None:  # python-can's generator stops its reader at the end: the real one is not done
+        pass
+
+
+class CandumpReader(can.CanutilsLogReader):
+    """python-can's candump -L reader, with the common data-frame line parsed by one regex (module
+    docstring); ``list(CandumpReader(f))`` equals ``list(can.CanutilsLogReader(f))`` message by message."""
+
+    def __iter__(self) -> Iterator[can.Message]:
+        match = _CANDUMP_LINE.fullmatch
+        python_can = can.CanutilsLogReader.__iter__
+        fromhex = bytearray.fromhex
+        message = can.Message
+        for line in self.file:
+            found = match(line.strip())
+            if found is not None:
+                seconds, channel, ident, data, direction = found.groups()
+                can_id = int(ident, 16)
+                if not can_id & CAN_ERR_FLAG:
+                    yield message(timestamp=float(seconds), arbitration_id=can_id & 0x1FFFFFFF,
+                                  is_extended_id=len(ident) > 3, is_rx=direction is None or direction in "Rr",
+                                  dlc=len(data) // 2, data=fromhex(data),
+                                  channel=int(channel) if channel.isdigit() else channel)
+                    continue
+            yield from python_can(_OneLine(line))
+        self.stop()  # as python-can's reader does at the end of the file
+
+
 def _suffix_of(path: pathlib.Path) -> tuple[str, bool]:
     """(format suffix, gzip-compressed?) of a trace file name."""
     suffixes = [s.lower() for s in path.suffixes]
@@ -84,7 +133,7 @@ def open_trace(path: str | pathlib.Path) -> Trace:
     """The frames of a trace file (or of candump text on stdin for ``"-"``), in file order."""
     if str(path) == STDIN:
         lines = _Lines(sys.stdin, close=False)
-        return Trace(can.CanutilsLogReader(lines), "<stdin>", FORMATS[".log"], lines, empty_ok=True)
+        return Trace(CandumpReader(lines), "<stdin>", FORMATS[".log"], lines, empty_ok=True)
     path = pathlib.Path(path)
     if not path.exists():
         raise TraceError(f"{path}: no such trace file")
@@ -107,7 +156,7 @@ def open_trace(path: str | pathlib.Path) -> Trace:
         if suffix == ".log":  # counted lines: a parse error names its line
             stream = gzip.open(path, "rt") if compressed else path.open("r")
             lines = _Lines(stream)
-            reader = can.CanutilsLogReader(lines)
+            reader = CandumpReader(lines)
         else:
             reader = can.LogReader(path)
     except Exception as exc:  # python-can raises many types; all mean "not readable as expected"
@@ -146,6 +195,18 @@ class Trace:
         self._reader = reader
         self._lines = lines
         self._empty_ok = empty_ok
+
+    @property
+    def reader(self):
+        """python-can's reader of this trace (hil.tracecolumns reads a BLFReader's file itself)."""
+        return self._reader
+
+    def close(self) -> None:
+        """Close the file without reading on (iterating to the end closes it too)."""
+        try:
+            self._reader.stop()
+        except Exception:  # closing must not raise over what the caller is handling
+            pass
 
     def __iter__(self) -> Iterator[can.Message]:
         lines = self._lines

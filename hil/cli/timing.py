@@ -56,6 +56,7 @@ from hil.timing import (
     rta_against_trace,
     rta_check,
 )
+from hil.tracecolumns import read_trace_columns
 from hil.traceio import open_trace
 
 FORMAT_CHOICES = ("table", "json", "junit")
@@ -511,9 +512,12 @@ def trace_report(args: argparse.Namespace, trace_name: str) -> tuple[str, int]:
     chains: list[Chain] = [parse_chain(text, db) for text in args.chain]
     check_histogram_names(args.histogram, db, args.ignore)
     rta_report = rta_messages(db, args, bitrate) if args.rta else None
-    trace = open_trace(args.trace)
     kept: list[can.Message] = []
-    arrays = frame_arrays(tap(trace, chain_frame_keys(chains), kept) if chains else trace)
+    if chains:                      # chains need the frames themselves: one pass through python-can
+        trace = open_trace(args.trace)
+        arrays = frame_arrays(tap(trace, chain_frame_keys(chains), kept))
+    else:                           # columns only: BLF read without a can.Message per frame
+        arrays, trace = read_trace_columns(args.trace)
     notice_skipped(trace)
     report = analyse(arrays, db, args.tolerance, overrides, bitrate, args.window, ignore=args.ignore)
     rta = rta_against_trace(arrays, rta_report) if rta_report is not None else ()
@@ -578,8 +582,7 @@ def timing(args: argparse.Namespace) -> int:
             if given:
                 raise TimingArgError(f"{option} needs a DBC verdict, not --periods-only")
         trace_name = "<stdin>" if args.trace == "-" else str(args.trace)
-        trace = open_trace(args.trace)
-        arrays = frame_arrays(trace)
+        arrays, trace = read_trace_columns(args.trace)
         notice_skipped(trace)
         load = bus_load(arrays, args.bitrate, args.window) if args.bitrate is not None else None
         text, code = periods_report(measure_periods(arrays), args.format, trace_name, load), 0
