@@ -245,6 +245,10 @@ class BitTimedBus:
     def pending(self) -> bool:
         return bool(self._waiting)
 
+    def is_waiting(self, node: int, frame_id: int, extended: bool) -> bool:
+        """Does `node` have a frame of this id in its transmit queue?"""
+        return (node, frame_id, extended) in self._waiting
+
     def waiting(self) -> int:
         """Frames in the transmit queues."""
         return len(self._waiting)

@@ -22,6 +22,7 @@ import heapq
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import can
 from cantools.database.can import Database
@@ -30,6 +31,8 @@ from hil.assembly import build_node, node_names
 from hil.busload import declared_bitrate
 from hil.bustiming import BitTimedBus, Pending
 from hil.codec import Codec, FrameCodec
+from hil.errors import ScenarioError
+from hil.faults import ROGUE, build_injector
 from hil.gctune import loop_gc
 from hil.node import Node
 from hil.plant_node import PlantController, TruthLog
@@ -37,7 +40,7 @@ from hil.release import message_delays, node_releases
 from hil.scenario import Scenario
 
 DEFAULT_BITRATE = 500_000   # bit/s, when neither the scenario nor the DBC gives one
-DELIVER, CYCLE, RELEASE, ARBITRATE = 0, 1, 2, 3   # event phases: their order at equal times
+DELIVER, CYCLE, RELEASE, ARBITRATE, BABBLE = 0, 1, 2, 3, 4   # event phases: their order at equal times
 
 
 @dataclass
@@ -54,6 +57,16 @@ class RunOutcome:
     bus: dict | None = None                   # bit-timed lockstep bus: load and per-message timing
     frames_in_flight: int = 0                 # sent, but queued or on the wire when the run ended
     frames_overwritten: int = 0               # replaced in a transmit queue by a newer instance
+    frames_faulted: int = 0                   # frames added (+) or removed (-) by injected faults
+    faults: dict | None = None                # what the fault injector did: counts and events
+
+
+class RawFrame(NamedTuple):
+    """A frame the DBC does not define (a babbling node's): enough for the bus and the trace."""
+
+    frame_id: int
+    is_extended_id: bool
+    name: str
 
 
 class LockstepBus:
@@ -108,16 +121,18 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                  progress: Callable[[int, dict], None] | None = None, dbc_name: str = "DBC") -> RunOutcome:
     wall0 = time.perf_counter()
     nodes = [build_node(name, scenario, db, codec, dbc_name) for name in node_names(scenario)]
+    injector = build_injector(scenario, db, codec, [n.name for n in nodes])
     plant_node = nodes[0]
     plant: PlantController = plant_node.controller
     releases = node_releases(scenario, db, nodes)
     delays = message_delays(scenario, db)
     delivery = LockstepBus(nodes, writer)
     timed = scenario.bus.timing == "bit"
+    rogue = len(nodes)                   # the transmit queue of an attacker's frames (hil.faults)
     bus = None
     if timed:
         deadlines = {m.frame_id: int(m.cycle_time) * 1_000_000 for m in db.messages if m.cycle_time}
-        bus = BitTimedBus(bus_bitrate(scenario, db), len(nodes), scenario.bus.stuffing, deadlines)
+        bus = BitTimedBus(bus_bitrate(scenario, db), len(nodes) + 1, scenario.bus.stuffing, deadlines)
 
     max_ns = round(scenario.max_duration_s * 1e9)
     linger_ns = round(scenario.end_after_standstill_s * 1e9)
@@ -135,8 +150,30 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
     next_progress = 0
     now = 0
 
-    def release(t_ns: int, k: int, fc: FrameCodec, data: bytes, window_ns: int) -> None:
-        nonlocal seq, arbitration_at
+    faulted = 0
+    babble_step_ns = bus.duration_ns(47) if bus is not None else 0    # a babbler re-queues this often
+    if injector is not None:
+        for start_ns, end_ns, node_k, frame_id in injector.babble_windows():
+            if not timed:
+                raise ScenarioError("a babbling fault needs the bit-timed bus ([bus] timing = \"bit\")")
+            fc = codec[frame_id] if frame_id in codec else RawFrame(frame_id, False, f"0x{frame_id:03X}")
+            seq += 1
+            heap.append((start_ns, BABBLE, seq, (end_ns, node_k, fc)))
+        heapq.heapify(heap)
+
+    def release(t_ns: int, k: int, fc: FrameCodec, data: bytes, window_ns: int, inject: bool = True) -> None:
+        nonlocal seq, arbitration_at, faulted
+        if inject and injector is not None:
+            out = injector.on_release(t_ns, k, fc.frame_id, data)
+            faulted += len(out) - 1
+            for t_out, d_out, sender in out:
+                sender = rogue if sender == ROGUE else sender
+                if t_out == t_ns:
+                    release(t_ns, sender, fc, d_out, window_ns, inject=False)
+                else:
+                    seq += 1
+                    heapq.heappush(heap, (t_out, RELEASE, seq, (sender, fc, d_out, window_ns, False)))
+            return
         if not timed:
             delivery.send(t_ns, fc, data)
             return
@@ -150,6 +187,7 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
         while heap:
             now, phase, k, item = heapq.heappop(heap)
             if now > max_ns:
+                heapq.heappush(heap, (now, phase, k, item))     # not run: still in flight
                 break
             if phase == DELIVER:
                 delivery.send(now, item.item, item.data)
@@ -167,8 +205,18 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                         heapq.heappush(heap, (idle_ns, ARBITRATE, seq, None))
                 continue
             if phase == RELEASE:
-                node_k, fc, data, window_ns = item
-                release(now, node_k, fc, data, window_ns)
+                release(now, *item)
+                continue
+            if phase == BABBLE:
+                end_ns, node_k, fc = item
+                if not bus.is_waiting(node_k, fc.frame_id, fc.is_extended_id):
+                    release(now, node_k, fc, bytes(injector.babble_rng.getrandbits(8) for _ in range(8)),
+                            now, inject=False)
+                    injector.log.add(now, "babbling", nodes[node_k].name)
+                    faulted += 1
+                if now + babble_step_ns < end_ns:
+                    seq += 1
+                    heapq.heappush(heap, (now + babble_step_ns, BABBLE, seq, item))
                 continue
             node = nodes[k]
             frames = node.cycle(now // 1000, nominal[k])
@@ -179,7 +227,7 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                 else:
                     seq += 1
                     heapq.heappush(heap, (now + delay.next_ns(), RELEASE, seq,
-                                          (k, fc, data, window[k] + delay.delay_min_us * 1000)))
+                                          (k, fc, data, window[k] + delay.delay_min_us * 1000, True)))
             t_next, nominal[k], window[k] = releases[k].next()
             heapq.heappush(heap, (t_next, CYCLE, k, None))
             if node is plant_node:
@@ -200,4 +248,7 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                       node_stats={n.name: vars(n.stats).copy() for n in nodes},
                       wall_s=time.perf_counter() - wall0,
                       bus=bus_report(bus, db, now) if bus is not None else None,
-                      frames_in_flight=in_flight, frames_overwritten=overwritten)
+                      frames_in_flight=in_flight, frames_overwritten=overwritten,
+                      frames_faulted=faulted,
+                      faults=None if injector is None else {"counts": injector.log.counts,
+                                                            "events": injector.log.events})

@@ -200,6 +200,7 @@ class NodeStats:
     bad_outputs: int = 0           # non-finite controller outputs replaced by the safe value
     e2e_discarded: int = 0         # protected frames not given to the controller (status not usable)
     e2e_status: dict | None = None  # E2E status -> count (frames and cycles without a frame)
+    e2e_events: list | None = None  # (t_us, message, status) of every status but OK, first 10,000
     step_errors: int = 0           # exceptions inside step(), caught: the node sends safe values
     last_error: str = ""
 
@@ -238,7 +239,8 @@ class Node:
             if protection is not None:
                 cycle_us = int(msg.cycle_time or 0) * 1000 or period_us
                 self._checks[fid] = RxCheck(msg.name, protection, e2e.CheckState(), cycle_us, offset_us)
-        self.stats = NodeStats(e2e_status={} if self._checks else None)
+        self.stats = NodeStats(e2e_status={} if self._checks else None,
+                               e2e_events=[] if self._checks else None)
         self._next_due_us = min((tx.next_due_us for tx in self.tx), default=1 << 62)
 
     @property
@@ -266,16 +268,18 @@ class Node:
         if chk is not None:
             chk.state, status = e2e.check(chk.config, chk.state, data if data is not None else b"")
             chk.last_us = t_us
-            self._count_e2e(chk, status)
+            self._count_e2e(chk, status, t_us)
             if not status.usable:
                 self.stats.e2e_discarded += 1
                 return
         self.rx.update(pairs, values, t_us)
 
-    def _count_e2e(self, chk: RxCheck, status: e2e.Status) -> None:
+    def _count_e2e(self, chk: RxCheck, status: e2e.Status, t_us: int) -> None:
         self.rx.e2e[chk.name] = status
         counts = self.stats.e2e_status
         counts[status.value] = counts.get(status.value, 0) + 1
+        if status is not e2e.Status.OK and len(self.stats.e2e_events) < 10_000:
+            self.stats.e2e_events.append((t_us, chk.name, status.value))
 
     def cycle(self, now_us: int, nominal_us: int | None = None) -> list[tuple[FrameCodec, bytes]]:
         """Run one controller step at `now_us` and return the frames due as (codec, payload).
@@ -289,7 +293,7 @@ class Node:
             if 2 * (now_us - chk.last_us) >= 3 * chk.cycle_us:
                 chk.state, status = e2e.check(chk.config, chk.state, None)
                 chk.last_us += chk.cycle_us
-                self._count_e2e(chk, status)
+                self._count_e2e(chk, status, now_us)
         try:
             result = self.controller.step(now_us, self.rx)
         except Exception as exc:  # a controller bug must not take the bus down: send safe values

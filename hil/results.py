@@ -56,7 +56,7 @@ def _per_car(cols: dict[str, np.ndarray], key: str, n: int) -> np.ndarray:
 
 def compute_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[np.ndarray, np.ndarray],
                  brake_start_s: float | None, frames_sent: dict[str, int], frames_recorded: int,
-                 in_flight: int = 0, overwritten: int = 0) -> dict:
+                 in_flight: int = 0, overwritten: int = 0, faulted: int = 0) -> dict:
     n = scenario.train.cars
     t = cols["t_s"]
     x = _per_car(cols, "x_m", n)
@@ -98,7 +98,9 @@ def compute_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[
         "frames_recorded": int(frames_recorded),          # in the trace
         "frames_in_flight": int(in_flight),               # queued or on the wire at the end
         "frames_overwritten": int(overwritten),           # replaced in a full transmit queue
-        "frames_lost": int(sum(frames_sent.values())) - int(frames_recorded) - in_flight - overwritten,
+        "frames_faulted": int(faulted),                   # added (+) / removed (-) by injected faults
+        "frames_lost": int(sum(frames_sent.values())) + faulted - int(frames_recorded) - in_flight
+        - overwritten,
         "frames_sent_by_node": dict(frames_sent),
     }
     if n > 1:

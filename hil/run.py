@@ -57,7 +57,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     brake_us = DeskScript(scenario.desk).first_brake_us()
     kpis = compute_kpis(scenario, cols, target, None if brake_us is None else brake_us / 1e6,
                         outcome.frames_by_node, recorded, outcome.frames_in_flight,
-                        outcome.frames_overwritten)
+                        outcome.frames_overwritten, outcome.frames_faulted)
     if outcome.bus is not None:
         worst = max(outcome.bus["messages"].items(), key=lambda kv: kv[1]["response_max_us"],
                     default=(None, {"response_max_us": 0.0}))
@@ -86,6 +86,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
         "trace_t0_s": trace_t0_s,
         "node_stats": outcome.node_stats,
         "bus_timing": outcome.bus,
+        "faults": outcome.faults,
         **(extra or {}),
     }
     run_json = out_dir / "run.json"

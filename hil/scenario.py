@@ -14,6 +14,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from hil.errors import ScenarioError
+from hil.faults import FaultSpec
 
 MAX_CARS = 8
 RAIL_CONDITION_NAMES = ("extra_dry", "dry", "wet", "extra_wet")
@@ -173,6 +174,7 @@ class Scenario(_Strict):
     bus: BusSpec = Field(default_factory=BusSpec)
     nodes: dict[str, NodeTiming] = Field(default_factory=dict)        # by node name, e.g. BECU3
     messages: dict[str, MessageTiming] = Field(default_factory=dict)  # by DBC message name
+    faults: list[FaultSpec] = Field(default_factory=list)             # hil.faults, lockstep
 
     @field_validator("desk")
     @classmethod

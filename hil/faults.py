@@ -1,0 +1,233 @@
+"""Fault injection on the lockstep bus: the EN 50159 threats to a message, a babbling node and a node
+going bus-off, each declared in the scenario with a time window and seeded.
+
+Pure logic: `FaultInjector.on_release` gets every frame a node releases (time, node, frame id,
+payload) and returns what reaches the transmit queues instead, with times; `babble` gives the
+frames a babbling node adds.  `hil.lockstep` calls both.
+
+Threats (EN 50159 §5.1; applied to the frames of `message` released in [from_s, to_s), each with
+`probability`, seeded):
+
+* ``repetition``   — the frame is sent, then a copy `delay_ms` later (default: at once; the copy
+  comes from the network, not from the sender's transmit buffer).
+* ``deletion``     — the frame is dropped.
+* ``insertion``    — an extra frame of the message is sent after it: the same payload with one random
+  byte changed (a frame that does not belong there).
+* ``resequencing`` — the frame is held back and sent right after the next frame of the message.
+* ``corruption``   — one random bit of the payload is flipped.
+* ``delay``        — the frame is sent `delay_ms` later.
+* ``masquerade``   — a rogue sender's frame is sent after it: the same message with `signal` set to
+  `value` (e.g. a brake release), its E2E counter and CRC correct (E2E is public, not security);
+  only authentication can reject it.
+* ``babbling``     — `node` floods the bus with frames of identifier `frame_id` (default 0x000, the
+  highest priority) back to back for the whole window.
+* ``bus_off``      — `node` sends nothing in the window (its controller went bus-off).
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Annotated, Literal
+
+from cantools.database.can import Database
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from hil import e2e
+from hil.codec import Codec
+from hil.dbc import closest
+from hil.errors import ScenarioError
+
+__all__ = ["FAULT_KINDS", "MESSAGE_THREATS", "ROGUE", "FaultInjector", "FaultLog", "FaultSpec",
+           "build_injector"]
+
+MESSAGE_THREATS = ("repetition", "deletion", "insertion", "resequencing", "corruption", "delay", "masquerade")
+NODE_FAULTS = ("babbling", "bus_off")
+ROGUE = -1           # sender index of the attacker's frames (a node of its own on the bus)
+FAULT_KINDS = MESSAGE_THREATS + NODE_FAULTS
+
+
+class FaultSpec(BaseModel):
+    """One `[[faults]]` entry of a scenario."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    kind: Literal["repetition", "deletion", "insertion", "resequencing", "corruption", "delay",
+                  "masquerade", "babbling", "bus_off"]
+    from_s: Annotated[float, Field(ge=0)]
+    to_s: Annotated[float, Field(gt=0)]
+    message: str | None = None              # message threats: the DBC message attacked
+    node: str | None = None                 # babbling / bus_off: the node
+    probability: Annotated[float, Field(ge=0, le=1)] = 1.0
+    delay_ms: Annotated[float, Field(ge=0, le=10_000)] = 0.0
+    signal: str | None = None               # masquerade: the signal the rogue frame sets ...
+    value: float | None = None              # ... to this value
+    frame_id: Annotated[int, Field(ge=0, le=0x7FF)] = 0x000   # babbling: the identifier it floods
+
+    @model_validator(mode="after")
+    def _consistent(self) -> FaultSpec:
+        if self.to_s <= self.from_s:
+            raise ValueError(f"to_s {self.to_s} must be after from_s {self.from_s}")
+        if self.kind in MESSAGE_THREATS and not self.message:
+            raise ValueError(f"a {self.kind} fault needs 'message', the DBC message it attacks")
+        if self.kind in NODE_FAULTS and not self.node:
+            raise ValueError(f"a {self.kind} fault needs 'node'")
+        if self.kind == "masquerade" and (self.signal is None or self.value is None):
+            raise ValueError("a masquerade fault needs 'signal' and 'value' (what the rogue frame claims)")
+        if self.kind in ("delay",) and self.delay_ms <= 0:
+            raise ValueError("a delay fault needs delay_ms > 0")
+        return self
+
+
+@dataclass
+class FaultLog:
+    """What the injector did: (time [s], kind, message or node) per injected event."""
+
+    events: list[tuple[float, str, str]]
+    counts: dict[str, int]
+
+    def add(self, t_ns: int, kind: str, what: str) -> None:
+        self.counts[kind] = self.counts.get(kind, 0) + 1
+        if len(self.events) < 10_000:
+            self.events.append((t_ns / 1e9, kind, what))
+
+
+@dataclass
+class _Active:
+    spec: FaultSpec
+    frame_id: int | None
+    node: int | None
+    start_ns: int
+    end_ns: int
+    rng: random.Random
+    held: tuple[int, bytes] | None = None     # resequencing: the frame held back
+
+
+class FaultInjector:
+    """Applies the scenario's faults to released frames (see the module docstring)."""
+
+    def __init__(self, specs: list[FaultSpec], frame_ids: dict[str, int], node_index: dict[str, int],
+                 seed: int, forge: Callable[[int, bytes, str, float], bytes] | None = None) -> None:
+        """`frame_ids`: message name -> id; `node_index`: node name -> index; `forge(frame_id, payload,
+        signal, value)` builds a masquerading payload (with a valid E2E trailer where the message has
+        one)."""
+        self.log = FaultLog([], {})
+        self.forge = forge
+        self.babble_rng = random.Random(f"{seed}/fault/babble")
+        self.active: list[_Active] = []
+        for i, spec in enumerate(specs):
+            fid = frame_ids[spec.message] if spec.message else None
+            node = node_index[spec.node] if spec.node else None
+            self.active.append(_Active(spec, fid, node, round(spec.from_s * 1e9), round(spec.to_s * 1e9),
+                                       random.Random(f"{seed}/fault/{i}/{spec.kind}")))
+        self.by_frame: dict[int, list[_Active]] = {}
+        self.muted: list[_Active] = []
+        self.babblers: list[_Active] = []
+        for a in self.active:
+            if a.frame_id is not None:
+                self.by_frame.setdefault(a.frame_id, []).append(a)
+            elif a.spec.kind == "bus_off":
+                self.muted.append(a)
+            else:
+                self.babblers.append(a)
+
+    def on_release(self, t_ns: int, node: int, frame_id: int, data: bytes) -> list[tuple[int, bytes, int]]:
+        """The frames (time, payload, sender) that enter the transmit queues for one released frame;
+        sender ROGUE is a node of the attacker's own (insertion, masquerade)."""
+        return [(t, d, ROGUE if rogue else node) for t, d, rogue in self._release(t_ns, node, frame_id, data)]
+
+    def _release(self, t_ns: int, node: int, frame_id: int, data: bytes) -> list[tuple[int, bytes, bool]]:
+        for a in self.muted:
+            if a.node == node and a.start_ns <= t_ns < a.end_ns:
+                self.log.add(t_ns, "bus_off", a.spec.node)
+                return []
+        faults = self.by_frame.get(frame_id)
+        if not faults:
+            return [(t_ns, data, False)]
+        out = [(t_ns, data, False)]
+        for a in faults:
+            if not (a.start_ns <= t_ns < a.end_ns):
+                if a.held is not None and t_ns >= a.end_ns:     # window closed: release what was held
+                    out.append((t_ns, a.held[1], True))
+                    a.held = None
+                continue
+            if a.spec.kind == "resequencing" and a.held is not None:
+                held, a.held = a.held, None
+                out = out + [(t_ns, held[1], True)]           # re-sent by the network, after the next one
+                self.log.add(t_ns, "resequencing", a.spec.message)
+                continue
+            if a.rng.random() >= a.spec.probability:
+                continue
+            out = self._apply(a, t_ns, frame_id, out)
+        return out
+
+    def _apply(self, a: _Active, t_ns: int, frame_id: int, out: list[tuple[int, bytes, bool]]) -> list:
+        kind, rng = a.spec.kind, a.rng
+        delay_ns = round(a.spec.delay_ms * 1e6)
+        self.log.add(t_ns, kind, a.spec.message)
+        if kind == "deletion":
+            return []
+        t, d, rogue = out[-1]
+        if kind == "repetition":         # a copy the network made: not in the sender's own buffer
+            return out + [(t + delay_ns, d, True)]
+        if kind == "delay":
+            return [(t + delay_ns, d, r) for t, d, r in out]
+        if kind == "corruption":
+            b = bytearray(d)
+            bit = rng.randrange(len(b) * 8)
+            b[bit // 8] ^= 1 << (bit % 8)
+            return out[:-1] + [(t, bytes(b), rogue)]
+        if kind == "insertion":
+            b = bytearray(d)
+            b[rng.randrange(len(b))] ^= rng.randrange(1, 256)
+            return out + [(t, bytes(b), True)]
+        if kind == "resequencing":
+            a.held = out[-1]
+            return out[:-1]
+        if kind == "masquerade":
+            forged = self.forge(frame_id, d, a.spec.signal, a.spec.value) if self.forge else d
+            return out + [(t, forged, True)]
+        raise ValueError(f"unknown fault kind {kind!r}")
+
+    def babble_windows(self) -> list[tuple[int, int, int, int]]:
+        """(start ns, end ns, node index, frame id) of each babbling fault."""
+        return [(a.start_ns, a.end_ns, a.node, a.spec.frame_id) for a in self.babblers]
+
+
+def build_injector(scenario, db: Database, codec: Codec, node_names_: list[str]) -> FaultInjector | None:
+    """The scenario's faults, checked against the DBC and the nodes (one ScenarioError line each)."""
+    from hil.node import e2e_config as _e2e_config  # hil.node is heavier than this module
+    if not scenario.faults:
+        return None
+    names = [m.name for m in db.messages]
+    for i, f in enumerate(scenario.faults):
+        if f.message is not None and f.message not in names:
+            raise ScenarioError(f"scenario key 'faults[{i}].message' = {f.message!r}: no such message in "
+                                f"the DBC (closest: {closest(f.message, names)})")
+        if f.node is not None and f.node not in node_names_:
+            raise ScenarioError(f"scenario key 'faults[{i}].node' = {f.node!r}: no such node in this "
+                                f"scenario; nodes are {', '.join(node_names_)}")
+        if f.signal is not None:
+            msg = db.get_message_by_name(f.message)
+            signals = [sig.name for sig in msg.signals]
+            if f.signal not in signals:
+                raise ScenarioError(f"scenario key 'faults[{i}].signal' = {f.signal!r}: {f.message} has no "
+                                    f"such signal (closest: {closest(f.signal, signals)})")
+
+    def forge(frame_id: int, payload: bytes, signal: str, value: float) -> bytes:
+        """A rogue frame: the legitimate one with `signal` = `value` and, where the message is E2E
+        protected, the next counter and a correct CRC (anyone can compute E2E)."""
+        fc = codec[frame_id]
+        values = dict(fc.decode(payload))
+        values[signal] = value
+        data = fc.encode(values)
+        cfg = _e2e_config(db.get_message_by_frame_id(frame_id))
+        if cfg is None:
+            return data
+        counter = int(values.get("COUNTER", 0))
+        modulo = 15 if isinstance(cfg, e2e.P01Config) else 16
+        return e2e.protect(cfg, e2e.ProtectState((counter + 1) % modulo), data)
+
+    return FaultInjector(list(scenario.faults), {m.name: m.frame_id for m in db.messages},
+                         {n: k for k, n in enumerate(node_names_)}, scenario.seed, forge)

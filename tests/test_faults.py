@@ -1,0 +1,104 @@
+"""Fault injection on the lockstep bus: each EN 50159 threat on a safety frame, a babbling node and a
+node going bus-off, and what the E2E check of the receivers reports."""
+
+import pytest
+from conftest import DEFAULT
+
+from hil.errors import ScenarioError
+from hil.run import run_scenario_lockstep
+from hil.scenario import load_scenario, parse_scenario
+
+T0 = 3.0                     # fault window start [s]; BCU_DEMAND runs every 10 ms
+CYCLE_US = 10_000
+
+
+def scenario_with(*faults, seconds=3.3, seed=1):
+    base = load_scenario(DEFAULT)
+    return parse_scenario({**base.model_dump(), "seed": seed, "max_duration_s": seconds,
+                           "faults": list(faults)})
+
+
+def e2e_events_after(report, node, message, t0_s=T0):
+    events = report.outcome.node_stats[node]["e2e_events"]
+    return [(t, status) for t, msg, status in events if msg == message and t >= t0_s * 1e6]
+
+
+DETECTED_AS = {
+    "corruption": {"ERROR"},
+    "insertion": {"ERROR"},
+    "repetition": {"REPEATED"},
+    "deletion": {"OKSOMELOST", "NONEWDATA"},
+    "resequencing": {"WRONGSEQUENCE", "REPEATED", "OKSOMELOST", "NONEWDATA"},
+    "delay": {"NONEWDATA", "OKSOMELOST", "WRONGSEQUENCE"},
+}
+
+
+@pytest.mark.parametrize("kind", sorted(DETECTED_AS))
+def test_each_threat_on_the_brake_demand_is_detected_within_3_cycles(tmp_path, kind):
+    fault = {"kind": kind, "message": "BCU_DEMAND", "from_s": T0, "to_s": T0 + 0.05}
+    if kind == "delay":
+        fault["delay_ms"] = 25.0
+    report = run_scenario_lockstep(scenario_with(fault), tmp_path / "run")
+    assert report.outcome.faults["counts"][kind] >= 1
+    first_injected_s = report.outcome.faults["events"][0][0]
+    for becu in (f"BECU{i}" for i in range(1, 7)):
+        seen = e2e_events_after(report, becu, "BCU_DEMAND")
+        assert seen, f"{becu} never noticed the {kind}"
+        t_us, status = seen[0]
+        assert status in DETECTED_AS[kind], (becu, seen[:3])
+        assert t_us - first_injected_s * 1e6 <= 3 * CYCLE_US, (becu, t_us, first_injected_s)
+    assert report.kpis["frames_lost"] == 0
+
+
+def test_masquerade_with_a_correct_e2e_trailer_passes_e2e_and_is_only_seen_as_repeats(tmp_path):
+    """E2E is not security: a rogue frame with the next counter and a correct CRC is accepted, and the
+    legitimate frame that follows is the one discarded as REPEATED (authentication is what stops this)."""
+    fault = {"kind": "masquerade", "message": "BCU_DEMAND", "from_s": T0, "to_s": T0 + 0.05,
+             "signal": "TargetDecel", "value": 0.0}
+    report = run_scenario_lockstep(scenario_with(fault), tmp_path / "run")
+    statuses = {s for _, s in e2e_events_after(report, "BECU1", "BCU_DEMAND")}
+    assert statuses == {"REPEATED"}
+    assert report.outcome.faults["counts"]["masquerade"] == 5
+
+
+@pytest.mark.parametrize("fault, message", [
+    ({"kind": "babbling", "node": "BECU5", "from_s": T0, "to_s": T0 + 0.1}, "BCU_DEMAND"),
+    ({"kind": "bus_off", "node": "BCU", "from_s": T0, "to_s": T0 + 0.1}, "BCU_DEMAND"),
+])
+def test_a_babbling_or_bus_off_node_silences_the_demand_and_receivers_time_out(tmp_path, fault, message):
+    report = run_scenario_lockstep(scenario_with(fault), tmp_path / "run")
+    seen = e2e_events_after(report, "BECU1", message)
+    assert seen and seen[0][1] == "NONEWDATA"
+    assert seen[0][0] - T0 * 1e6 <= 3 * CYCLE_US
+    assert report.kpis["frames_lost"] == 0
+
+
+def test_faults_are_seeded(tmp_path):
+    fault = {"kind": "corruption", "message": "BCU_DEMAND", "from_s": T0, "to_s": T0 + 0.1,
+             "probability": 0.5}
+    a = run_scenario_lockstep(scenario_with(fault), tmp_path / "a").out_dir / "trace.blf"
+    b = run_scenario_lockstep(scenario_with(fault), tmp_path / "b").out_dir / "trace.blf"
+    c = run_scenario_lockstep(scenario_with(fault, seed=2), tmp_path / "c").out_dir / "trace.blf"
+    assert a.read_bytes() == b.read_bytes() != c.read_bytes()
+
+
+@pytest.mark.parametrize("fault, needle", [
+    ({"kind": "corruption", "message": "BCU_DEMAN", "from_s": 1, "to_s": 2}, "closest: BCU_DEMAND"),
+    ({"kind": "bus_off", "node": "BECU9", "from_s": 1, "to_s": 2}, "faults[0].node"),
+    ({"kind": "masquerade", "message": "BCU_DEMAND", "signal": "TargetDecl", "value": 0, "from_s": 1,
+      "to_s": 2}, "closest: TargetDecel"),
+])
+def test_bad_fault_names_are_one_line_errors(tmp_path, fault, needle):
+    with pytest.raises(ScenarioError, match=needle.replace("[", r"\[").replace("]", r"\]")):
+        run_scenario_lockstep(scenario_with(fault), tmp_path / "x")
+
+
+@pytest.mark.parametrize("fault, needle", [
+    ({"kind": "corruption", "from_s": 1, "to_s": 2}, "needs 'message'"),
+    ({"kind": "delay", "message": "BCU_DEMAND", "from_s": 1, "to_s": 2}, "delay_ms > 0"),
+    ({"kind": "deletion", "message": "BCU_DEMAND", "from_s": 2, "to_s": 1}, "must be after from_s"),
+    ({"kind": "melt", "message": "BCU_DEMAND", "from_s": 1, "to_s": 2}, "faults.0.kind"),
+])
+def test_inconsistent_fault_entries_are_scenario_errors(fault, needle):
+    with pytest.raises(ScenarioError, match=needle):
+        scenario_with(fault)
