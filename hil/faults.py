@@ -197,7 +197,8 @@ class FaultInjector:
 
 def build_injector(scenario, db: Database, codec: Codec, node_names_: list[str]) -> FaultInjector | None:
     """The scenario's faults, checked against the DBC and the nodes (one ScenarioError line each)."""
-    from hil.node import e2e_config as _e2e_config  # hil.node is heavier than this module
+    from hil.node import authentic_length as _authentic_length  # hil.node is heavier than this module
+    from hil.node import e2e_config as _e2e_config
     if not scenario.faults:
         return None
     names = [m.name for m in db.messages]
@@ -215,19 +216,27 @@ def build_injector(scenario, db: Database, codec: Codec, node_names_: list[str])
                 raise ScenarioError(f"scenario key 'faults[{i}].signal' = {f.signal!r}: {f.message} has no "
                                     f"such signal (closest: {closest(f.signal, signals)})")
 
+    rng = random.Random(f"{scenario.seed}/fault/forge")
+
     def forge(frame_id: int, payload: bytes, signal: str, value: float) -> bytes:
-        """A rogue frame: the legitimate one with `signal` = `value` and, where the message is E2E
-        protected, the next counter and a correct CRC (anyone can compute E2E)."""
+        """A rogue frame: the legitimate one with `signal` = `value`; where the message is E2E
+        protected, the next counter and a correct CRC (anyone can compute E2E); where it is
+        authenticated, the next freshness byte and a MAC the attacker must guess (no key)."""
+        msg = db.get_message_by_frame_id(frame_id)
         fc = codec[frame_id]
         values = dict(fc.decode(payload))
         values[signal] = value
         data = fc.encode(values)
-        cfg = _e2e_config(db.get_message_by_frame_id(frame_id))
-        if cfg is None:
-            return data
-        counter = int(values.get("COUNTER", 0))
-        modulo = 15 if isinstance(cfg, e2e.P01Config) else 16
-        return e2e.protect(cfg, e2e.ProtectState((counter + 1) % modulo), data)
+        authentic = _authentic_length(msg)
+        body, trailer = data[:authentic], data[authentic:]
+        cfg = _e2e_config(msg)
+        if cfg is not None:
+            counter = int(values.get("COUNTER", 0))
+            modulo = 15 if isinstance(cfg, e2e.P01Config) else 16
+            body = e2e.protect(cfg, e2e.ProtectState((counter + 1) % modulo), body)
+        if trailer:
+            trailer = bytes(((payload[authentic] + 1) & 0xFF,)) + rng.randbytes(len(trailer) - 1)
+        return body + trailer
 
     return FaultInjector(list(scenario.faults), {m.name: m.frame_id for m in db.messages},
                          {n: k for k, n in enumerate(node_names_)}, scenario.seed, forge)

@@ -37,7 +37,7 @@ from hil.gctune import loop_gc
 from hil.node import Node
 from hil.plant_node import PlantController, TruthLog
 from hil.release import message_delays, node_releases
-from hil.scenario import Scenario
+from hil.scenario import Scenario, secoc_keys
 
 DEFAULT_BITRATE = 500_000   # bit/s, when neither the scenario nor the DBC gives one
 DELIVER, CYCLE, RELEASE, ARBITRATE, BABBLE = 0, 1, 2, 3, 4   # event phases: their order at equal times
@@ -121,6 +121,9 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                  progress: Callable[[int, dict], None] | None = None, dbc_name: str = "DBC") -> RunOutcome:
     wall0 = time.perf_counter()
     nodes = [build_node(name, scenario, db, codec, dbc_name) for name in node_names(scenario)]
+    keys = secoc_keys(scenario)
+    for node in nodes:
+        node.use_keys(keys, scenario.secoc.window)
     injector = build_injector(scenario, db, codec, [n.name for n in nodes])
     plant_node = nodes[0]
     plant: PlantController = plant_node.controller

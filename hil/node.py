@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 from cantools.database.can import Database
 
-from hil import e2e
+from hil import e2e, secoc
 from hil.codec import Codec, FrameCodec, FrameError
 from hil.dbc import closest
 from hil.errors import BindingError, DbcError
@@ -74,6 +74,8 @@ class TxFrame:
     count: int = 0
     e2e: e2e.P01Config | e2e.P02Config | None = None
     e2e_state: e2e.ProtectState | None = None
+    secoc: secoc.SecOcSender | None = None
+    authentic: int = 8                     # bytes before the SecOC trailer
 
 
 def _attribute(msg, name: str):
@@ -102,7 +104,7 @@ def e2e_config(msg) -> e2e.P01Config | e2e.P02Config | None:
             data_id = _attribute(msg, "E2EDataID")
             if data_id is None:
                 raise DbcError(f"{where}: E2EProfile P01 needs the E2EDataID attribute")
-            return e2e.P01Config(int(data_id), length=msg.length, name=msg.name)
+            return e2e.P01Config(int(data_id), length=authentic_length(msg), name=msg.name)
         if profile == "P02":
             text = _attribute(msg, "E2EDataIDList")
             try:
@@ -112,10 +114,30 @@ def e2e_config(msg) -> e2e.P01Config | e2e.P02Config | None:
             if len(ids) != 16:
                 raise DbcError(f"{where}: E2EProfile P02 needs E2EDataIDList = 16 bytes as 32 hex digits, "
                                f"got {text!r}")
-            return e2e.P02Config(ids, length=msg.length, name=msg.name)
+            return e2e.P02Config(ids, length=authentic_length(msg), name=msg.name)
     except e2e.E2EConfigError as exc:
         raise DbcError(f"{where}: {exc}") from None
     raise DbcError(f"{where}: E2EProfile {profile!r} is not one of NONE, P01, P02")
+
+
+#: the key every authenticated message uses unless the scenario gives one ([secoc]): a test-bench
+#: development key, public by design (AES-128, 16 bytes)
+DEV_SECOC_KEY = bytes.fromhex("2b7e151628aed2a6abf7158809cf4f3c")
+
+
+def msg_name_of(db: Database, frame_id: int) -> str:
+    return db.get_message_by_frame_id(frame_id).name
+
+
+def secoc_data_id(msg) -> int | None:
+    """The message's SecOC data id (attribute `SecOCDataID` > 0), or None: not authenticated."""
+    value = _attribute(msg, "SecOCDataID")
+    return int(value) if value else None
+
+
+def authentic_length(msg) -> int:
+    """Bytes of the frame before a SecOC trailer (freshness byte + 3 MAC bytes), all without one."""
+    return msg.length - secoc.AUTH_BYTES if secoc_data_id(msg) else msg.length
 
 
 @dataclass
@@ -200,7 +222,9 @@ class NodeStats:
     bad_outputs: int = 0           # non-finite controller outputs replaced by the safe value
     e2e_discarded: int = 0         # protected frames not given to the controller (status not usable)
     e2e_status: dict | None = None  # E2E status -> count (frames and cycles without a frame)
-    e2e_events: list | None = None  # (t_us, message, status) of every status but OK, first 10,000
+    e2e_events: list | None = None  # (t_us, message, status): every E2E status but OK and every SecOC
+    #                                 rejection (SECOC_MAC_MISMATCH, SECOC_STALE_FRESHNESS, ...), first 10,000
+    secoc_rejected: dict | None = None  # authenticated frames dropped: reason -> count
     step_errors: int = 0           # exceptions inside step(), caught: the node sends safe values
     last_error: str = ""
 
@@ -239,8 +263,28 @@ class Node:
             if protection is not None:
                 cycle_us = int(msg.cycle_time or 0) * 1000 or period_us
                 self._checks[fid] = RxCheck(msg.name, protection, e2e.CheckState(), cycle_us, offset_us)
-        self.stats = NodeStats(e2e_status={} if self._checks else None,
-                               e2e_events=[] if self._checks else None)
+        self.stats = NodeStats(e2e_status={} if self._checks else None, e2e_events=[])
+        self._db = db
+        self._verifiers: dict[int, secoc.SecOcReceiver] = {}
+        self.use_keys({})
+
+    def use_keys(self, keys: Mapping[str, bytes], window: int = secoc.DEFAULT_WINDOW) -> None:
+        """SecOC keys by message name ("*": every other message; default DEV_SECOC_KEY) for the
+        authenticated messages this node sends and receives; freshness counters start at 0."""
+        default = keys.get("*", DEV_SECOC_KEY)
+        for tx in self.tx:
+            data_id = secoc_data_id(tx.codec.message)
+            if data_id is not None:
+                tx.secoc = secoc.SecOcSender(keys.get(tx.codec.name, default), data_id)
+                tx.authentic = tx.codec.message.length - secoc.AUTH_BYTES
+        self._verifiers = {}
+        for fid in self._rx_map:
+            msg = self._db.get_message_by_frame_id(fid)
+            data_id = secoc_data_id(msg)
+            if data_id is not None:
+                self._verifiers[fid] = secoc.SecOcReceiver(keys.get(msg.name, default), data_id, window)
+        if self._verifiers and self.stats.secoc_rejected is None:
+            self.stats.secoc_rejected = {}
         self._next_due_us = min((tx.next_due_us for tx in self.tx), default=1 << 62)
 
     @property
@@ -264,9 +308,22 @@ class Node:
         if pairs is None:
             return
         self.stats.frames_received += 1
+        if data is None:
+            data = b""
+        verifier = self._verifiers.get(frame_id)
+        if verifier is not None:                 # authentication first: a forged frame is dropped
+            verdict = verifier.verify(data)
+            if not verdict.accepted:
+                counts = self.stats.secoc_rejected
+                counts[verdict.reason.value] = counts.get(verdict.reason.value, 0) + 1
+                events = self.stats.e2e_events
+                if events is not None and len(events) < 10_000:
+                    events.append((t_us, msg_name_of(self._db, frame_id), "SECOC_" + verdict.reason.name))
+                return
+            data = verdict.payload
         chk = self._checks.get(frame_id)
         if chk is not None:
-            chk.state, status = e2e.check(chk.config, chk.state, data if data is not None else b"")
+            chk.state, status = e2e.check(chk.config, chk.state, data)
             chk.last_us = t_us
             self._count_e2e(chk, status, t_us)
             if not status.usable:
@@ -317,8 +374,12 @@ class Node:
             if tx.counter:
                 values[E2E_COUNTER] = tx.count % E2E_COUNTER_MODULO
             data = tx.codec.encode(values)
+            if tx.secoc is not None:
+                data = data[:tx.authentic]
             if tx.e2e is not None:
                 data = e2e.protect(tx.e2e, tx.e2e_state, data)
+            if tx.secoc is not None:
+                data = tx.secoc.secure(data)
             frames.append((tx.codec, data))
             tx.count += 1
             tx.next_due_us += tx.cycle_us

@@ -141,12 +141,14 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         from hil.dbc import load_dbc
         from hil.release import node_release
         from hil.scenario import Scenario as _Scenario
+        from hil.scenario import secoc_keys
 
         scenario = _Scenario.model_validate_json(scenario_json)
         db = load_dbc(dbc_path)
         codec = Codec(db)
         node = build_node(name, scenario, db, codec, dbc_path)
         release = node_release(scenario, db, node)       # jitter, drift, start delay (hil.release)
+        node.use_keys(secoc_keys(scenario), scenario.secoc.window)
         bus = open_bus(cfg)
         _raise_priority(REALTIME_NICE)
         results.put(("ready", name, None))

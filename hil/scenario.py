@@ -160,6 +160,38 @@ class MessageTiming(_Strict):
         return self
 
 
+class SecOcSpec(_Strict):
+    """Keys of the authenticated messages (DBC attribute SecOCDataID): AES-128, 32 hex digits."""
+
+    key: str | None = None                  # every authenticated message; default: hil.node.DEV_SECOC_KEY
+    keys: dict[str, str] = Field(default_factory=dict)   # by message name, over `key`
+    window: Annotated[int, Field(ge=1, le=255)] = 16     # freshness acceptance window [frames]
+
+    @field_validator("key")
+    @classmethod
+    def _hex_key(cls, v):
+        if v is not None:
+            _check_key(v)
+        return v
+
+    @field_validator("keys")
+    @classmethod
+    def _hex_keys(cls, v):
+        for name, text in v.items():
+            _check_key(text, name)
+        return v
+
+
+def _check_key(text: str, name: str | None = None) -> None:
+    try:
+        ok = len(bytes.fromhex(text)) == 16
+    except ValueError:
+        ok = False
+    if not ok:
+        what = f"key of {name}" if name else "key"
+        raise ValueError(f"{what} must be 16 bytes as 32 hex digits (AES-128)")
+
+
 class Scenario(_Strict):
     name: str = "unnamed"
     description: str = ""
@@ -175,6 +207,7 @@ class Scenario(_Strict):
     nodes: dict[str, NodeTiming] = Field(default_factory=dict)        # by node name, e.g. BECU3
     messages: dict[str, MessageTiming] = Field(default_factory=dict)  # by DBC message name
     faults: list[FaultSpec] = Field(default_factory=list)             # hil.faults, lockstep
+    secoc: SecOcSpec = Field(default_factory=SecOcSpec)               # authentication keys
 
     @field_validator("desk")
     @classmethod
@@ -226,3 +259,13 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         dbc_path = (path.parent / scenario.dbc).resolve()
         scenario = scenario.model_copy(update={"dbc": str(dbc_path)})
     return scenario
+
+
+def secoc_keys(scenario: Scenario) -> dict[str, bytes]:
+    """Message name -> AES-128 key from the scenario's [secoc] section; "*" holds `key`, the key of
+    every message not named (absent: the node runtime's development key)."""
+    spec = scenario.secoc
+    out = {name: bytes.fromhex(text) for name, text in spec.keys.items()}
+    if spec.key is not None:
+        out["*"] = bytes.fromhex(spec.key)
+    return out

@@ -6,15 +6,16 @@ import cantools
 import pytest
 from conftest import DEFAULT
 
-from hil import e2e
+from hil import e2e, secoc
 from hil.assembly import build_node
 from hil.codec import Codec
 from hil.dbc import DEFAULT_DBC, load_dbc
 from hil.errors import DbcError
-from hil.node import e2e_config
+from hil.node import DEV_SECOC_KEY, authentic_length, e2e_config, secoc_data_id
 from hil.scenario import load_scenario
 
-SAFETY = {"BCU_EMERGENCY", "DESK_CMD", "ACD_BRAKE_REQ", "BCU_DEMAND"} | {f"BECU{i}_PRESS_CMD" for i in range(1, 9)}
+SAFETY = {"BCU_EMERGENCY", "DESK_CMD", "ACD_BRAKE_REQ", "BCU_DEMAND"} | {
+    f"BECU{i}_PRESS_CMD" for i in range(1, 9)}
 
 
 def test_the_dbc_marks_exactly_the_safety_frames_profile_1_with_their_id_as_data_id():
@@ -35,7 +36,9 @@ def test_every_safety_frame_of_a_lockstep_trace_checks_ok(default_lockstep):
             cfg = configs.get(msg.arbitration_id)
             if cfg is None:
                 continue
-            states[msg.arbitration_id], status = e2e.check(cfg, states[msg.arbitration_id], bytes(msg.data))
+            authentic = authentic_length(db.get_message_by_frame_id(msg.arbitration_id))
+            states[msg.arbitration_id], status = e2e.check(cfg, states[msg.arbitration_id],
+                                                           bytes(msg.data)[:authentic])
             per = statuses.setdefault(cfg.name, {})
             per[status.value] = per.get(status.value, 0) + 1
     assert set(statuses) == SAFETY - {"ACD_BRAKE_REQ"} - {f"BECU{i}_PRESS_CMD" for i in (7, 8)}
@@ -54,13 +57,15 @@ def becu():
 
 
 def demand_frames(db, n, decel=0.5):
+    """n brake demands as the BCU sends them: E2E over bytes 0-3, then the SecOC trailer."""
     msg = db.get_message_by_name("BCU_DEMAND")
     cfg, state = e2e_config(msg), e2e.ProtectState()
+    sender = secoc.SecOcSender(DEV_SECOC_KEY, secoc_data_id(msg))
     out = []
     for k in range(n):
-        raw = msg.encode({"CHECKSUM": 0, "COUNTER": 0, "Mode": 1, "BrakeStep": 7,
-                          "TargetDecel": decel + 0.01 * k}, strict=False)
-        out.append(e2e.protect(cfg, state, raw))
+        raw = msg.encode({"CHECKSUM": 0, "COUNTER": 0, "Mode": 1, "BrakeStep": 7, "SecOCFreshness": 0,
+                          "SecOCMAC": 0, "TargetDecel": decel + 0.01 * k})
+        out.append(sender.secure(e2e.protect(cfg, state, raw[:4])))
     return msg, out
 
 
@@ -76,16 +81,31 @@ def test_receiver_discards_corrupt_repeated_and_initial_frames(becu):
     assert node.rx["TargetDecel"] == pytest.approx(0.51, abs=0.01)
     corrupt = bytearray(frames[2])
     corrupt[3] ^= 0x10                                              # one bit of the payload
-    node.receive(fid, bytes(corrupt), 20_000)
-    assert node.rx.e2e["BCU_DEMAND"] is e2e.Status.ERROR
+    node.receive(fid, bytes(corrupt), 20_000)                      # authentication drops it
+    assert node.stats.secoc_rejected == {"MAC mismatch": 1}
     assert node.rx["TargetDecel"] == pytest.approx(0.51, abs=0.01)  # kept the last good value
     node.receive(fid, frames[1], 21_000)                           # a replayed old frame
-    assert node.rx.e2e["BCU_DEMAND"] in (e2e.Status.REPEATED, e2e.Status.WRONGSEQUENCE)
+    assert node.stats.secoc_rejected == {"MAC mismatch": 1, "replay/stale freshness": 1}
     assert node.rx["TargetDecel"] == pytest.approx(0.51, abs=0.01)
     node.receive(fid, frames[3], 30_000)                           # frame 2 lost: still usable
     assert node.rx.e2e["BCU_DEMAND"] is e2e.Status.OKSOMELOST
     assert node.rx["TargetDecel"] == pytest.approx(0.53, abs=0.01)
-    assert node.stats.e2e_discarded == 3
+    assert node.stats.e2e_discarded == 1                           # the INITIAL one
+    assert [s for _, _, s in node.stats.e2e_events] == [
+        "INITIAL", "SECOC_MAC_MISMATCH", "SECOC_STALE_FRESHNESS", "OKSOMELOST"]
+
+
+def test_an_e2e_error_behind_a_valid_mac_is_discarded(becu):
+    """A sender whose E2E CRC is wrong (a fault before authentication) is caught by the E2E check."""
+    node, db = becu
+    msg, frames = demand_frames(db, 2)
+    sender = secoc.SecOcSender(DEV_SECOC_KEY, secoc_data_id(msg), freshness=2)
+    node.receive(msg.frame_id, frames[0], 0)
+    node.receive(msg.frame_id, frames[1], 10_000)
+    bad = bytearray(frames[1][:4])
+    bad[0] ^= 0xFF
+    node.receive(msg.frame_id, sender.secure(bytes(bad)), 20_000)
+    assert node.rx.e2e["BCU_DEMAND"] is e2e.Status.ERROR and node.stats.e2e_discarded == 2
 
 
 def test_a_silent_sender_gives_nonewdata_once_per_message_cycle(becu):
@@ -101,7 +121,7 @@ def test_a_silent_sender_gives_nonewdata_once_per_message_cycle(becu):
 
 def test_sender_fills_counter_and_crc(becu):
     node, db = becu
-    frames = [d for _ in range(3) for fc, d in node.cycle(3_000 + 10_000 * _) if fc.name == "BECU1_PRESS_CMD"]
+    frames = [d for k in range(3) for fc, d in node.cycle(3_000 + 10_000 * k) if fc.name == "BECU1_PRESS_CMD"]
     msg = db.get_message_by_name("BECU1_PRESS_CMD")
     cfg, state = e2e_config(msg), e2e.CheckState()
     seen = []
@@ -131,3 +151,39 @@ BA_DEF_DEF_ "E2EProfile" "NONE";
     db = cantools.database.load_file(str(path))
     with pytest.raises(DbcError, match=needle):
         e2e_config(db.get_message_by_name("X"))
+
+
+def verify_all(trace_path, key, name="BCU_DEMAND"):
+    db = load_dbc(DEFAULT_DBC)
+    msg = db.get_message_by_name(name)
+    receiver = secoc.SecOcReceiver(key, secoc_data_id(msg))
+    verdicts = []
+    with can.LogReader(str(trace_path)) as reader:
+        for frame in reader:
+            if frame.arbitration_id == msg.frame_id:
+                verdicts.append(receiver.verify(bytes(frame.data)).accepted)
+    return verdicts
+
+
+def test_authenticated_frames_of_a_run_verify_with_the_scenario_key(default_lockstep, tmp_path):
+    from hil.run import run_scenario_lockstep
+    from hil.scenario import parse_scenario
+
+    assert all(verify_all(default_lockstep.out_dir / "trace.blf", DEV_SECOC_KEY))   # no [secoc]: dev key
+    key = "000102030405060708090a0b0c0d0e0f"
+    base = load_scenario(DEFAULT)
+    keyed = parse_scenario({**base.model_dump(), "max_duration_s": 1.0,
+                            "secoc": {"keys": {"BCU_DEMAND": key}}})
+    report = run_scenario_lockstep(keyed, tmp_path / "run")
+    verdicts = verify_all(tmp_path / "run" / "trace.blf", bytes.fromhex(key))
+    assert len(verdicts) > 90 and all(verdicts)
+    assert not any(verify_all(tmp_path / "run" / "trace.blf", DEV_SECOC_KEY))
+    assert report.outcome.node_stats["BECU1"]["secoc_rejected"] == {}              # both ends agree
+
+
+def test_a_bad_key_is_a_one_line_scenario_error():
+    from hil.errors import ScenarioError
+    from hil.scenario import parse_scenario
+
+    with pytest.raises(ScenarioError, match="secoc.keys.*BCU_DEMAND must be 16 bytes as 32 hex digits"):
+        parse_scenario({"secoc": {"keys": {"BCU_DEMAND": "abc"}}})

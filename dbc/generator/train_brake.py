@@ -14,6 +14,9 @@ Conventions
   `CHECKSUM` (byte 0) and `COUNTER` (low nibble of byte 1): the AUTOSAR E2E profile 1 layout.  The
   message attributes `E2EProfile` ("P01") and `E2EDataID` (the frame id: unique on this bus, data id
   mode BOTH) tell the node runtime to protect and check them (hil/e2e.py).
+- The brake demand and the emergency frame (whose EmergencyActive = 0 releases) are authenticated,
+  SecOC profile 1: bytes 0-3 are the E2E-protected authentic part, `SecOCFreshness` (byte 4) and
+  `SecOCMAC` (bytes 5-7) the trailer; attribute `SecOCDataID` names the data id (hil/secoc.py).
 - Names: message `<SENDER>_<WHAT>`, per-car messages `<SENDER><n>_<WHAT>` / `PLANT_CAR<n>_<WHAT>`,
   signals CamelCase with no car index, so a binding can substitute the index.
 """
@@ -53,6 +56,7 @@ class Msg:
     comment: str
     signals: list[Sig]
     dlc: int = 8
+    secoc_data_id: int = 0     # > 0: authenticated (SecOC profile 1) with this data id
 
 
 def e2e(comment_what: str) -> list[Sig]:
@@ -60,6 +64,16 @@ def e2e(comment_what: str) -> list[Sig]:
         Sig("CHECKSUM", 0, 8, maximum=255,
             comment=f"E2E profile 1 CRC-8 (SAE J1850) over data id and {comment_what} (filled by the sender)"),
         Sig("COUNTER", 8, 4, maximum=15, comment="E2E profile 1 alive counter 0..14, +1 every transmission"),
+    ]
+
+
+def secoc(what: str) -> list[Sig]:
+    """SecOC profile 1 trailer (hil/secoc.py): bytes 0-3 are the authentic part, E2E-protected."""
+    return [
+        Sig("SecOCFreshness", 32, 8, maximum=255,
+            comment=f"8 LSB of the freshness counter of {what} (filled by the sender)"),
+        Sig("SecOCMAC", 40, 24, maximum=16777215,
+            comment=f"24 MSB of the AES-128 CMAC over data id, bytes 0-3 and full freshness of {what}"),
     ]
 
 
@@ -80,7 +94,7 @@ def messages() -> list[Msg]:
                     choices={0: "INACTIVE", 1: "ACTIVE"}),
                 Sig("Source", 13, 2, maximum=3, comment="who demanded the emergency brake",
                     choices={0: "NONE", 1: "DESK", 2: "ACD", 3: "BCU"}),
-            ]),
+            ] + secoc("the emergency frame"), secoc_data_id=0x010),
         Msg(0x018, "DESK_CMD", "DESK", ["BCU"], 100,
             "Driver desk / ATO commands.",
             e2e("the desk command") + [
@@ -107,9 +121,9 @@ def messages() -> list[Msg]:
             e2e("the demand") + [
                 Sig("Mode", 12, 2, maximum=3, comment="BCU brake mode", choices=BCU_MODES),
                 Sig("BrakeStep", 16, 3, maximum=7, comment="active service brake step"),
-                Sig("TargetDecel", 24, 16, scale=0.001, maximum=65.535, unit="m/s^2",
+                Sig("TargetDecel", 19, 13, scale=0.001, maximum=8.191, unit="m/s^2",
                     comment="target deceleration for every car (positive = braking)"),
-            ]),
+            ] + secoc("the demand"), secoc_data_id=0x028),
     ]
     for i in range(1, MAX_CARS + 1):
         msgs.append(Msg(
@@ -237,12 +251,14 @@ def render() -> str:
         'BA_DEF_ BO_ "GenMsgSendType" ENUM "Cyclic","NoMsgSendType";',
         'BA_DEF_ BO_ "E2EProfile" ENUM "NONE","P01","P02";',
         'BA_DEF_ BO_ "E2EDataID" INT 0 65535;',
+        'BA_DEF_ BO_ "SecOCDataID" INT 0 65535;',
         'BA_DEF_ "Baudrate" INT 10000 1000000;',
         'BA_DEF_ "BusType" STRING ;',
         'BA_DEF_DEF_ "GenMsgCycleTime" 0;',
         'BA_DEF_DEF_ "GenMsgSendType" "NoMsgSendType";',
         'BA_DEF_DEF_ "E2EProfile" "NONE";',
         'BA_DEF_DEF_ "E2EDataID" 0;',
+        'BA_DEF_DEF_ "SecOCDataID" 0;',
         'BA_DEF_DEF_ "Baudrate" 500000;',
         'BA_DEF_DEF_ "BusType" "CAN";',
         f'BA_ "Baudrate" {BITRATE_BPS};',
@@ -254,6 +270,8 @@ def render() -> str:
         if any(s.name == "CHECKSUM" for s in m.signals):
             out.append(f'BA_ "E2EProfile" BO_ {m.frame_id} 1;')
             out.append(f'BA_ "E2EDataID" BO_ {m.frame_id} {m.frame_id};')
+        if m.secoc_data_id:
+            out.append(f'BA_ "SecOCDataID" BO_ {m.frame_id} {m.secoc_data_id};')
     for m in msgs:
         for s in m.signals:
             if s.choices:
