@@ -154,6 +154,10 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
         + (f", {kpis['frames_overwritten']} overwritten in a transmit queue"
            if kpis.get("frames_overwritten") else "") + ")",
     ]
+    if kpis.get("faults_injected") is not None or kpis.get("protection_events"):
+        injected = ", ".join(f"{k} {v}" for k, v in (kpis.get("faults_injected") or {}).items()) or "none"
+        seen = ", ".join(f"{k} {v}" for k, v in kpis.get("protection_events", {}).items()) or "nothing"
+        lines.append(f"faults injected         {injected}; receivers reported {seen}")
     bus = kpis.get("bus")
     if bus:
         lines.append(f"bus ({bus['bitrate_bps'] // 1000} kbit/s)       load {100 * bus['load']:.1f} %, "

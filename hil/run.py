@@ -68,6 +68,14 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
             "worst_response_message": worst[0],
             "deadline_misses": sum(m["deadline_misses"] for m in outcome.bus["messages"].values()),
         }
+    detected: dict[str, int] = {}              # what the receivers' E2E / SecOC checks reported
+    for stats in outcome.node_stats.values():
+        for _, _, status in stats.get("e2e_events") or ():
+            if status != "INITIAL":
+                detected[status] = detected.get(status, 0) + 1
+    kpis["protection_events"] = dict(sorted(detected.items()))
+    if outcome.faults is not None:
+        kpis["faults_injected"] = dict(sorted(outcome.faults["counts"].items()))
     kpis["mode"] = outcome.mode
     kpis["seed"] = scenario.seed
     kpis["simulated_s"] = outcome.end_us / 1e6
