@@ -9,6 +9,9 @@ loop behaves as seed 001's first-order cylinder (eq. 4).
 Inputs (DBC signal names, bound by hil): AxleSpeed, CylPressure, AccelLong (the car's sensors),
 TargetDecel and Mode (BCU_DEMAND), EmergencyActive (BCU_EMERGENCY).
 Outputs: the pressure command frame (CylPressureSet, ValveCmd, WspValve) and the status frame.
+
+With BecuParams.control = "decel" the set-point comes from seed 001's deceleration PI (eq. 16) instead,
+optionally behind the reference governor (eq. 9, firmware_py.governor), which sets GovernorActive.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 
 from firmware_py.cycle import CycleTimer
+from firmware_py.governor import GovernorDecision, GovernorParams, GovernorState, govern, play
 from firmware_py.limits import clip, finite_or
 from firmware_py.pi import PI, PIParams
 
@@ -42,12 +46,19 @@ class WspParams:
 
 
 def wsp_transition(state: Wsp, slip_mps: float, speed_mps: float, p: WspParams) -> Wsp:
-    """Pure mode transition of the basic wheel-slide protection (vent / hold / refill with hysteresis)."""
+    """Pure mode transition of the basic wheel-slide protection (vent / hold / refill with hysteresis).
+
+    With refill_fraction ≥ hold_fraction there is no hold phase: VENT returns to FILL as soon as the slip
+    is below the refill threshold, as seed 001 §II-C's WSP does (vent, u = 0, while s > s̄; track again
+    once s is back in the adhesion region).
+    """
     if speed_mps < p.min_speed_mps:
         return Wsp.FILL
     vent_at = p.vent_slip_mps + p.vent_slip_per_speed * speed_mps
     if slip_mps > vent_at:
         return Wsp.VENT
+    if state == Wsp.VENT and p.refill_fraction >= p.hold_fraction:
+        return Wsp.FILL if slip_mps < p.refill_fraction * vent_at else Wsp.VENT
     if state == Wsp.VENT:
         return Wsp.HOLD if slip_mps < p.hold_fraction * vent_at else Wsp.VENT
     if state == Wsp.HOLD:
@@ -70,6 +81,29 @@ class BecuParams:
     wheel_trust_slip_mps: float = 0.2        # speed estimator: below this apparent slip, trust the axle
     wheel_trust_gain: float = 0.2            # complementary-filter gain towards the axle speed
     emergency_decel_mps2: float = 1.3        # used when BCU_EMERGENCY is active and the demand lags
+    # "pressure": feed-forward set-point from the demand (inverse brake model) + the pressure PI (v1).
+    # "decel": seed 001's eq. (16), a PI on the deceleration error measured by the accelerometer whose
+    # output is the cylinder pressure set-point u (CylPressureSet); the pressure PI still drives the EP
+    # valve for plants without an integrated pressure controller.
+    control: str = "pressure"
+    # eq. (16) gains, issue #4's set: K_P = 5 bar/g, K_I = 40 bar/(g s), in Pa per m/s² (1 bar = 1e5 Pa,
+    # g = 9.81 m/s²); output bounded to 0 ≤ u ≤ p̄, eq. (5b)
+    decel_pi: PIParams = field(default_factory=lambda: PIParams(
+        kp=5e5 / 9.81, ki=40e5 / 9.81, out_min=0.0, out_max=450e3))
+    governor: GovernorParams | None = None   # reference governor of seed 001 eq. (9), decel mode only
+    # decel mode, leaving WSP: "freeze" resumes the PI where WSP froze it (the project's convention);
+    # "handover" restarts it bumplessly from the vented set-point u = 0
+    wsp_resume: str = "freeze"
+    pressure_observer_gain: float = 0.1     # governor's cylinder observer: correction per cycle (chosen)
+
+    def __post_init__(self) -> None:
+        if self.control not in ("pressure", "decel"):
+            raise ValueError(f"BecuParams: control must be 'pressure' or 'decel', got {self.control!r}")
+        if self.wsp_resume not in ("freeze", "handover"):
+            raise ValueError(f"BecuParams: wsp_resume must be 'freeze' or 'handover', "
+                             f"got {self.wsp_resume!r}")
+        if self.governor is not None and self.control != "decel":
+            raise ValueError("BecuParams: the reference governor needs control = 'decel'")
 
 
 class Becu:
@@ -82,6 +116,13 @@ class Becu:
     def __init__(self, params: BecuParams | None = None) -> None:
         self.p = params or BecuParams()
         self.pressure_pi = PI(self.p.pressure_pi)
+        self.decel_pi = PI(self.p.decel_pi)
+        self._vented = False          # WSP overrode the decel PI last cycle
+        self.u_sent = 0.0             # decel mode: the set-point sent last cycle [Pa]
+        self.p_hat = 0.0              # decel mode: observed cylinder pressure [Pa]
+        self.torque_est = 0.0         # brake torque: the governor's play model run on the measured pressure
+        self.r_gov: float | None = None              # last governed reference [m/s²]
+        self.decision: GovernorDecision | None = None   # last governor decision (diagnostic)
         self.wsp = Wsp.FILL
         self.v_ref = math.nan
         self.timer = CycleTimer(self.p.cycle_us)
@@ -105,6 +146,39 @@ class Becu:
             return v_pred + self.p.wheel_trust_gain * (wheel_v - v_pred)
         return max(v_pred, 0.0)
 
+    def decel_control(self, r0: float, decel: float, pressure: float, dt_s: float,
+                      overridden: bool) -> tuple[float, bool]:
+        """Seed 001's loop: governor (eq. 9) -> PI on the deceleration error (eq. 16) -> set-point u.
+
+        r0: requested deceleration [m/s²]; decel: measured deceleration (−AccelLong) [m/s²]; pressure:
+        measured cylinder pressure [Pa]. Returns (u [Pa], governor active). While WSP overrides
+        (`overridden`), the PI is frozen and u = 0 (vent, seed 001 §II-C).
+        """
+        p = self.p
+        r = r0
+        governed = False
+        gp = p.governor
+        if gp is not None:
+            # cylinder observer: the lag of eq. (4) run on the set-point this BECU sent, corrected towards
+            # the measured pressure; the torque estimate is the play model (10a) on the observed pressure
+            # (on the raw measurement, sensor noise would ratchet the estimated torque up)
+            p_hat = self.u_sent + (self.p_hat - self.u_sent) * gp.phi
+            self.p_hat = p_hat + p.pressure_observer_gain * (pressure - p_hat)
+            self.torque_est = play(self.torque_est, self.p_hat, gp)
+            x = GovernorState(self.decel_pi.i, self.p_hat, self.torque_est, gp.mass_kg * decel)
+            self.decision = govern(x, r0, gp, self.r_gov)
+            r = self.r_gov = self.decision.r_mps2
+            governed = self.decision.active
+        if self._vented and not overridden and p.wsp_resume == "handover":
+            # back from WSP: bumpless hand-over from the applied u = 0 (simple-pid's set_auto_mode), so
+            # tracking restarts from the vented cylinder as in seed 001 §IV-A rather than from the
+            # pre-slide set-point that just made the wheel slide
+            self.decel_pi.handover(0.0, error=r - decel)
+        self._vented = overridden
+        u = self.decel_pi.update(r - decel, dt_s, freeze=overridden)  # eq. (16), e = r − v̇
+        self.u_sent = 0.0 if overridden else u
+        return self.u_sent, governed
+
     def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
         p = self.p
         dt_s = self.timer.dt_s(now_us)
@@ -123,8 +197,12 @@ class Becu:
         slip = self.v_ref - wheel_v                                   # eq. (2), seed 001
         self.wsp = wsp_transition(self.wsp, slip, self.v_ref, p.wsp)
 
-        p_set = self.pressure_for_decel(decel)
         overridden = self.wsp != Wsp.FILL
+        governed = False
+        if p.control == "decel":
+            p_set, governed = self.decel_control(decel, -accel, pressure, dt_s, overridden)
+        else:
+            p_set = self.pressure_for_decel(decel)
         valve = self.pressure_pi.update(p_set - pressure, dt_s, freeze=overridden)
         if overridden:
             valve = 0.0                                               # the dump valve acts, EP valve holds
@@ -135,8 +213,9 @@ class Becu:
             "SpeedEst": max(self.v_ref, 0.0),
             "SlipSpeedEst": slip,
             "WspActive": int(overridden),
-            "GovernorActive": 0,
-            "IntegratorSat": int(self.pressure_pi.saturated or self.pressure_pi.frozen),
+            "GovernorActive": int(governed),
+            "IntegratorSat": int(self.pressure_pi.saturated or self.pressure_pi.frozen or (
+                p.control == "decel" and (self.decel_pi.saturated or self.decel_pi.frozen))),
             "InputMissing": int(missing),
             "OptSlipEst": 0.0,
             "OptSlipPos": 0.0,

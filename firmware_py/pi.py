@@ -21,6 +21,23 @@ class PIParams:
     out_max: float   # output saturation, upper [output unit]
 
 
+def pi_step(p: PIParams, i: float, error: float, dt_s: float, feedforward: float = 0.0,
+            freeze: bool = False) -> tuple[float, float, bool]:
+    """One PI update as a pure function: (output, next integrator, saturated).
+
+    u = clip(ff + kp·e + i⁺) with i⁺ = i + ki·e·dt, except that i is kept when frozen or when the
+    unclipped output is beyond a limit and the error pushes further into it (conditional anti-windup).
+    `PI.update` is this function plus the stored state; predictions (firmware_py.governor) call it
+    directly so the controller and its model are one implementation.
+    """
+    i_next = i if freeze else i + p.ki * error * dt_s
+    unclipped = feedforward + p.kp * error + i_next
+    out = clip(unclipped, p.out_min, p.out_max)
+    # conditional anti-windup: keep the old integrator when it would push further into the limit
+    winding_up = (unclipped > p.out_max and error > 0.0) or (unclipped < p.out_min and error < 0.0)
+    return out, (i if winding_up else i_next), unclipped != out
+
+
 class PI:
     """u = ff + kp*e + i,  i += ki*e*dt  unless frozen or winding up into saturation."""
 
@@ -41,15 +58,7 @@ class PI:
         self.output = last_output
 
     def update(self, error: float, dt_s: float, feedforward: float = 0.0, freeze: bool = False) -> float:
-        p = self.p
         self.frozen = freeze
-        i_next = self.i if freeze else self.i + p.ki * error * dt_s
-        unclipped = feedforward + p.kp * error + i_next
-        out = clip(unclipped, p.out_min, p.out_max)
-        # conditional anti-windup: keep the old integrator when it would push further into the limit
-        winding_up = (unclipped > p.out_max and error > 0.0) or (unclipped < p.out_min and error < 0.0)
-        if not winding_up:
-            self.i = i_next
-        self.saturated = unclipped != out
+        out, self.i, self.saturated = pi_step(self.p, self.i, error, dt_s, feedforward, freeze)
         self.output = out
         return out

@@ -7,18 +7,23 @@ process from the same function, so the node code is the same in both modes.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from cantools.database.can import Database
 
-from firmware_py.bcu import Bcu
-from firmware_py.becu import Becu
+from firmware_py.bcu import Bcu, BcuParams
+from firmware_py.becu import Becu, BecuParams
+from firmware_py.governor import GovernorParams, governor_params
+from firmware_py.pi import PIParams
 from hil.codec import Codec
 from hil.desk import DeskScript
 from hil.errors import BindingError
 from hil.node import Binding, Node
-from hil.plant_node import PlantController, build_plant
+from hil.plant_node import PlantController, build_plant, plant_params
 from hil.scenario import Scenario
+from plant_sim.adhesion import mu_slip_speed_scalar, mu_slip_speed_slope_scalar
+from plant_sim.params import PlantParams
 
 # Phase offsets inside the 10 ms cycle, so that ECUs are not artificially synchronous (chosen).
 PLANT_OFFSET_US = 0
@@ -44,6 +49,63 @@ def becu_messages(i: int) -> tuple[list[str], list[str]]:
             [f"BECU{i}_PRESS_CMD", f"BECU{i}_STATUS"])
 
 
+G_MPS2 = 9.81          # bar/g -> Pa per m/s²: 1 bar = 1e5 Pa, g = 9.81 m/s²
+
+
+def bcu_params(scenario: Scenario) -> BcuParams:
+    """BcuParams with the scenario's [bcu] step table and jerk limit where given."""
+    kw: dict = {}
+    if scenario.bcu.step_decel_mps2 is not None:
+        kw["step_decel_mps2"] = tuple(scenario.bcu.step_decel_mps2)
+    if scenario.bcu.jerk_limit_mps3 is not None:
+        kw["jerk_limit_mps3"] = scenario.bcu.jerk_limit_mps3
+    return BcuParams(**kw)
+
+
+def becu_governor_params(scenario: Scenario, pp: PlantParams, car: int, pi: PIParams) -> GovernorParams:
+    """The governor's model of car `car` (1-based) from the scenario's plant: F̄ = μ(s̄) N and the friction
+    slope bounds f' ∈ [μ'(s̄) N, μ'(0) N] of seed 001's concave μ(s) below its peak (the cone of Fig. 5),
+    cylinder Tp, brake lines (eq. 6), the BECU's PI (eq. 16) and cycle."""
+    b = scenario.becu
+    mass = pp.train.masses_kg[car - 1]
+    normal = mass * pp.train.g_mps2                                    # N = M g, eq. (1a) seed 001
+    mu_pk, s_pk = pp.adhesion.slip_speed_peak
+    bp = pp.brake
+    return governor_params(
+        dt_s=BecuParams().cycle_us * 1e-6, mass_kg=mass, wheel_radius_m=pp.train.wheel_radius_m,
+        inertia_kgm2=pp.train.wheel_inertia_kgm2,
+        friction_max_N=mu_slip_speed_scalar(b.slip_max_mps, mu_pk, s_pk) * normal,
+        slope_lo_N_per_mps=mu_slip_speed_slope_scalar(b.slip_max_mps, mu_pk, s_pk) * normal,
+        slope_hi_N_per_mps=mu_slip_speed_slope_scalar(0.0, mu_pk, s_pk) * normal, tp_s=bp.tp_s,
+        alpha_squeeze=bp.alpha_squeeze_Nm_per_Pa, beta_squeeze=bp.beta_squeeze_Nm,
+        alpha_release=bp.alpha_release_Nm_per_Pa, beta_release=bp.beta_release_Nm, pi=pi,
+        margin_frac=b.governor_margin)
+
+
+def becu_params(scenario: Scenario, car: int) -> BecuParams:
+    """BecuParams of car `car` (1-based): the v1 defaults unless the scenario's [becu] says otherwise."""
+    b = scenario.becu
+    d = BecuParams()
+    if b.control == "pressure" and b.wsp_vent_slip_mps is None and b.wheel_trust_slip_mps is None:
+        return d                                                       # the foundation's BECU, unchanged
+    pp = plant_params(scenario)
+    kw: dict = {"control": b.control, "car_mass_kg": pp.train.masses_kg[car - 1], "wsp_resume": b.wsp_resume,
+                "wheel_radius_m": pp.train.wheel_radius_m, "p_max_Pa": pp.brake.p_max_Pa}
+    pi = PIParams(kp=b.kp_bar_per_g * 1e5 / G_MPS2, ki=b.ki_bar_per_g_s * 1e5 / G_MPS2, out_min=0.0,
+                  out_max=pp.brake.p_max_Pa)                           # eq. (16), 0 ≤ u ≤ p̄ (5b)
+    kw["decel_pi"] = pi
+    if b.wsp_vent_slip_mps is not None:                                # seed 001 §II-C: vent, then track
+        kw["wsp"] = dataclasses.replace(
+            d.wsp, vent_slip_mps=b.wsp_vent_slip_mps, vent_slip_per_speed=0.0,
+            hold_fraction=b.wsp_refill_slip_mps / b.wsp_vent_slip_mps,
+            refill_fraction=b.wsp_refill_slip_mps / b.wsp_vent_slip_mps)
+    if b.wheel_trust_slip_mps is not None:
+        kw["wheel_trust_slip_mps"] = b.wheel_trust_slip_mps
+    if b.governor:
+        kw["governor"] = becu_governor_params(scenario, pp, car, pi)
+    return BecuParams(**kw)
+
+
 def build_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_name: str = "DBC") -> Node:
     n = scenario.train.cars
     if name == "PLANT":
@@ -57,14 +119,14 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_na
         rx_msgs, tx_msgs = [], ["DESK_CMD"]
         period, offset, inputs, outputs = 100_000, DESK_OFFSET_US, ctrl.inputs, ctrl.outputs
     elif name == "BCU":
-        ctrl = Bcu(n)
+        ctrl = Bcu(n, bcu_params(scenario))
         rx_msgs = ["DESK_CMD"] + [f"BECU{i}_STATUS" for i in range(1, n + 1)]
         tx_msgs = ["BCU_DEMAND", "BCU_EMERGENCY", "BCU_STATUS"]
         period, offset = ctrl.p.cycle_us, BCU_OFFSET_US
         inputs, outputs = ctrl.inputs, ctrl.OUTPUTS
     elif name.startswith("BECU") and name[4:].isdigit() and 1 <= int(name[4:]) <= n:
         i = int(name[4:])
-        ctrl = Becu()
+        ctrl = Becu(becu_params(scenario, i))
         rx_msgs, tx_msgs = becu_messages(i)
         period, offset = ctrl.p.cycle_us, BECU_OFFSET_US + 500 * (i - 1)
         inputs, outputs = ctrl.INPUTS, ctrl.OUTPUTS

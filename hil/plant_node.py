@@ -9,7 +9,7 @@ import numpy as np
 from cantools.database.can import Database
 
 from hil.scenario import Scenario
-from plant_sim.params import PlantParams, TrainParams
+from plant_sim.params import AdhesionParams, BrakeParams, PlantParams, SensorParams, TrainParams
 from plant_sim.plant import Plant, TruthSnapshot
 from plant_sim.track import Track
 
@@ -31,10 +31,35 @@ def build_track(scenario: Scenario) -> Track:
     return Track.from_segments(segments, gradient=gradient, curvature=curves)
 
 
+def plant_params(scenario: Scenario) -> PlantParams:
+    """PlantParams of a scenario: plant_sim's defaults, changed only where [train], [plant] or [sensors]
+    say so (so scenarios without those keys run the foundation's plant unchanged)."""
+    t, ps, ss = scenario.train, scenario.plant, scenario.sensors
+    train_kw: dict = {"masses_kg": t.masses()}
+    if t.wheel_inertia_kgm2 is not None:
+        train_kw["wheel_inertia_kgm2"] = t.wheel_inertia_kgm2
+    if not t.running_resistance:
+        train_kw.update(davis_c0_N=0.0, davis_c1_Ns_per_m=0.0, davis_c2_Ns2_per_m2=0.0,
+                        davis_c2_lead_Ns2_per_m2=0.0)
+    brake_kw: dict = {"pressure_model": ps.pressure_model, "tp_s": ps.tp_s}
+    if ps.brake_gain_Nm_per_Pa is not None or ps.brake_preload_Pa is not None or ps.hysteresis_Pa is not None:
+        d = BrakeParams()
+        gain = d.alpha_squeeze_Nm_per_Pa if ps.brake_gain_Nm_per_Pa is None else ps.brake_gain_Nm_per_Pa
+        preload = (-d.beta_squeeze_Nm / d.alpha_squeeze_Nm_per_Pa if ps.brake_preload_Pa is None
+                   else ps.brake_preload_Pa)
+        width = ((d.beta_release_Nm - d.beta_squeeze_Nm) / d.alpha_squeeze_Nm_per_Pa
+                 if ps.hysteresis_Pa is None else ps.hysteresis_Pa)
+        brake_kw.update(alpha_squeeze_Nm_per_Pa=gain, beta_squeeze_Nm=-gain * preload,   # eq. (6), seed 001
+                        alpha_release_Nm_per_Pa=gain, beta_release_Nm=-gain * preload + gain * width)
+    adhesion = (AdhesionParams(slip_speed_peak=(ps.mu_peak, ps.slip_peak_mps)) if ps.adhesion == "slip_speed"
+                else AdhesionParams())
+    sensor_kw = {k: v for k, v in ss.model_dump().items() if v is not None}
+    return PlantParams(train=TrainParams(**train_kw), brake=BrakeParams(**brake_kw), adhesion=adhesion,
+                       sensors=SensorParams(**sensor_kw))
+
+
 def build_plant(scenario: Scenario) -> Plant:
-    train = TrainParams(masses_kg=scenario.train.masses())
-    params = PlantParams(train=train)
-    return Plant(params, build_track(scenario), v0_mps=scenario.train.initial_speed_kmh / 3.6,
+    return Plant(plant_params(scenario), build_track(scenario), v0_mps=scenario.train.initial_speed_kmh / 3.6,
                  x0_m=scenario.train.start_position_m, seed=scenario.seed)
 
 
@@ -46,6 +71,9 @@ class TruthLog:
         self.plant = plant
         self.t_us: list[int] = []
         self.snaps: list[TruthSnapshot] = []
+        # largest slip speed over EVERY plant step, per car [m/s]; kept for "lag" plants (seed 001 runs,
+        # whose acceptance is s ≤ s̄ at every step), None otherwise (the 10 ms samples are all there is)
+        self.max_slip_mps: np.ndarray | None = None
 
     def record(self, t_us: int, snap: TruthSnapshot) -> None:
         self.t_us.append(t_us)
@@ -53,11 +81,12 @@ class TruthLog:
 
     def __getstate__(self) -> dict:          # crosses process boundaries without the plant
         return {"plant": None, "t_us": self.t_us, "snaps": [tuple(s) for s in self.snaps],
-                "series": self.series()}
+                "series": self.series(), "max_slip_mps": self.max_slip_mps}
 
     def __setstate__(self, state: dict) -> None:
         self.plant, self.t_us, self.snaps = None, state["t_us"], state["snaps"]
         self._series = state["series"]
+        self.max_slip_mps = state.get("max_slip_mps")
 
     def series(self) -> dict[str, np.ndarray]:
         if self.plant is None:
@@ -83,7 +112,11 @@ class PlantController:
         self.n = n_cars
         self.valve_keys = [f"BECU{i}_PRESS_CMD.ValveCmd" for i in range(1, n_cars + 1)]
         self.wsp_keys = [f"BECU{i}_PRESS_CMD.WspValve" for i in range(1, n_cars + 1)]
-        self.inputs = tuple(self.valve_keys + self.wsp_keys)
+        self.lag = plant.params.brake.pressure_model == "lag"     # cylinders follow CylPressureSet
+        self.set_keys = ([f"BECU{i}_PRESS_CMD.CylPressureSet" for i in range(1, n_cars + 1)] if self.lag
+                         else [])
+        self.inputs = tuple(self.valve_keys + self.wsp_keys + self.set_keys)
+        self._pset = np.zeros(n_cars)
         self.outputs = tuple(f"PLANT_CAR{i}_SENSORS.{sig}" for i in range(1, n_cars + 1)
                              for sig, _ in SENSOR_FIELDS + (("SensorCounter", ""),))
         cycle_ms = db.get_message_by_name("PLANT_CAR1_SENSORS").cycle_time
@@ -92,6 +125,8 @@ class PlantController:
         self.next_truth_us = 0
         self.sense_count = 0
         self.truth = TruthLog(plant)
+        if self.lag:
+            self.truth.max_slip_mps = np.zeros(n_cars)
         self._rx_version = -1
         self._valve = np.zeros(n_cars)
         self._wsp = np.zeros(n_cars, dtype=np.int64)
@@ -110,6 +145,9 @@ class PlantController:
             v, w = rx[vk], rx[wk]
             self._valve[k] = v if math.isfinite(v) else 0.0       # nothing received yet: valve closed
             self._wsp[k] = int(w) if math.isfinite(w) else 0
+        for k, key in enumerate(self.set_keys):
+            ps = rx[key]
+            self._pset[k] = ps if math.isfinite(ps) else 0.0         # nothing received yet: no pressure
 
     def step(self, now_us: int, rx) -> dict[str, float]:
         out: dict[str, float] = {}
@@ -129,5 +167,11 @@ class PlantController:
             self.standstill = max(snap.v) < STANDSTILL_MPS
             self.next_truth_us += TRUTH_PERIOD_US
         self._actuators(rx)
-        self.plant.step(self._valve, self._wsp)
+        if self.lag:
+            self.plant.step(self._valve, self._wsp, self._pset)
+            s, top = self.plant.snapshot().s, self.truth.max_slip_mps
+            if max(s) > top.min():
+                self.truth.max_slip_mps = np.maximum(top, s)
+        else:
+            self.plant.step(self._valve, self._wsp)
         return out

@@ -30,6 +30,9 @@ class TrainSpec(_Strict):
     masses_kg: list[Annotated[float, Field(gt=1000, le=200_000)]] | None = None
     initial_speed_kmh: Annotated[float, Field(ge=0, le=400)] = 90.0
     start_position_m: float = 0.0
+    # one lumped wheelset per car: J [kg m²]; None = plant_sim's TrainParams default
+    wheel_inertia_kgm2: Annotated[float, Field(gt=0, le=100_000)] | None = None
+    running_resistance: bool = True   # false: no Davis resistance (seed 001's model has none)
 
     @model_validator(mode="after")
     def _masses_match_cars(self) -> TrainSpec:
@@ -160,6 +163,75 @@ class MessageTiming(_Strict):
         return self
 
 
+class PlantSpec(_Strict):
+    """Plant options (seed 001): adhesion curve family, cylinder model, brake hysteresis."""
+
+    # "track": seed 000's curve from [track] rail (the default); "slip_speed": seed 001's μ(s) with the
+    # peak below, the same on the whole track ([track] rail is then not used for adhesion)
+    adhesion: Literal["track", "slip_speed"] = "track"
+    mu_peak: Annotated[float, Field(gt=0, lt=2)] = 0.2              # μ̂: f_max = μ̂ M g (seed 001 §IV-A)
+    slip_peak_mps: Annotated[float, Field(gt=0, lt=10)] = 0.155     # ŝ: slip speed of the peak [m/s]
+    # "valve": EP valve driven by ValveCmd; "lag": cylinder follows CylPressureSet with Tp (eq. 4)
+    pressure_model: Literal["valve", "lag"] = "valve"
+    tp_s: Annotated[float, Field(gt=0, le=5)] = 0.05                # Tp [s], seed 001 §IV
+    # brake hysteresis (eq. 6): squeeze gain ᾱ = α̲ [N m/Pa], squeeze line's zero [Pa], release line
+    # this far above it [Pa]; None = plant_sim's BrakeParams defaults
+    brake_gain_Nm_per_Pa: Annotated[float, Field(gt=0, le=10)] | None = None
+    brake_preload_Pa: Annotated[float, Field(ge=0, le=400e3)] | None = None
+    hysteresis_Pa: Annotated[float, Field(ge=0, le=400e3)] | None = None
+
+
+class SensorSpec(_Strict):
+    """Sensor noise (std); None = plant_sim's SensorParams defaults."""
+
+    accel_noise_std_mps2: Annotated[float, Field(ge=0, le=10)] | None = None
+    axle_speed_noise_std_rad_s: Annotated[float, Field(ge=0, le=10)] | None = None
+    pressure_noise_std_Pa: Annotated[float, Field(ge=0, le=1e5)] | None = None
+
+
+class BcuSpec(_Strict):
+    """BCU options: target deceleration of brake steps 0..7 [m/s²] and the jerk limit [m/s³]."""
+
+    step_decel_mps2: list[Annotated[float, Field(ge=0, le=20)]] | None = None
+    jerk_limit_mps3: Annotated[float, Field(gt=0, le=1000)] | None = None
+
+    @field_validator("step_decel_mps2")
+    @classmethod
+    def _eight(cls, v):
+        if v is not None and (len(v) != 8 or v[0] != 0.0):
+            raise ValueError(f"needs 8 values (steps 0..7) starting with 0.0, got {v}")
+        return v
+
+
+class BecuSpec(_Strict):
+    """BECU options: control law (seed 001 eq. 16), WSP thresholds, reference governor (eq. 9)."""
+
+    control: Literal["pressure", "decel"] = "pressure"
+    kp_bar_per_g: Annotated[float, Field(ge=0, le=1000)] = 5.0          # K_P of eq. (16)
+    ki_bar_per_g_s: Annotated[float, Field(ge=0, le=10_000)] = 40.0     # K_I of eq. (16)
+    # WSP (seed 001 §II-C): vent above this estimated slip [m/s], refill below wsp_refill_slip_mps;
+    # None = the BECU's speed-dependent default thresholds
+    wsp_vent_slip_mps: Annotated[float, Field(gt=0, le=10)] | None = None
+    wsp_refill_slip_mps: Annotated[float, Field(gt=0, le=10)] | None = None
+    wheel_trust_slip_mps: Annotated[float, Field(ge=0, le=10)] | None = None   # speed estimator
+    # leaving WSP, the decel PI resumes where it was frozen ("freeze") or from u = 0 ("handover")
+    wsp_resume: Literal["freeze", "handover"] = "freeze"
+    governor: bool = False
+    slip_max_mps: Annotated[float, Field(gt=0, le=1)] = 0.1              # s̄ of eq. (8)
+    governor_margin: Annotated[float, Field(ge=0, lt=0.5)] = 0.005       # torque margin, fraction of τ̄
+
+    @model_validator(mode="after")
+    def _consistent(self) -> BecuSpec:
+        if self.governor and self.control != "decel":
+            raise ValueError("governor = true needs control = 'decel'")
+        if (self.wsp_vent_slip_mps is None) != (self.wsp_refill_slip_mps is None):
+            raise ValueError("give both wsp_vent_slip_mps and wsp_refill_slip_mps, or neither")
+        if self.wsp_vent_slip_mps is not None and self.wsp_refill_slip_mps > self.wsp_vent_slip_mps:
+            raise ValueError(f"wsp_refill_slip_mps {self.wsp_refill_slip_mps} is above wsp_vent_slip_mps "
+                             f"{self.wsp_vent_slip_mps}")
+        return self
+
+
 class SecOcSpec(_Strict):
     """Keys of the authenticated messages (DBC attribute SecOCDataID): AES-128, 32 hex digits."""
 
@@ -206,6 +278,20 @@ class Scenario(_Strict):
     bus: BusSpec = Field(default_factory=BusSpec)
     nodes: dict[str, NodeTiming] = Field(default_factory=dict)        # by node name, e.g. BECU3
     messages: dict[str, MessageTiming] = Field(default_factory=dict)  # by DBC message name
+    plant: PlantSpec = Field(default_factory=PlantSpec)
+    sensors: SensorSpec = Field(default_factory=SensorSpec)
+    bcu: BcuSpec = Field(default_factory=BcuSpec)
+    becu: BecuSpec = Field(default_factory=BecuSpec)
+
+    @model_validator(mode="after")
+    def _governor_needs_curve(self) -> Scenario:
+        if self.becu.governor and self.plant.adhesion != "slip_speed":
+            raise ValueError("becu.governor = true needs plant.adhesion = 'slip_speed' (the governor's "
+                             "slip inclusion is built from that curve family)")
+        if self.becu.governor and self.becu.slip_max_mps >= self.plant.slip_peak_mps:
+            raise ValueError(f"becu.slip_max_mps {self.becu.slip_max_mps} must lie below the adhesion peak "
+                             f"plant.slip_peak_mps {self.plant.slip_peak_mps} (stable-slip region)")
+        return self
     faults: list[FaultSpec] = Field(default_factory=list)             # hil.faults, lockstep
     secoc: SecOcSpec = Field(default_factory=SecOcSpec)               # authentication keys
 

@@ -45,11 +45,33 @@ def slip_ratio_scalar(s_mps: float, v_mps: float) -> float:
     return min(max(slip_ratio_unclipped_scalar(s_mps, v_mps), 0.0), 1.0)
 
 
+def mu_slip_speed_scalar(s_mps: float, mu_peak: float, s_peak_mps: float) -> float:
+    """μ(s) = 2 μ̂ x / (1 + x²), x = s/ŝ [-]: seed 001's adhesion as a function of the slip speed s ≥ 0
+    (§II-A, eq. (3) f(s) = μ(s) N). Peak μ̂ at s = ŝ; μ(0) = 0; increasing below ŝ and decreasing above
+    (the unstable-slip region); concave on [0, √3 ŝ], so the chord slope μ(s)/s falls with s there and
+    the cone of seed 001 Fig. 5 over [0, s̄] is bounded by the slopes μ'(0) = 2 μ̂/ŝ and μ(s̄)/s̄."""
+    x = s_mps / s_peak_mps
+    return 2.0 * mu_peak * x / (1.0 + x * x)
+
+
+def mu_slip_speed_slope_scalar(s_mps: float, mu_peak: float, s_peak_mps: float) -> float:
+    """dμ/ds [1/(m/s)] of `mu_slip_speed_scalar`: (2 μ̂/ŝ) (1 − x²) / (1 + x²)², x = s/ŝ."""
+    x = s_mps / s_peak_mps
+    return 2.0 * mu_peak / s_peak_mps * (1.0 - x * x) / ((1.0 + x * x) ** 2)
+
+
 def mu_scalar(theta: Theta, sigma: float, v_mps: float, p: AdhesionParams) -> float:
     """μ(θ, σ, v) = μ̄(θ, k2(v) σ) / k1(v) [-], eq. (1) seed 000, with k_i(v) = 1 + π_i v (v in m/s) and
-    μ̄(θ, σ) = √σ / (θ1 + θ2 σ + θ3 σ²), seed 000 §2.1; σ ≥ 0."""
+    μ̄(θ, σ) = √σ / (θ1 + θ2 σ + θ3 σ²), seed 000 §2.1; σ ≥ 0.
+
+    With p.slip_speed_peak = (μ̂, ŝ) the curve is seed 001's μ(s) instead (`mu_slip_speed_scalar`), at
+    the slip speed s = σ · max(v, V_EPS_MPS) (the inverse of `slip_ratio_unclipped_scalar`); θ is unused.
+    """
     if p.constant_mu is not None:
         return p.constant_mu * min(sigma * _INV_RAMP, 1.0)  # flat μ (test hook)
+    if p.slip_speed_peak is not None:
+        mu_pk, s_pk = p.slip_speed_peak
+        return mu_slip_speed_scalar(sigma * (V_EPS_MPS if V_EPS_MPS > v_mps else v_mps), mu_pk, s_pk)
     t1, t2, t3 = theta
     k1 = p.pi1_s_per_m * v_mps + 1.0                        # k1(v) = 1 + π1 v, seed 000 §2.1
     ks = (p.pi2_s_per_m * v_mps + 1.0) * sigma              # k2(v) σ, k2(v) = 1 + π2 v
@@ -104,6 +126,9 @@ def sigma_opt(theta: np.ndarray, v: np.ndarray, p: AdhesionParams) -> np.ndarray
     v = np.asarray(v, dtype=float)
     if p.constant_mu is not None:
         return np.broadcast_to(CONST_MU_RAMP_SIGMA, np.broadcast_shapes(np.shape(theta)[:-1], v.shape)).copy()
+    if p.slip_speed_peak is not None:                          # σ° = ŝ / max(v, V_EPS) for seed 001's μ(s)
+        shape = np.broadcast_shapes(np.shape(theta)[:-1], v.shape)
+        return np.broadcast_to(p.slip_speed_peak[1] / np.maximum(v, V_EPS_MPS), shape).copy()
     return sigma_opt_bar(theta) / (1.0 + p.pi2_s_per_m * v)  # eq. (2) seed 000
 
 
@@ -112,4 +137,7 @@ def mu_opt(theta: np.ndarray, v: np.ndarray, p: AdhesionParams) -> np.ndarray:
     v = np.asarray(v, dtype=float)
     if p.constant_mu is not None:
         return np.broadcast_to(p.constant_mu, np.broadcast_shapes(np.shape(theta)[:-1], v.shape)).copy()
+    if p.slip_speed_peak is not None:                          # μ° = μ̂ for seed 001's μ(s)
+        shape = np.broadcast_shapes(np.shape(theta)[:-1], v.shape)
+        return np.broadcast_to(p.slip_speed_peak[0], shape).copy()
     return mu_opt_bar(theta) / (1.0 + p.pi1_s_per_m * v)  # eq. (2) seed 000

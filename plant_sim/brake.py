@@ -8,6 +8,7 @@ are numpy: they run only when an input is bad.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -91,6 +92,27 @@ def cylinder_pressure_scalar(p_Pa: float, valve_cmd: float, wsp_valve: int, tabl
     p = p_Pa + ep + dump[wsp_valve]
     p = 0.0 if 0.0 > p else p                                       # 0 ≤ p ...
     return p_max if p_max < p else p                                # ... ≤ p̄, eq. (5a) seed 001
+
+
+def lag_factor(bp: BrakeParams, dt_s: float) -> float:
+    """φ = exp(−dt/Tp) [-]: the exact step of ṗ = (u − p)/Tp (eq. (4), seed 001 §IV) for u held over dt_s."""
+    return math.exp(-float(dt_s) / bp.tp_s)
+
+
+def cylinder_lag_scalar(p_Pa: float, p_set_Pa: float, wsp_valve: int, phi: float, p_max_Pa: float) -> float:
+    """Cylinder pressure [Pa] after one step of the "lag" model (BrakeParams.pressure_model), exact for a
+    set-point held over the step: p⁺ = u + (p − u) φ with φ = lag_factor (eq. (4) with Tp, seed 001 §IV).
+
+    The set-point is bounded to 0 ≤ u ≤ p̄ (eq. (5b)); the WSP dump valve overrides it: HOLD (1) keeps p,
+    VENT (2) vents with u = 0 (seed 001 §II-C). Non-finite set-points count as 0 (nothing commanded).
+    """
+    if wsp_valve == WSP_HOLD:
+        return p_Pa
+    u = 0.0 if (wsp_valve == WSP_VENT or not (p_set_Pa > 0.0)) else p_set_Pa   # NaN -> 0
+    u = p_max_Pa if p_max_Pa < u else u                                           # 0 ≤ u ≤ p̄, eq. (5b)
+    p = u + (p_Pa - u) * phi                                                      # eq. (4), seed 001 §IV
+    p = 0.0 if 0.0 > p else p
+    return p_max_Pa if p_max_Pa < p else p                                        # 0 ≤ p ≤ p̄, eq. (5a)
 
 
 def hysteresis_torque_scalar(tau_prev_Nm: float, p_Pa: float, bp: BrakeParams) -> float:

@@ -86,12 +86,25 @@ class AdhesionParams:
     pi2_s_per_m: float = 1.0 / 40.0   # k2(v) = 1 + v/40, seed 000 §3 (σ° halves at 40 m/s)
     # flat adhesion μ = constant_mu for σ ≥ CONST_MU_RAMP_SIGMA (test hook "constant adhesion"); None = curve
     constant_mu: float | None = None
+    # Seed 001's slip-speed adhesion curve family instead of seed 000's (θ and v are then ignored):
+    # (μ̂ [-], ŝ [m/s]) = peak value and its slip speed; μ(s) = 2 μ̂ (s/ŝ) / (1 + (s/ŝ)²), monotone below
+    # the peak and concave for s < √3 ŝ (adhesion.mu_slip_speed_scalar). Seed 001 §IV: f_max = 0.2 M g,
+    # i.e. μ̂ = 0.2; ŝ = 0.155 m/s is the parameter set of issue #4. None = seed 000's curve.
+    slip_speed_peak: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         _require(self.pi1_s_per_m >= 0.0 and self.pi2_s_per_m >= 0.0, "AdhesionParams",
                  f"pi1_s_per_m, pi2_s_per_m must be >= 0, got {self.pi1_s_per_m}, {self.pi2_s_per_m}")
         _require(self.constant_mu is None or 0.0 <= self.constant_mu < 2.0, "AdhesionParams",
                  f"constant_mu must be None or in [0, 2), got {self.constant_mu!r}")
+        if self.slip_speed_peak is not None:
+            mu_pk, s_pk = (float(v) for v in self.slip_speed_peak)
+            _require(0.0 < mu_pk < 2.0 and 0.0 < s_pk < 10.0, "AdhesionParams",
+                     f"slip_speed_peak must be (mu_peak in (0, 2), slip_peak_mps in (0, 10)), "
+                     f"got {self.slip_speed_peak!r}")
+            _require(self.constant_mu is None, "AdhesionParams",
+                     "give at most one of constant_mu and slip_speed_peak")
+            object.__setattr__(self, "slip_speed_peak", (mu_pk, s_pk))
 
 
 @dataclass(frozen=True)
@@ -156,8 +169,18 @@ class BrakeParams:
     beta_squeeze_Nm: float = -0.08 * 30e3
     alpha_release_Nm_per_Pa: float = 0.08
     beta_release_Nm: float = -0.08 * 30e3 + 0.08 * 20e3
+    # How the cylinder is filled. "valve": the EP valve's opening (ValveCmd) at the rates above, the BECU
+    # closes the pressure loop. "lag": the cylinder has its own integrated pressure controller (seed 001
+    # §II-B) and follows the set-point u (CylPressureSet) as the first-order lag of eq. (4) with
+    # ṗ = (u − p)/Tp, seed 001 §IV; the WSP dump valve still holds (HOLD) or vents (VENT: u = 0, §II-C).
+    pressure_model: str = "valve"
+    tp_s: float = 0.05                     # Tp, cylinder time constant of the "lag" model, seed 001 §IV
 
     def __post_init__(self) -> None:
+        _require(self.pressure_model in ("valve", "lag"), "BrakeParams",
+                 f"pressure_model must be 'valve' or 'lag', got {self.pressure_model!r}")
+        _require(math.isfinite(self.tp_s) and self.tp_s > 0.0, "BrakeParams",
+                 f"tp_s must be > 0, got {self.tp_s!r}")
         for name in ("p_max_Pa", "fill_rate_Pa_per_s", "vent_rate_Pa_per_s", "wsp_vent_rate_Pa_per_s",
                      "alpha_squeeze_Nm_per_Pa", "alpha_release_Nm_per_Pa"):
             val = getattr(self, name)

@@ -49,8 +49,10 @@ from plant_sim.adhesion import mu_opt as _mu_opt
 from plant_sim.adhesion import sigma_opt as _sigma_opt
 from plant_sim.brake import (
     WSP_STATES,
+    cylinder_lag_scalar,
     cylinder_pressure_scalar,
     hysteresis_torque_scalar,
+    lag_factor,
     sanitize_valve_cmd,
     sanitize_wsp_valve,
     valve_table,
@@ -141,6 +143,8 @@ class Plant:
         self._dt = dt = params.dt_us * 1e-6
         self._inv_dt = 1.0 / dt
         self._valve_table = valve_table(params.brake, dt)
+        self._lag = params.brake.pressure_model == "lag"      # cylinder follows CylPressureSet, eq. (4)
+        self._phi = lag_factor(params.brake, dt)
         self._cc = cc = car_constants(tp)
         # per car, what the step needs besides the track: (1/m, 1/M + r²/J, dt/m, N = m g, Davis c2)
         self._car_k = tuple(zip(cc.inv_mass_per_kg, cc.slip_gain_per_kg,
@@ -195,11 +199,14 @@ class Plant:
     def n_cars(self) -> int:
         return self._n
 
-    def step(self, valve_cmd: np.ndarray, wsp_valve: np.ndarray) -> None:
+    def step(self, valve_cmd: np.ndarray, wsp_valve: np.ndarray,
+             pressure_set: np.ndarray | None = None) -> None:
         """Advance one dt_us with per-car EP valve openings (float in [−1, 1]) and WSP valve states (0/1/2).
 
         Out-of-range openings are clipped; non-finite ones are taken as 0 (valve closed, pressure held)
         and invalid WSP states as 0 (FILL, dump valve inactive), both counted in `bad_inputs`.
+        With BrakeParams.pressure_model = "lag" the cylinders follow `pressure_set` [Pa] per car instead
+        (first-order lag, eq. (4) seed 001; `brake.cylinder_lag_scalar`) and valve_cmd is not used.
         """
         u = np.asarray(valve_cmd, dtype=float)
         w = np.asarray(wsp_valve)
@@ -217,7 +224,17 @@ class Plant:
             w, n_bad = sanitize_wsp_valve(w)
             self.bad_inputs += n_bad
             w_list = w.tolist()
-        if any(u_list) or any(w_list):                                  # else p and τ stay as they are
+        if self._lag:
+            ps = [0.0] * self._n if pressure_set is None else np.asarray(pressure_set, dtype=float).tolist()
+            if len(ps) != self._n:
+                raise PlantConfigError(f"Plant.step: need {self._n} pressure set-points, got {len(ps)}")
+            phi, p_max, bp = self._phi, self._bp.p_max_Pa, self._bp
+            p, tau = [], []
+            for p_i, tau_i, ps_i, w_i in zip(self._p, self._tau, ps, w_list, strict=True):
+                p_i = cylinder_lag_scalar(p_i, ps_i, w_i, phi, p_max)   # eq. (4)-(5) seed 001
+                p.append(p_i)
+                tau.append(hysteresis_torque_scalar(tau_i, p_i, bp))    # eq. (10a) seed 001
+        elif any(u_list) or any(w_list):                                # else p and τ stay as they are
             table, bp = self._valve_table, self._bp
             p, tau = [], []
             for p_i, tau_i, u_i, w_i in zip(self._p, self._tau, u_list, w_list, strict=True):

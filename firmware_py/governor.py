@@ -1,0 +1,274 @@
+"""Reference governor for wheel-slip prevention (seed 001, eq. 9): pure, no I/O, no clock.
+
+Each BECU cycle `govern(state, r0, params, r_prev)` returns the constant deceleration reference r closest
+to the request r⁰ (eq. 9a) such that the closed loop -- deceleration PI (eq. 16), cylinder lag (eq. 4),
+bounds (eq. 5), brake hysteresis (eq. 10a) and the uncertain slip dynamics (eqs. 3, 10b) -- keeps the
+slip speed s ≤ s̄ (eq. 8) for all future time with r held constant (eq. 9b, 14).
+
+Model (the one the BECU runs; one control step Δ, index k; decelerations positive when braking):
+    e_k   = r − F_k / M                                   error of eq. (16), F = friction force [N]
+    u_k   = PI(e_k)  (firmware_py.pi.pi_step, clip to [0, p̄])            eq. (16), (5b)
+    p_k+1 = u_k + (p_k − u_k) φ,  φ = exp(−Δ/Tp)                          eq. (4) with Tp, §IV; (5a)
+    τ_k+1 = play(τ_k, p_k+1)                                              eq. (10a)
+    F_k+1 = a_k F_k + (1 − a_k) κ τ_k+1,   a_k ∈ [a̲, ā]  (any sequence)   slip dynamics, see below
+
+Why this form of the slip inclusion. Eq. (3) is ṡ = −k f(s) + (r_w/J) τ with k = 1/M + r_w²/J. Along a
+trajectory the friction force F = f(s) obeys Ḟ = f'(s) ṡ = k f'(s) (κ τ − F) with κ = r_w / (J k): F is a
+first-order lag of κ τ whose rate γ = k f'(s) is unknown and time-varying. For every adhesion curve in the
+family considered (monotone on [0, s̄] with slope f' ∈ [f'_lo, f'_hi]) γ ∈ [γ̲, γ̄], so over one step of
+constant torque F_k+1 = a F_k + (1 − a) κ τ with a = exp(−γΔ) ∈ [a̲, ā]: a polytopic inclusion with one
+scheduling parameter ξ ∈ [0, 1], a = ξ a̲ + (1 − ξ) ā, switching arbitrarily (seed 001's eq. (10b) bounds
+s instead of F; in F the inclusion needs no jumps of F at constant s, which no fixed curve can make).
+
+Safety argument (what is proved):
+  (1) Torque ceiling. Let F̄ = f(s̄) (for an uncertain curve, its lower bound over the family, the lower edge
+      of the cone of seed 001 Fig. 5 at s̄) and τ̄ = F̄ / κ. F_k+1 is a convex combination of F_k and κ τ_k+1
+      for every a ∈ [0, 1], so F_k ≤ F̄ and τ ≤ τ̄ at all future steps give F ≤ F̄ forever, whatever the
+      sequence a_k. Since f is increasing on [0, s̄], F ≤ F̄ ⇔ s ≤ s̄ (eq. 8). The continuous-time version
+      holds too (Ḟ ≤ 0 whenever F = F̄ ≥ κ τ), so s ≤ s̄ also between samples.
+  (2) The torque only rises on the squeeze line (play operator, eq. 10a), so τ ≤ τ̄ is a condition on the
+      pressure trajectory, which is what the prediction below checks, with no reference to s at all.
+  (3) 0 ≤ u, p ≤ p̄ (eq. 5) hold by construction (the PI's output clip and the lag's convex combination).
+  (4) The only uncertain input of the prediction is F in the error e. For a FIXED torque history the
+      recursion F_k+1 = a F_k + (1 − a) κ τ_k+1 is increasing in F_k, so the pointwise-lowest friction force
+      over all admissible sequences is obtained greedily: a_k = ā when F_k < κ τ_k+1 (rising torque: the
+      slowest lag) and a_k = a̲ otherwise. The lowest F gives the largest error e = r − F/M, hence the
+      largest PI output at that step. The governor predicts the closed loop with this decel-minimising
+      adversary -- a sequence of the inclusion's vertices, chosen per step -- (optionally cross-checked
+      with a held at either vertex, GovernorParams.vertices) and accepts r only if the predicted
+      trajectory keeps τ ≤ τ̄ (1 − margin) over the horizon and ends settled at a steady state that is
+      itself admissible (M r ≤ κ τ̄ (1 − margin), the steady-state torque of a constant r being M r / κ
+      whatever the curve). That this pointwise worst case is also the closed-loop worst case is NOT
+      proved (the feedback through τ and F is negative, so the loop is not a monotone system and a
+      pointwise bound is not a trajectory bound); it is tested by tests/test_governor.py over sampled
+      states and adversarial sequences switching a every step (random, alternating, blocks, interior
+      values), which also pass with margin 0. Likewise the tail after "settled" (|F − M r| and |u − p|
+      within settle_frac) is covered by the settle tolerance on the steady state, not by a proof.
+What is assumed: the adhesion curve lies in the family (F̄ and the slope bounds are right; for an
+uncertain curve F̄ is the smallest f(s̄) of the family, then F ≤ F̄ still gives s ≤ s̄), the BECU's state
+estimate is close to the truth (integrator: exact; pressure: an observer running eq. (4) on the sent
+set-point, corrected by the measurement; torque: the play model on that pressure; F: M times the
+measured deceleration), and no other force on the wheelset (grade, coupler push) raises the slip. The
+margin (a fraction of τ̄) covers sensor noise, the CAN delay and the plant's 1 ms integrator against this
+10 ms model; it is a tuning value, not a bound.
+
+Search (`govern`): r⁰ is tried first; then the previous reference (admissible again if the model is
+exact, the set being positively invariant), then the largest β ∈ [0, 1] with r_prev + β (r⁰ − r_prev)
+admissible, by bisection -- the admissible references are taken to be an interval [0, r_max(x)] (a larger
+constant reference only raises the PI's drive), an assumption the bisection relies on, not a theorem.
+There is no offline set computation: R(x) of eq. (14) is evaluated online by prediction.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from firmware_py.pi import PIParams, pi_step
+
+
+@dataclass(frozen=True)
+class GovernorParams:
+    """The closed-loop model and the constraint, every constant in SI units (see the module docstring)."""
+
+    dt_s: float                 # Δ, the BECU cycle [s]
+    mass_kg: float              # M, the mass braked by this wheelset/brake [kg]
+    kappa: float                # κ = r_w / (J k), steady friction force per brake torque [N / (N m)]
+    friction_max_N: float       # F̄ = f(s̄), friction force at the slip limit s̄ (eq. 8) [N]
+    a_lo: float                 # a̲ = exp(−γ̄ Δ): fastest friction lag over one step [-]
+    a_hi: float                 # ā = exp(−γ̲ Δ): slowest friction lag over one step [-]
+    phi: float                  # φ = exp(−Δ/Tp), cylinder lag over one step, eq. (4) [-]
+    alpha_squeeze: float        # ᾱ [N m / Pa], squeeze line τ = ᾱ p + β̄, eq. (6)
+    beta_squeeze: float         # β̄ [N m]
+    alpha_release: float        # α̲ [N m / Pa], release line τ = α̲ p + β̲, eq. (6)
+    beta_release: float         # β̲ [N m]
+    pi: PIParams                # the deceleration PI of eq. (16): error [m/s²] -> set-point [Pa]
+    margin_frac: float = 0.005  # torque kept below τ̄ as a fraction of τ̄ (model mismatch, noise) [-]
+    horizon_steps: int = 600    # prediction horizon N (6 s at 10 ms) [steps]
+    settle_frac: float = 0.002  # settled: |F − M r| and |u − p| below this fraction of F̄ and of p̄ [-]
+    bisect_steps: int = 7       # bisection iterations: at most 1/128 of the interval searched ...
+    resolution_mps2: float = 0.002  # ... and no finer than this (0.0002 g) [m/s²]
+    # friction schedules predicted for each candidate (predict_peak_torque's `vertex`): the
+    # decel-minimising adversary, optionally cross-checked with a held at either vertex
+    vertices: tuple[str, ...] = ("adversary",)
+
+    def __post_init__(self) -> None:
+        for name in ("dt_s", "mass_kg", "kappa", "friction_max_N", "alpha_squeeze", "alpha_release"):
+            val = getattr(self, name)
+            if not (math.isfinite(val) and val > 0.0):
+                raise ValueError(f"GovernorParams: {name} must be > 0, got {val!r}")
+        if not (0.0 <= self.a_lo <= self.a_hi < 1.0):
+            raise ValueError(f"GovernorParams: need 0 <= a_lo <= a_hi < 1, got {self.a_lo!r}, {self.a_hi!r}")
+        if not (0.0 <= self.phi < 1.0) or not (0.0 <= self.margin_frac < 1.0):
+            raise ValueError(f"GovernorParams: need 0 <= phi < 1 and 0 <= margin_frac < 1, got "
+                             f"{self.phi!r}, {self.margin_frac!r}")
+
+    @property
+    def torque_max_Nm(self) -> float:
+        """τ̄ = F̄ / κ: the torque ceiling of step (1) [N m]."""
+        return self.friction_max_N / self.kappa
+
+    @property
+    def torque_limit_Nm(self) -> float:
+        """τ̄ (1 − margin): the ceiling the prediction enforces [N m]."""
+        return self.torque_max_Nm * (1.0 - self.margin_frac)
+
+    @property
+    def decel_max_mps2(self) -> float:
+        """Largest constant reference admissible in steady state: κ τ̄ (1 − margin) / M [m/s²]."""
+        return self.kappa * self.torque_limit_Nm / self.mass_kg
+
+
+@dataclass(frozen=True)
+class GovernorState:
+    """The closed loop's state at the start of a cycle (x of eq. 11, in this module's coordinates)."""
+
+    integrator_Pa: float        # the deceleration PI's integrator i [Pa]
+    pressure_Pa: float          # cylinder pressure p [Pa]
+    torque_Nm: float            # brake torque τ [N m] (the play model run on the measured pressure)
+    friction_N: float           # friction force F = M · deceleration [N]
+
+
+@dataclass(frozen=True)
+class GovernorDecision:
+    r_mps2: float               # the governed reference r (eq. 9) [m/s²]
+    active: bool                # r < r⁰: the governor limits the demand
+    margin_Nm: float            # τ̄ − (largest predicted torque under r) [N m]
+    evaluations: int            # predictions run this cycle
+    feasible: bool = True       # r ∈ R(x); False: not even r = 0 is admissible (x outside the set)
+
+
+def play(tau_prev: float, p: float, gp: GovernorParams) -> float:
+    """Brake torque after the pressure moved to p: eq. (10a) as a play operator (cf. plant_sim.brake,
+    which the firmware cannot import: the ECU carries its own model of the brake), clipped at 0."""
+    sq = gp.alpha_squeeze * p + gp.beta_squeeze
+    rel = gp.alpha_release * p + gp.beta_release
+    tau = sq if sq > tau_prev else tau_prev
+    tau = rel if rel < tau else tau
+    return 0.0 if tau < 0.0 else tau
+
+
+def predict_peak_torque(x: GovernorState, r: float, gp: GovernorParams, vertex: str = "adversary",
+                        stop_above: float = math.inf) -> tuple[float, bool]:
+    """Simulate the model with r held constant; (largest torque over the horizon, settled at the end).
+
+    vertex: "adversary" (a_k chosen each step to minimise F, step (4) of the module docstring), "slow"
+    (a = ā throughout) or "fast" (a = a̲ throughout). The simulation stops early once the torque exceeds
+    `stop_above` (the candidate is rejected anyway) or once the loop has settled.
+    """
+    pi, dt, m, kappa, phi = gp.pi, gp.dt_s, gp.mass_kg, gp.kappa, gp.phi
+    a_lo, a_hi = gp.a_lo, gp.a_hi
+    i, p, tau, f = x.integrator_Pa, x.pressure_Pa, x.torque_Nm, x.friction_N
+    peak = tau
+    f_target = m * r
+    tol_f, tol_p = gp.settle_frac * gp.friction_max_N, gp.settle_frac * pi.out_max
+    for k in range(gp.horizon_steps):
+        e = r - f / m                                                  # error of eq. (16)
+        u, i, _ = pi_step(pi, i, e, dt)                                # eq. (16), u ∈ [0, p̄] (5b)
+        p = u + (p - u) * phi                                          # eq. (4), exact ZOH step
+        tau = play(tau, p, gp)                                         # eq. (10a)
+        ft = kappa * tau
+        if vertex == "adversary":
+            a = a_hi if f < ft else a_lo                               # decel-minimising friction lag
+        else:
+            a = a_hi if vertex == "slow" else a_lo
+        f = a * f + (1.0 - a) * ft                                     # slip inclusion, in F
+        if tau > peak:
+            peak = tau
+            if peak > stop_above:
+                return peak, False
+        if k % 10 == 9 and abs(f - f_target) < tol_f and abs(u - p) < tol_p:
+            return peak, True
+    return peak, False
+
+
+def admissible(x: GovernorState, r: float, gp: GovernorParams) -> tuple[bool, float]:
+    """(r ∈ R(x), the smallest torque headroom τ̄(1 − margin) − peak over the predictions) (eq. 14).
+
+    The steady state of a constant r (torque M r / κ, any curve) must itself be admissible with room for
+    the settling tolerance; then the adversary and both constant vertices must keep τ ≤ τ̄ (1 − margin)
+    and settle within the horizon.
+    """
+    limit = gp.torque_limit_Nm
+    if r > gp.decel_max_mps2 / (1.0 + gp.settle_frac):
+        return False, limit - gp.mass_kg * r / gp.kappa
+    worst = math.inf
+    for vertex in gp.vertices:
+        peak, settled = predict_peak_torque(x, r, gp, vertex, stop_above=limit)
+        worst = min(worst, limit - peak)
+        if peak > limit or not settled:
+            return False, worst
+    return True, worst
+
+
+def govern(x: GovernorState, r0: float, gp: GovernorParams, r_prev: float | None = None) -> GovernorDecision:
+    """r = argmin |r − r⁰| s.t. r ∈ R(x) (eq. 9) over r ∈ [0, r⁰].
+
+    r⁰ is tried first. Otherwise, as the scalar reference governor of Kolmanovsky et al. (seed 001 ref.
+    [12]), r = r_b + β (min(r⁰, r_max) − r_b) with the largest β ∈ [0, 1] found by bisection, from a base
+    r_b that is admissible: the previous cycle's reference when it still is (it is, if the model is exact:
+    the admissible set is positively invariant), else found by bisection on [0, r_prev]. When not even
+    r = 0 is admissible (the state is outside the set), r = 0 is returned with feasible = False.
+    """
+    back = gp.torque_max_Nm * gp.margin_frac        # headroom is reported against τ̄ itself
+    if not (r0 > 0.0):                               # no braking asked (or NaN): r = 0, still checked
+        ok, head = admissible(x, 0.0, gp)
+        return GovernorDecision(0.0, False, head + back, 1, ok)
+    ok, head = admissible(x, r0, gp)
+    evals = 1
+    if ok:
+        return GovernorDecision(r0, False, head + back, evals)
+    top = min(r0, gp.decel_max_mps2 / (1.0 + gp.settle_frac))
+    base = r_prev if (r_prev is not None and 0.0 <= r_prev < top) else None
+    ok_b = False
+    if base is not None:
+        ok_b, head_b = admissible(x, base, gp)
+        evals += 1
+    if not ok_b:
+        lo, hi = 0.0, (base if base is not None else top)
+        ok_b, head_b = admissible(x, lo, gp)
+        evals += 1
+        if not ok_b:
+            return GovernorDecision(0.0, True, head_b + back, evals, False)
+        for _ in range(gp.bisect_steps):
+            mid = 0.5 * (lo + hi)
+            ok, head = admissible(x, mid, gp)
+            evals += 1
+            if ok:
+                lo, head_b = mid, head
+            else:
+                hi = mid
+        base = lo
+    lo, hi = 0.0, 1.0                                # β
+    if top - base <= gp.resolution_mps2:              # already at the top (steady governed operation)
+        return GovernorDecision(base, True, head_b + back, evals)
+    for _ in range(gp.bisect_steps):
+        if (hi - lo) * (top - base) <= gp.resolution_mps2:
+            break
+        mid = 0.5 * (lo + hi)
+        ok, head = admissible(x, base + mid * (top - base), gp)
+        evals += 1
+        if ok:
+            lo, head_b = mid, head
+        else:
+            hi = mid
+    return GovernorDecision(base + lo * (top - base), True, head_b + back, evals)
+
+
+def governor_params(*, dt_s: float, mass_kg: float, wheel_radius_m: float, inertia_kgm2: float,
+                    friction_max_N: float, slope_lo_N_per_mps: float, slope_hi_N_per_mps: float, tp_s: float,
+                    alpha_squeeze: float, beta_squeeze: float, alpha_release: float, beta_release: float,
+                    pi: PIParams, **options) -> GovernorParams:
+    """GovernorParams from the physical data: k = 1/M + r_w²/J and κ = r_w/(J k) (eq. 3), γ = k f'(s)
+    with f' ∈ [slope_lo, slope_hi] over [0, s̄] (the friction-force slope of the curve family [N/(m/s)]),
+    a = exp(−γΔ), φ = exp(−Δ/Tp) (eq. 4). `options` are the remaining GovernorParams fields."""
+    k = 1.0 / mass_kg + wheel_radius_m * wheel_radius_m / inertia_kgm2          # eq. (3), seed 001
+    kappa = wheel_radius_m / (inertia_kgm2 * k)
+    if not (0.0 < slope_lo_N_per_mps <= slope_hi_N_per_mps):
+        raise ValueError(f"governor_params: need 0 < slope_lo <= slope_hi, got {slope_lo_N_per_mps!r}, "
+                         f"{slope_hi_N_per_mps!r}")
+    return GovernorParams(
+        dt_s=dt_s, mass_kg=mass_kg, kappa=kappa, friction_max_N=friction_max_N,
+        a_lo=math.exp(-k * slope_hi_N_per_mps * dt_s), a_hi=math.exp(-k * slope_lo_N_per_mps * dt_s),
+        phi=math.exp(-dt_s / tp_s), alpha_squeeze=alpha_squeeze, beta_squeeze=beta_squeeze,
+        alpha_release=alpha_release, beta_release=beta_release, pi=pi, **options)
