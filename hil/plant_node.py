@@ -104,8 +104,17 @@ class TruthLog:
         return cols
 
 
+FAILSAFE_CYCLES = 3        # pressure-command cycles without a usable frame before the fail-safe applies
+
+
 class PlantController:
-    """step(now_us, rx): sense (when the sensor frames are due), record truth, then integrate one step."""
+    """step(now_us, rx): sense (when the sensor frames are due), record truth, then integrate one step.
+
+    The brake actuators of each car follow its BECU's last usable pressure command (frames the E2E
+    or SecOC check rejects never arrive here).  Loss of command is braking, as on a railway: when a
+    car that has been commanded gets no usable command for FAILSAFE_CYCLES command cycles, its
+    actuators apply the brake on their own — EP valve fully open to the reservoir, dump valve
+    closed, set-point p̄ — until commands come back (`failsafe_us` counts the time per car)."""
 
     def __init__(self, plant: Plant, n_cars: int, db: Database) -> None:
         self.plant = plant
@@ -121,6 +130,11 @@ class PlantController:
                              for sig, _ in SENSOR_FIELDS + (("SensorCounter", ""),))
         cycle_ms = db.get_message_by_name("PLANT_CAR1_SENSORS").cycle_time
         self.sensor_period_us = int(cycle_ms) * 1000
+        command_ms = db.get_message_by_name("BECU1_PRESS_CMD").cycle_time or 10
+        self.failsafe_after_us = FAILSAFE_CYCLES * int(command_ms) * 1000
+        self.failsafe_us = np.zeros(n_cars, dtype=np.int64)   # time spent in fail-safe braking, per car
+        self._p_max = plant.params.brake.p_max_Pa
+        self._last_us = None
         self.next_sense_us = 0
         self.next_truth_us = 0
         self.sense_count = 0
@@ -149,6 +163,20 @@ class PlantController:
             ps = rx[key]
             self._pset[k] = ps if math.isfinite(ps) else 0.0         # nothing received yet: no pressure
 
+    def _failsafe(self, now_us: int, rx) -> None:
+        """Cars whose command went stale apply the brake (class docstring)."""
+        dt = 0 if self._last_us is None else now_us - self._last_us
+        self._last_us = now_us
+        for k, key in enumerate(self.valve_keys):
+            age = rx.age_us(key, now_us)
+            if age is not None and age > self.failsafe_after_us:
+                self._valve[k] = 1.0
+                self._wsp[k] = 0
+                if self.lag:
+                    self._pset[k] = self._p_max
+                self.failsafe_us[k] += dt
+                self._rx_version = -1          # recompute from rx as soon as commands return
+
     def step(self, now_us: int, rx) -> dict[str, float]:
         out: dict[str, float] = {}
         if now_us >= self.next_sense_us:
@@ -167,6 +195,7 @@ class PlantController:
             self.standstill = max(snap.v) < STANDSTILL_MPS
             self.next_truth_us += TRUTH_PERIOD_US
         self._actuators(rx)
+        self._failsafe(now_us, rx)
         if self.lag:
             self.plant.step(self._valve, self._wsp, self._pset)
             s, top = self.plant.snapshot().s, self.truth.max_slip_mps
