@@ -81,6 +81,9 @@ class BecuParams:
     wheel_trust_slip_mps: float = 0.2        # speed estimator: below this apparent slip, trust the axle
     wheel_trust_gain: float = 0.2            # complementary-filter gain towards the axle speed
     emergency_decel_mps2: float = 1.3        # used when BCU_EMERGENCY is active and the demand lags
+    # railway fail-safe, issue #9: a demand missing or unusable (E2E/SecOC) for this many cycles is
+    # loss of command, and loss of command is braking at the emergency deceleration
+    failsafe_cycles: int = 3
     # "pressure": feed-forward set-point from the demand (inverse brake model) + the pressure PI (v1).
     # "decel": seed 001's eq. (16), a PI on the deceleration error measured by the accelerometer whose
     # output is the cylinder pressure set-point u (CylPressureSet); the pressure PI still drives the EP
@@ -127,6 +130,7 @@ class Becu:
         self.v_ref = math.nan
         self.timer = CycleTimer(self.p.cycle_us)
         self.missing_inputs = 0       # cycles with a missing or non-finite input (diagnostic)
+        self.failsafe_cycles = 0      # cycles braked by the fail-safe (diagnostic)
 
     def pressure_for_decel(self, decel_mps2: float) -> float:
         """Set-point that gives `decel` on the squeeze line: F = m a, tau = F r, p = tau/alpha + preload."""
@@ -179,6 +183,15 @@ class Becu:
         self.u_sent = 0.0 if overridden else u
         return self.u_sent, governed
 
+    def demand_lost(self, now_us: int, rx: Mapping[str, float]) -> bool:
+        """Loss of command: no usable brake demand for more than `failsafe_cycles` cycles.  Frames the
+        E2E or SecOC check rejects never update the demand (hil.node), so a corrupt, forged, stale or
+        missing demand all age it.  Needs the reception times of the node runtime's RxTable; a plain
+        mapping (unit tests) never loses its command; neither does a BECU that never had one."""
+        age_us = getattr(rx, "age_us", None)
+        age = age_us("TargetDecel", now_us) if age_us is not None else None
+        return age is not None and age > self.p.failsafe_cycles * self.p.cycle_us
+
     def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
         p = self.p
         dt_s = self.timer.dt_s(now_us)
@@ -191,6 +204,10 @@ class Becu:
         self.missing_inputs += missing
         if emergency >= 0.5:
             decel = max(decel, p.emergency_decel_mps2)
+        lost = self.demand_lost(now_us, rx)
+        if lost:                                                      # fail-safe: loss of command brakes
+            decel = max(decel, p.emergency_decel_mps2)
+            self.failsafe_cycles += 1
 
         wheel_v = omega * p.wheel_radius_m
         self.v_ref = self.estimate_speed(wheel_v, accel, dt_s)
@@ -216,7 +233,7 @@ class Becu:
             "GovernorActive": int(governed),
             "IntegratorSat": int(self.pressure_pi.saturated or self.pressure_pi.frozen or (
                 p.control == "decel" and (self.decel_pi.saturated or self.decel_pi.frozen))),
-            "InputMissing": int(missing),
+            "InputMissing": int(missing or lost),
             "OptSlipEst": 0.0,
             "OptSlipPos": 0.0,
         }

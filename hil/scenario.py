@@ -237,7 +237,9 @@ class SecOcSpec(_Strict):
 
     key: str | None = None                  # every authenticated message; default: hil.node.DEV_SECOC_KEY
     keys: dict[str, str] = Field(default_factory=dict)   # by message name, over `key`
-    window: Annotated[int, Field(ge=1, le=255)] = 16     # freshness acceptance window [frames]
+    # freshness acceptance window [frames]: the longest outage a receiver survives (255 frames = 2.55 s
+    # at 10 ms); beyond it the 8 transmitted bits cannot tell how many frames were lost
+    window: Annotated[int, Field(ge=1, le=255)] = 255
 
     @field_validator("key")
     @classmethod
