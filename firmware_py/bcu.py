@@ -41,12 +41,15 @@ class BcuParams:
     emergency_decel_mps2: float = 1.3        # emergency brake deceleration (chosen)
     jerk_limit_mps3: float = 1.0             # comfort limit on service demand changes (chosen)
     standstill_mps: float = 0.1              # train speed estimate below which the train stands
+    # a car whose BECUn_STATUS (50 ms, DBC) is older than 3 of its cycles is silent: degraded mode
+    status_timeout_us: int = 150_000
 
 
 class Bcu:
     """step(now_us, rx) -> BCU_DEMAND / BCU_EMERGENCY / BCU_STATUS signals."""
 
-    OUTPUTS = ("Mode", "BrakeStep", "TargetDecel", "EmergencyActive", "Source", "CarsSilent", "TrainSpeedEst")
+    OUTPUTS = ("Mode", "BrakeStep", "TargetDecel", "EmergencyActive", "Source", "CarsSilent", "Degraded",
+               "TrainSpeedEst")
 
     def __init__(self, n_cars: int, params: BcuParams | None = None) -> None:
         self.p = params or BcuParams()
@@ -64,6 +67,10 @@ class Bcu:
         emergency_req, _ = finite_or(rx["EmergencyReq"], 0.0)
         brake_step = int(min(max(step_raw, 0), 7))
         speeds = [finite_or(rx[name], float("nan"))[0] for name in self.inputs[2:]]
+        age_us = getattr(rx, "age_us", None)         # reception times: the node runtime's RxTable
+        if age_us is not None:                        # a car heard from, but not lately, is silent too
+            speeds = [float("nan") if (a := age_us(name, now_us)) is not None and a > p.status_timeout_us
+                      else v for name, v in zip(self.inputs[2:], speeds, strict=True)]
         known = [v for v in speeds if v == v]
         train_speed = max(known) if known else float("nan")
         silent = sum(1 << i for i, v in enumerate(speeds) if v != v)
@@ -84,5 +91,6 @@ class Bcu:
             "EmergencyActive": int(emergency),
             "Source": 1 if emergency else 0,
             "CarsSilent": silent,
+            "Degraded": int(silent != 0),
             "TrainSpeedEst": train_speed if known else 0.0,
         }

@@ -62,7 +62,8 @@ class Msg:
 def e2e(comment_what: str) -> list[Sig]:
     return [
         Sig("CHECKSUM", 0, 8, maximum=255,
-            comment=f"E2E profile 1 CRC-8 (SAE J1850) over data id and {comment_what} (filled by the sender)"),
+            comment=f"E2E profile 1 CRC-8 (SAE J1850) over data id and {comment_what} "
+                    "(filled by the sender)"),
         Sig("COUNTER", 8, 4, maximum=15, comment="E2E profile 1 alive counter 0..14, +1 every transmission"),
     ]
 
@@ -175,7 +176,10 @@ def messages() -> list[Msg]:
             [
                 Sig("Mode", 0, 2, maximum=3, comment="BCU brake mode", choices=BCU_MODES),
                 Sig("BrakeStep", 2, 3, maximum=7, comment="brake step in force"),
-                Sig("CarsSilent", 8, 8, maximum=255, comment="bit i-1 set = no status from car i"),
+                Sig("Degraded", 5, 1, maximum=1,
+                    comment="1 = degraded: at least one car silent for 3 of its status cycles"),
+                Sig("CarsSilent", 8, 8, maximum=255,
+                    comment="bit i-1 set = no status from car i for 3 of its cycles (150 ms)"),
                 Sig("TrainSpeedEst", 16, 16, scale=0.01, maximum=655.35, unit="m/s",
                     comment="train speed estimate (max of the cars' estimates)"),
             ]),
