@@ -114,7 +114,8 @@ class Becu:
 
     INPUTS = ("AxleSpeed", "CylPressure", "AccelLong", "TargetDecel", "Mode", "EmergencyActive")
     OUTPUTS = ("CylPressureSet", "ValveCmd", "WspValve", "SpeedEst", "SlipSpeedEst", "WspActive",
-               "GovernorActive", "IntegratorSat", "InputMissing", "OptSlipEst", "OptSlipPos")
+               "GovernorActive", "IntegratorSat", "InputMissing", "OptSlipEst", "OptSlipPos",
+               "GovernedDecel", "GovernorMargin", "GovernorFeasible")
 
     def __init__(self, params: BecuParams | None = None) -> None:
         self.p = params or BecuParams()
@@ -236,4 +237,7 @@ class Becu:
             "InputMissing": int(missing or lost),
             "OptSlipEst": 0.0,
             "OptSlipPos": 0.0,
+            "GovernedDecel": self.r_gov if (self.r_gov is not None and governed) else decel,
+            "GovernorMargin": clip(self.decision.margin_Nm, -65536.0, 65534.0) if self.decision else 0.0,
+            "GovernorFeasible": int(self.decision.feasible) if self.decision else 1,
         }

@@ -170,6 +170,18 @@ def messages() -> list[Msg]:
                 Sig("OptSlipPos", 46, 18, scale=0.1, maximum=26214.3, unit="m",
                     comment="track position at which OptSlipEst was measured"),
             ]))
+    for i in range(1, MAX_CARS + 1):
+        msgs.append(Msg(
+            0x150 + i, f"BECU{i}_GOV", f"BECU{i}", ["BCU"], 50,
+            f"Car {i}: BECU{i} reference governor (seed 001 eq. 9): governed reference and margin.",
+            [
+                Sig("GovernedDecel", 0, 16, scale=0.001, maximum=65.535, unit="m/s^2",
+                    comment="deceleration reference r the governor lets through (= the demand when off)"),
+                Sig("GovernorMargin", 16, 16, scale=2.0, minimum=-65536.0, maximum=65534.0, unit="N.m",
+                    signed=True, comment="torque ceiling minus the largest predicted brake torque under r"),
+                Sig("GovernorFeasible", 32, 1, maximum=1,
+                    comment="0 = not even r = 0 is admissible: the state left the governor's set"),
+            ]))
     msgs += [
         Msg(0x160, "BCU_STATUS", "BCU", ["DESK"] + becus(), 100,
             "BCU state for the desk and the log.",
