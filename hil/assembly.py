@@ -116,7 +116,7 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_na
         period, offset, inputs, outputs = plant.params.dt_us, PLANT_OFFSET_US, ctrl.inputs, ctrl.outputs
     elif name == "DESK":
         ctrl = DeskScript(scenario.desk)
-        rx_msgs, tx_msgs = [], ["DESK_CMD"]
+        rx_msgs, tx_msgs = [], ["DESK_CMD", "DESK_TARGET"]
         period, offset, inputs, outputs = 100_000, DESK_OFFSET_US, ctrl.inputs, ctrl.outputs
     elif name == "BCU":
         ctrl = Bcu(n, bcu_params(scenario))

@@ -8,7 +8,8 @@ from hil.scenario import DeskEvent
 
 
 class DeskScript:
-    """step(now_us, rx) -> DESK_CMD signals: the state after the last event at or before now."""
+    """step(now_us, rx) -> DESK_CMD and DESK_TARGET signals: the state after the last event at or
+    before now."""
 
     inputs: tuple[str, ...] = ()
     outputs = ("BrakeStep", "EmergencyReq", "TargetStopValid", "TargetStopPos")

@@ -11,7 +11,7 @@ from hil.dbc import DEFAULT_DBC, load_dbc
 from hil.errors import DbcError
 
 ROOT = Path(__file__).resolve().parents[1]
-SAFETY = ("BCU_EMERGENCY", "DESK_CMD", "ACD_BRAKE_REQ", "BCU_DEMAND") + tuple(
+SAFETY = ("BCU_EMERGENCY", "DESK_CMD", "DESK_TARGET", "ACD_BRAKE_REQ", "BCU_DEMAND") + tuple(
     f"BECU{i}_PRESS_CMD" for i in range(1, 9))
 
 

@@ -14,7 +14,7 @@ from hil.errors import DbcError
 from hil.node import DEV_SECOC_KEY, authentic_length, e2e_config, secoc_data_id
 from hil.scenario import load_scenario
 
-SAFETY = {"BCU_EMERGENCY", "DESK_CMD", "ACD_BRAKE_REQ", "BCU_DEMAND"} | {
+SAFETY = {"BCU_EMERGENCY", "DESK_CMD", "DESK_TARGET", "ACD_BRAKE_REQ", "BCU_DEMAND"} | {
     f"BECU{i}_PRESS_CMD" for i in range(1, 9)}
 
 

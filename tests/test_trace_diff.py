@@ -156,11 +156,11 @@ def known(tmp_path_factory) -> tuple[Path, Path]:
             if side == "B" and k == 5:
                 t += 0.002
             data = demand.encode({"CHECKSUM": 0, "COUNTER": k, "Mode": 1, "BrakeStep": 7,
-                                  "TargetDecel": decel})
+                                  "TargetDecel": decel, "SecOCFreshness": k, "SecOCMAC": 0})
             out.append(std(t, demand.frame_id, data))
         for k in range(5 if side == "A" else 4):
             data = desk.encode({"CHECKSUM": 0, "COUNTER": k, "BrakeStep": 7, "EmergencyReq": 0,
-                                "TargetStopValid": 0, "TargetStopPos": 0})
+                                "SecOCFreshness": k, "SecOCMAC": 0})
             out.append(std(k / 50 + 0.005, desk.frame_id, data))
         for k in range(3):
             last = 4 if side == "B" and k == 1 else 3
