@@ -1,10 +1,18 @@
-"""A trace as numpy columns for the timing analysis, fast: BLF read with python-can's format code into
-columns without a ``can.Message`` per frame.
+"""A trace as numpy columns, fast: BLF read with python-can's format code, and candump text parsed in
+bulk, into columns without a ``can.Message`` per frame.
 
 ``read_columns(path)`` gives the same ``hil.timing.FrameArrays`` as
 ``frame_arrays(open_trace(path))``, column by column and bit for bit, and the same ``TraceError``
 for a file that cannot be read.  Only a BLF file (``.blf``, also ``.blf.gz``) takes the fast path;
 every other format, and stdin, goes through python-can's reader and ``frame_arrays``.
+
+``BlockReader(path)`` gives the frames with their data bytes, for decoding (``trace decode``,
+``hil.fastdecode``), as ``FrameBlock`` columns of up to ``BLOCK_FRAMES`` frames: BLF through the
+reader below with the data bytes (``BlfColumnReader(..., payload=True)``), candump -L text (.log,
+.log.gz, stdin) through ``parse_candump`` a batch of lines at a time (numpy over the whole text;
+every line it does not take goes to python-can's parser, in its place), every other format through
+python-can's reader.  The rows are the frames python-can gives, and a TraceError comes after the
+frames read before it, as iterating ``open_trace(path)`` gives them (tests/test_tracecolumns.py).
 
 The fast BLF path is python-can's ``can.io.blf.BLFReader`` (python-can 4.6) without the Message
 objects.  ``open_trace`` opens the file with python-can, which parses the file header and its start
@@ -44,16 +52,26 @@ import pathlib
 import re
 import struct
 import zlib
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from decimal import Decimal
+from typing import TYPE_CHECKING
 
+import can
 import numpy as np
 from can.io import blf
 from can.util import dlc2len
 
-from hil.timing import KIND_DATA, KIND_ERROR, KIND_REMOTE, FrameArrays, frame_arrays
-from hil.traceio import STDIN, Trace, open_trace
+from hil.traceio import STDIN, Trace, TraceError, open_trace
 
-__all__ = ["BlfColumnReader", "NotFast", "read_blf_columns", "read_columns", "read_trace_columns"]
+if TYPE_CHECKING:
+    from hil.timing import FrameArrays
+
+# hil.timing (and the RTA and bus-load modules it imports) is imported where FrameArrays are made:
+# `trace decode` reads FrameBlocks and starts faster without it.
+
+__all__ = ["BLOCK_FRAMES", "BlfColumnReader", "BlockReader", "FrameBlock", "NotFast", "parse_candump",
+           "read_blf_columns", "read_columns", "read_trace_columns"]
 
 ID_MASK = 0x1FFFFFFF
 FD64_REMOTE = 0x0010  # CAN_FD_MESSAGE_64 flags: remote frame (python-can blf.py, literal there)
@@ -104,11 +122,19 @@ class _Layout:
     the object's ``LOBJ``, with the numpy dtype of each; and how they make the columns."""
 
     def __init__(self, version: int, body: struct.Struct, ident: int, dlc: int, remote: tuple | None,
-                 fd: tuple | None, error: bool, fd_dlc: bool) -> None:
+                 fd: tuple | None, error: bool, fd_dlc: bool, data: int | None, valid: int | None,
+                 ext_data: int | None = None) -> None:
         head = _fields(HEADER[version])
         start = BASE_SIZE + HEADER[version].size
         fields = _fields(body)
         self.size = start + body.size  # an object shorter than this is not read here
+        self.body_size = body.size
+        # the data bytes (for FrameBlocks): a field of the body, or (CAN_FD_MESSAGE_64) after it
+        self.data_offset = start + fields[data][0] if data is not None else self.size
+        self.data_width = int(fields[data][1][:-1]) if data is not None else None
+        self.dlc_offset = start + fields[dlc][0]
+        self.valid_offset = start + fields[valid][0] if valid is not None else None  # valid_bytes field
+        self.ext_data_offset = start + fields[ext_data][0] if ext_data is not None else None
         spec = {"hflags": head[0], "ts": head[3], "id": fields[ident], "dlc": fields[dlc]}
         if remote is not None:
             spec["remote"] = fields[remote[0]]
@@ -134,18 +160,19 @@ class _Layout:
 
 
 # Frame objects python-can reads (blf.py BLFReader._parse_data): field indices of id, dlc, the remote
-# flag and the FD flag in each body struct, as python-can unpacks them.
+# flag, the FD flag, the data bytes, the valid_bytes count and ext_data_offset in each body struct, as
+# python-can unpacks them.
 _FRAME_TYPES = {
     blf.CAN_MESSAGE: dict(body=blf.CAN_MSG_STRUCT, ident=3, dlc=2, remote=(1, blf.REMOTE_FLAG), fd=None,
-                          error=False, fd_dlc=False),
+                          error=False, fd_dlc=False, data=4, valid=None),
     blf.CAN_MESSAGE2: dict(body=blf.CAN_MSG_STRUCT, ident=3, dlc=2, remote=(1, blf.REMOTE_FLAG), fd=None,
-                           error=False, fd_dlc=False),
+                           error=False, fd_dlc=False, data=4, valid=None),
     blf.CAN_ERROR_EXT: dict(body=blf.CAN_ERROR_EXT_STRUCT, ident=7, dlc=5, remote=None, fd=None,
-                            error=True, fd_dlc=False),
+                            error=True, fd_dlc=False, data=9, valid=None),
     blf.CAN_FD_MESSAGE: dict(body=blf.CAN_FD_MSG_STRUCT, ident=3, dlc=2, remote=(1, blf.REMOTE_FLAG),
-                             fd=(6, blf.EDL), error=False, fd_dlc=True),
+                             fd=(6, blf.EDL), error=False, fd_dlc=True, data=8, valid=7),
     blf.CAN_FD_MESSAGE_64: dict(body=blf.CAN_FD_MSG_64_STRUCT, ident=4, dlc=1, remote=(6, FD64_REMOTE),
-                                fd=(6, FD64_FD), error=False, fd_dlc=True),
+                                fd=(6, FD64_FD), error=False, fd_dlc=True, data=None, valid=2, ext_data=13),
 }
 LAYOUTS = {(version, kind): _Layout(version, **spec)
            for version in HEADER for kind, spec in _FRAME_TYPES.items()}
@@ -157,6 +184,7 @@ DTYPES = {"t": np.float64, "arbitration_id": np.int64, "extended": bool, "dlc": 
 
 def _columns(layout: _Layout, raw, start_timestamp: float) -> dict[str, np.ndarray]:
     """The FrameArrays columns of objects of one layout, from their raw fields (mapping name -> array)."""
+    from hil.timing import KIND_DATA, KIND_ERROR, KIND_REMOTE
     ident = raw["id"].astype(np.int64)
     n = len(ident)
     ts = raw["ts"]
@@ -183,6 +211,37 @@ def _columns(layout: _Layout, raw, start_timestamp: float) -> dict[str, np.ndarr
         "kind": kind,
         "fd": (raw["fdflags"] & layout.fd_mask) != 0 if layout.fd_mask else np.zeros(n, dtype=bool),
     }
+
+
+def _payload(layout: _Layout, u8: np.ndarray, at: np.ndarray, remote: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """(number of data bytes, data bytes zero-padded) of the frame objects of one layout at `at`, as
+    python-can's Message has them: CAN_MESSAGE(2) and CAN_ERROR_EXT ``data[:dlc]`` of 8 bytes,
+    CAN_FD_MESSAGE ``data[:valid_bytes]`` of 64, CAN_FD_MESSAGE_64 the bytes after the struct up to
+    ``min(valid_bytes, (ext_data_offset or object size) - header size - struct size)`` padded with
+    zeros to valid_bytes; a remote frame none (python-can's Message drops its data)."""
+    if layout.data_width is not None:
+        width = layout.data_width
+        data = u8[at[:, None] + layout.data_offset + np.arange(width)]
+        count = u8[at + (layout.valid_offset if layout.valid_offset is not None else layout.dlc_offset)]
+        length = np.minimum(count, width).astype(np.int64)
+    else:
+        assert layout.valid_offset is not None and layout.ext_data_offset is not None
+        length = u8[at + layout.valid_offset].astype(np.int64)
+        ext_data = u8[at + layout.ext_data_offset].astype(np.int64)
+        header_size = u8[at + 4].astype(np.int64) | u8[at + 5].astype(np.int64) << 8
+        size = _gather_field(u8, at + 8, 4).astype(np.int64)
+        there = np.minimum(length, np.where(ext_data != 0, ext_data, size) - header_size - layout.body_size)
+        there = np.maximum(there, 0)
+        if (layout.size + there > size).any():  # python-can would take bytes of what follows the object
+            raise NotFast("CAN FD data beyond its object")
+        width = int(length.max()) if len(at) else 0
+        k = np.arange(width)
+        data = u8[np.minimum(at[:, None] + layout.size + k, len(u8) - 1)]
+        data[k >= there[:, None]] = 0
+    length[remote] = 0
+    data[np.arange(data.shape[1]) >= length[:, None]] = 0
+    return length, data
 
 
 # python-can's OBJ_HEADER_BASE_STRUCT "<4sHHLL": signature, header size, header version, object size, type
@@ -219,8 +278,9 @@ class BlfColumnReader:
     constructor has parsed the file header) from where that left it to the end, `batch_bytes` of
     container payloads at a time (1: each container on its own, as python-can does)."""
 
-    def __init__(self, reader: blf.BLFReader, batch_bytes: int = BATCH_BYTES) -> None:
+    def __init__(self, reader: blf.BLFReader, batch_bytes: int = BATCH_BYTES, payload: bool = False) -> None:
         self.batch_bytes = batch_bytes  # read the container payloads in batches of this many bytes
+        self.payload = payload  # also the data bytes: columns "length" and "payload" (see _payload)
         self.file = reader.file
         self.start_timestamp = reader.start_timestamp
         self.chunks: list[dict[str, np.ndarray]] = []
@@ -230,6 +290,14 @@ class BlfColumnReader:
         self.steps = 0  # python-level steps of the object chain (see _chain)
 
     def read(self) -> FrameArrays:
+        from hil.timing import FrameArrays
+
+        chunks = self.read_chunks()
+        return FrameArrays(**{c: np.concatenate([ch[c] for ch in chunks]).astype(DTYPES[c], copy=False)
+                              for c in COLUMNS})
+
+    def read_chunks(self) -> list[dict[str, np.ndarray]]:
+        """The columns, as chunks of consecutive frames (dicts of column name -> array)."""
         read = self.file.read
         pending: list[bytes] = []  # container payloads not read yet
         waiting = 0
@@ -260,8 +328,7 @@ class BlfColumnReader:
         self._payload(pending)
         if not self.chunks:
             raise NotFast("no frame")  # python-can's reader says what is wrong (or that it is empty)
-        return FrameArrays(**{c: np.concatenate([ch[c] for ch in self.chunks]).astype(DTYPES[c], copy=False)
-                              for c in COLUMNS})
+        return self.chunks
 
     def _payload(self, payloads: list[bytes]) -> None:
         """Read the objects of consecutive container payloads, after the tail of the last ones.
@@ -299,12 +366,20 @@ class BlfColumnReader:
         if len(layouts) == 1 and frames.all():  # one frame type only: no scatter
             self.chunks.append(self._read(data, u8, at, layouts[0][0]))
         elif layouts:
-            out = {c: np.empty(int(frames.sum()), dtype=DTYPES[c]) for c in COLUMNS}
-            for layout, of_kind in layouts:
-                cols = self._read(data, u8, at[of_kind], layout)
-                where = of_kind[frames]
-                for c in COLUMNS:
-                    out[c][where] = cols[c]
+            parts = [(of_kind[frames], self._read(data, u8, at[of_kind], layout))
+                     for layout, of_kind in layouts]
+            n = int(frames.sum())
+            out = {c: np.empty(n, dtype=DTYPES[c]) for c in COLUMNS}
+            if self.payload:
+                width = max(cols["payload"].shape[1] for _, cols in parts)
+                out["length"] = np.empty(n, dtype=np.int64)
+                out["payload"] = np.zeros((n, width), dtype=np.uint8)
+            for where, cols in parts:
+                for c, column in cols.items():
+                    if c == "payload":
+                        out[c][where, : column.shape[1]] = column
+                    else:
+                        out[c][where] = column
             self.chunks.append(out)
         return tail
 
@@ -376,7 +451,12 @@ class BlfColumnReader:
         else:
             raw = _gather(u8, at, layout)
             self.gathered += len(at)
-        return _columns(layout, raw, self.start_timestamp)
+        columns = _columns(layout, raw, self.start_timestamp)
+        if self.payload:
+            from hil.timing import KIND_REMOTE
+
+            columns["length"], columns["payload"] = _payload(layout, u8, at, columns["kind"] == KIND_REMOTE)
+        return columns
 
 
 def read_blf_columns(reader: blf.BLFReader) -> FrameArrays:
@@ -401,6 +481,8 @@ def read_trace_columns(path: str | pathlib.Path) -> tuple[FrameArrays, Trace]:
     """The columns of a trace, and its ``Trace`` (for ``skipped``/``name``, as after iterating it).
 
     Equal to ``frame_arrays(open_trace(path))``; raises the same ``TraceError``."""
+    from hil.timing import frame_arrays
+
     trace = open_trace(path)
     if _is_blf(path) and isinstance(trace.reader, blf.BLFReader):
         try:
@@ -419,3 +501,424 @@ def read_trace_columns(path: str | pathlib.Path) -> tuple[FrameArrays, Trace]:
 def read_columns(path: str | pathlib.Path) -> FrameArrays:
     """``frame_arrays(open_trace(path))``, fast for BLF files (see the module docstring)."""
     return read_trace_columns(path)[0]
+
+
+# --- frames with their data, in blocks, for decoding (hil.fastdecode) -----------------------------
+
+BLOCK_FRAMES = 65_536  # frames per FrameBlock: large enough that the per-block numpy steps cost little
+
+
+@dataclass
+class FrameBlock:
+    """Consecutive frames of a trace as columns, with their data bytes, in file order.
+
+    Row i is the frame python-can's reader gives: ``t`` its timestamp [s] (float64), ``arbitration_id``
+    (int64), ``extended`` (29-bit id), ``remote`` (remote frame), ``error`` (error frame), ``dlc`` (the
+    Message's dlc field), ``length`` (its number of data bytes, ``len(Message.data)``) and ``payload``
+    (uint8, rows x width: the data bytes, zero-padded to the longest).  ``messages`` holds
+    python-can's Messages when the block was made of them, else None; ``special`` marks the rows whose
+    Message the columns do not hold exactly (a timestamp that is not a Python float), to be taken
+    from ``messages`` one by one.
+    """
+
+    t: np.ndarray
+    arbitration_id: np.ndarray
+    extended: np.ndarray
+    remote: np.ndarray
+    error: np.ndarray
+    dlc: np.ndarray
+    length: np.ndarray
+    payload: np.ndarray
+    messages: Sequence[can.Message | None] | None = None
+    special: np.ndarray | None = None
+    stamps: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def message(self, i: int) -> can.Message:
+        """Row i as python-can's Message: the one read when the block holds them, else one made of the
+        columns with every field `trace decode` reads."""
+        if self.messages is not None and self.messages[i] is not None:
+            return self.messages[i]
+        return can.Message(timestamp=float(self.t[i]), arbitration_id=int(self.arbitration_id[i]),
+                           is_extended_id=bool(self.extended[i]), is_remote_frame=bool(self.remote[i]),
+                           is_error_frame=bool(self.error[i]), dlc=int(self.dlc[i]),
+                           data=self.payload[i, : self.length[i]].tobytes())
+
+    @classmethod
+    def from_messages(cls, messages: Sequence[can.Message]) -> FrameBlock:
+        """The columns of python-can Messages (one Python step per frame); the block keeps them."""
+        n = len(messages)
+        data = [bytes(m.data) for m in messages]
+        length = np.fromiter(map(len, data), dtype=np.int64, count=n)
+        width = int(length.max()) if n else 0
+        if n and (length == width).all():
+            payload = np.frombuffer(b"".join(data), dtype=np.uint8).reshape(n, width).copy()
+        else:
+            payload = np.frombuffer(b"".join(d.ljust(width, b"\0") for d in data),
+                                    dtype=np.uint8).reshape(n, width).copy()
+        stamps = [m.timestamp for m in messages]
+        special = np.fromiter((type(x) is not float for x in stamps), dtype=bool, count=n)
+        return cls(
+            t=np.array([x if type(x) is float else 0.0 for x in stamps], dtype=np.float64),
+            arbitration_id=np.fromiter((m.arbitration_id for m in messages), dtype=np.int64, count=n),
+            extended=np.fromiter((m.is_extended_id for m in messages), dtype=bool, count=n),
+            remote=np.fromiter((m.is_remote_frame for m in messages), dtype=bool, count=n),
+            error=np.fromiter((m.is_error_frame for m in messages), dtype=bool, count=n),
+            dlc=np.fromiter((m.dlc for m in messages), dtype=np.int64, count=n),
+            length=length,
+            payload=payload,
+            messages=messages,
+            special=special if special.any() else None,
+        )
+
+    def take(self, rows: np.ndarray) -> FrameBlock:
+        """The rows `rows` (indices, in the order given)."""
+        return FrameBlock(
+            self.t[rows], self.arbitration_id[rows], self.extended[rows], self.remote[rows], self.error[rows],
+            self.dlc[rows], self.length[rows], self.payload[rows],
+            None if self.messages is None else [self.messages[i] for i in rows.tolist()],
+            None if self.special is None else self.special[rows],
+            None if self.stamps is None else self.stamps[rows])
+
+    @staticmethod
+    def join(blocks: Sequence[FrameBlock]) -> FrameBlock:
+        """The rows of several blocks one after the other."""
+        width = max(b.payload.shape[1] for b in blocks)
+        payload = np.concatenate([np.pad(b.payload, ((0, 0), (0, width - b.payload.shape[1])))
+                                  for b in blocks])
+        messages = special = stamps = None
+        if any(b.messages is not None for b in blocks):
+            messages = [m for b in blocks
+                        for m in (b.messages if b.messages is not None else [None] * len(b))]
+        if any(b.special is not None for b in blocks):
+            special = np.concatenate([np.zeros(len(b), bool) if b.special is None else b.special
+                                      for b in blocks])
+        if any(b.stamps is not None for b in blocks):
+            stamps = np.concatenate([np.zeros(len(b), "S1") if b.stamps is None else b.stamps
+                                     for b in blocks])
+        return FrameBlock(
+            *(np.concatenate([getattr(b, c) for b in blocks])
+              for c in ("t", "arbitration_id", "extended", "remote", "error", "dlc", "length")),
+            payload=payload,
+            messages=messages,
+            special=special,
+            stamps=stamps)
+
+
+_MAX_EXACT_DIGITS = 18  # timestamp digits an int64 holds exactly (10**18 < 2**63)
+STAMP_EXACT_BELOW = 4e9  # [s] timestamps with 6 decimals below this print as written (see _seconds)
+STAMP_WIDTH = 17  # characters of such a timestamp at most: 10 digits, the point, 6 decimals
+ERR_FLAG = 0x20000000  # candump's error-frame flag in the id (python-can canutils.CAN_ERR_FLAG)
+_HEX_VALUE = np.full(256, 16, dtype=np.uint8)  # 16: not a hex digit
+for _c in "0123456789abcdefABCDEF":
+    _HEX_VALUE[ord(_c)] = int(_c, 16)
+
+
+def _is_word_or_separator(b: np.ndarray) -> np.ndarray:
+    """Per byte: an ASCII word character ([A-Za-z0-9_], ``\\w`` with re.ASCII) or one of ``()#. \\n``."""
+    letter = (b | 0x20) - np.uint8(ord("a")) < 26
+    digit = b - np.uint8(ord("0")) < 10
+    out = letter | digit
+    for c in "_()#. \n":
+        out |= b == ord(c)
+    return out
+
+
+def parse_candump(text: str) -> tuple[FrameBlock, np.ndarray]:
+    """The common candump -L lines of `text` parsed at once with numpy.
+
+    `text` is whole lines (each ends in a newline, but maybe the last).  Returns a block of one row
+    per line and the mask of the lines parsed; the rows of the other lines hold nothing of use.  A
+    line is parsed here when it is exactly what ``hil.traceio.CandumpReader`` parses with its regular
+    expression -- ``(seconds) channel ID#HEXDATA`` with an optional `` R``/`` T``, single spaces, a 3-
+    or 8-digit id without the error flag, whole data bytes, nothing before or after -- and its row
+    holds the very values of python-can's Message: timestamp = float(seconds), arbitration_id =
+    id & 0x1FFFFFFF, extended = 8 id digits, dlc = length = the number of data bytes.  Every other line
+    (remote, CAN FD, error frames, comments, blank lines, other spacing, non-ASCII...) is for
+    python-can's parser.
+
+    float(seconds) without Python: seconds with d digits in all is the integer N of its digits over
+    10**f (f digits after the point); for N < 2**53 both are exact doubles (f <= 18 < 23), so the
+    IEEE division N / 10**f is the correctly rounded value of the decimal, as float() computes it.
+    Other timestamps are read with float().
+    """
+    raw = text.encode("ascii", "replace")  # one byte per character; '?' makes a line not parse
+    if not raw.endswith(b"\n"):
+        raw += b"\n"
+    b = np.frombuffer(raw, dtype=np.uint8)
+    newline = b == ord("\n")
+    ends = np.flatnonzero(newline)  # where each line ends
+    n = len(ends)
+    line_of = np.cumsum(newline, dtype=np.int32)  # the line of each byte but the newlines
+    starts = np.zeros(n, dtype=np.int64)
+    starts[1:] = ends[:-1] + 1
+    ok = np.ones(n, dtype=bool)
+    ok[line_of[np.flatnonzero(~_is_word_or_separator(b))]] = False
+
+    def occurrences(char: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(count per line, positions, index in positions of each line's first) of one character."""
+        pos = np.flatnonzero(b == ord(char))
+        count = np.bincount(line_of[pos], minlength=n)
+        return count, pos, np.cumsum(count) - count
+
+    def once(char: str) -> np.ndarray:
+        """The position of `char` in each line; lines without exactly one are not parsed."""
+        count, pos, first = occurrences(char)
+        ok[count != 1] = False
+        return pos[np.minimum(first, len(pos) - 1)] if len(pos) else np.zeros(n, dtype=np.int64)
+
+    opening, closing, dot, hash_ = once("("), once(")"), once("."), once("#")
+    n_spaces, spaces, first = occurrences(" ")
+    ok &= (n_spaces == 2) | (n_spaces == 3)
+    if not ok.any():
+        return _empty_rows(n), ok
+    last = len(spaces) - 1
+    s1 = spaces[np.minimum(first, last)]
+    s2 = spaces[np.minimum(first + 1, last)]
+    s3 = spaces[np.minimum(first + 2, last)]
+    suffix = n_spaces == 3
+    data_end = np.where(suffix, s3, ends)  # the data digits end here
+    id_digits = hash_ - s2 - 1
+    data_digits = data_end - hash_ - 1
+    # the order ( . ) ' ' ' ' # [' '] and what lies between: digits, a channel, 3 or 8 id digits, pairs
+    ok &= (opening == starts) & (dot >= starts + 2) & (closing >= dot + 2) & (s1 == closing + 1)
+    ok &= (s2 >= s1 + 2) & ((id_digits == 3) | (id_digits == 8)) & (data_digits >= 0) & (data_digits % 2 == 0)
+    direction = b[ends - 1]
+    ok &= ~suffix | ((s3 == ends - 2) & ((direction | 0x20 == ord("r")) | (direction | 0x20 == ord("t"))))
+
+    rows = np.flatnonzero(ok)
+    bad = np.zeros(len(rows), dtype=bool)  # a character out of place after all
+    # id: 3 or 8 hex digits before the '#', a column of digits at a time (numpy is fast along rows);
+    # masks only where the rows differ
+    hash_, id_digits = hash_[rows], id_digits[rows]
+    fewest = int(id_digits.min()) if len(rows) else 8
+    can_id = np.zeros(len(rows), dtype=np.int64)
+    for j in range(8 - int(id_digits.max()) if len(rows) else 8, 8):
+        nibble = _HEX_VALUE[b[hash_ - 8 + j]]
+        if j < 8 - fewest:
+            nibble[id_digits < 8 - j] = 0
+        bad |= nibble > 15
+        can_id = (can_id << 4) | nibble
+    extended = id_digits == 8
+    # data: the pairs of hex digits after the '#'
+    n_bytes = data_digits[rows] // 2
+    width = int(n_bytes.max()) if len(rows) else 0
+    fewest = int(n_bytes.min()) if len(rows) else 0
+    payload = np.zeros((len(rows), width), dtype=np.uint8)
+    for k in range(width):
+        if k < fewest:
+            high = _HEX_VALUE[b[hash_ + 1 + 2 * k]]
+            low = _HEX_VALUE[b[hash_ + 2 + 2 * k]]
+        else:
+            high = _HEX_VALUE[b[np.minimum(hash_ + 1 + 2 * k, len(b) - 2)]]
+            low = _HEX_VALUE[b[np.minimum(hash_ + 2 + 2 * k, len(b) - 1)]]
+            beyond = n_bytes <= k
+            high[beyond] = 0
+            low[beyond] = 0
+        bad |= (high | low) > 15
+        payload[:, k] = (high << 4) | low
+    t, digits_ok, stamps = _seconds(raw, b, starts[rows], dot[rows], closing[rows])
+    # error flag: python-can decides what the line is
+    good = ~bad & digits_ok & ~(extended & (can_id & ERR_FLAG != 0))
+    if not good.all():
+        ok[rows[~good]] = False
+        rows, can_id, extended, n_bytes, payload, t, stamps = (
+            x[good] for x in (rows, can_id, extended, n_bytes, payload, t, stamps))
+    block = FrameBlock(
+        t=t,
+        arbitration_id=can_id & 0x1FFFFFFF,
+        extended=extended,
+        remote=np.zeros(len(rows), dtype=bool),
+        error=np.zeros(len(rows), dtype=bool),
+        dlc=n_bytes,
+        length=n_bytes.copy(),
+        payload=payload,
+        stamps=stamps,
+    )
+    if len(rows) == n:
+        return block, ok
+    full = _empty_rows(n, width)
+    full.stamps = np.zeros(n, dtype=stamps.dtype)
+    for name in ("t", "arbitration_id", "extended", "dlc", "length", "payload", "stamps"):
+        getattr(full, name)[rows] = getattr(block, name)
+    return full, ok
+
+
+def _empty_rows(n: int, width: int = 0) -> FrameBlock:
+    return FrameBlock(np.zeros(n), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool),
+                      np.zeros(n, dtype=bool), np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int64),
+                      np.zeros(n, dtype=np.int64), np.zeros((n, width), dtype=np.uint8))
+
+
+def _seconds(raw: bytes, b: np.ndarray, starts: np.ndarray, dot: np.ndarray, closing: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """float() of the text between '(' at `starts` and ')' at `closing` with the point at `dot`
+    (parse_candump's docstring says why the division is exact); whether that text is all digits but
+    the point; and the text itself where it is ``format(float(text), '.6f')`` (b"" elsewhere).
+
+    The text is that format of its float when it has 6 decimals, no leading zero, and is below 4e9:
+    then the float is less than 2**-53 * 4e9 < 0.5e-6 from it, and rounds back to it."""
+    if not len(starts):
+        return np.zeros(0), np.ones(0, dtype=bool), np.zeros(0, dtype="S1")
+    n_int = dot - starts - 1
+    n_frac = closing - dot - 1
+    w_int, w_frac = int(n_int.max()), int(n_frac.max())
+    fewest_int, fewest_frac = int(n_int.min()), int(n_frac.min())
+    worst = np.zeros(len(starts), dtype=np.uint8)  # the largest "digit" (a non-digit is above 9)
+    number = np.zeros(len(starts), dtype=np.int64)  # the digits as one integer (if it fits)
+    for j in range(w_int):  # the integer part, right-aligned on the point, a column at a time
+        if j >= w_int - fewest_int:
+            digit = b[dot - w_int + j] - np.uint8(ord("0"))
+        else:  # some rows have fewer digits: zeros in front
+            digit = b[np.maximum(dot - w_int + j, 0)] - np.uint8(ord("0"))
+            digit[n_int < w_int - j] = 0
+        np.maximum(worst, digit, out=worst)
+        number = number * 10 + digit
+    for j in range(w_frac):  # the fraction, left-aligned on the point, zero-padded
+        if j < fewest_frac:
+            digit = b[dot + 1 + j] - np.uint8(ord("0"))
+        else:
+            digit = b[np.minimum(dot + 1 + j, len(b) - 1)] - np.uint8(ord("0"))
+            digit[n_frac <= j] = 0
+        np.maximum(worst, digit, out=worst)
+        number = number * 10 + digit
+    digits_ok = worst < 10
+    if w_int + w_frac <= _MAX_EXACT_DIGITS:
+        t = number / float(10 ** w_frac)
+        inexact = np.flatnonzero(digits_ok & (number >= 2 ** 53))
+    else:
+        t = np.zeros(len(starts))
+        inexact = np.flatnonzero(digits_ok)
+    for i in inexact.tolist():
+        t[i] = float(raw[starts[i] + 1: closing[i]])
+    six = digits_ok & (n_frac == 6) & ((n_int == 1) | (b[starts + 1] != ord("0"))) & (t < STAMP_EXACT_BELOW)
+    if fewest_int == w_int:  # one length for all: the texts are one slice of each line
+        width = w_int + 7
+        text = b[starts[:, None] + 1 + np.arange(width)]
+        text[~six] = 0
+    else:
+        width = STAMP_WIDTH
+        text = b[np.minimum(starts[:, None] + 1 + np.arange(width), len(b) - 1)]
+        text[(n_int[:, None] + 7 <= np.arange(width)) | ~six[:, None]] = 0
+    return t, digits_ok, text.view(f"S{width}").ravel()
+
+
+class BlockReader:
+    """The frames of a trace as FrameBlocks of up to `max_frames` rows, in file order.
+
+    ``trace`` is the Trace read (its ``name``, ``count``, ``skipped`` as after iterating it).  candump
+    text (.log, .log.gz, stdin) is parsed a batch of lines at a time by ``parse_candump``, every line
+    it does not take by python-can's parser (``Trace.candump_line``); every other format is read by
+    python-can's reader, ``max_frames`` Messages at a time.  Either way the frames, and a TraceError
+    that reading raises, are those of iterating ``open_trace(path)``; the frames read before the error
+    come first, as a last block.
+    """
+
+    def __init__(self, path: str | pathlib.Path, max_frames: int = BLOCK_FRAMES) -> None:
+        self.path = path
+        self.trace = open_trace(path)
+        self.max_frames = max_frames
+
+    def __iter__(self) -> Iterator[FrameBlock]:
+        if self.trace.is_candump:
+            yield from self._candump()
+            return
+        if _is_blf(self.path) and isinstance(self.trace.reader, blf.BLFReader):
+            blocks = self._blf()
+            if blocks is not None:
+                yield from blocks
+                return
+            self.trace = open_trace(self.path)  # python-can's reader gives the result or the error
+        frames = iter(self.trace)
+        while True:
+            batch: list[can.Message] = []
+            error = None
+            try:
+                for msg in frames:
+                    batch.append(msg)
+                    if len(batch) >= self.max_frames:
+                        break
+            except TraceError as exc:
+                error = exc
+            if batch:
+                yield FrameBlock.from_messages(batch)
+            if error is not None:
+                raise error
+            if not batch:
+                return
+
+    def _blf(self) -> list[FrameBlock] | None:
+        """The frames of a BLF file read by BlfColumnReader (payload included), None where it gives up."""
+        try:
+            chunks = BlfColumnReader(self.trace.reader, payload=True).read_chunks()
+        except Exception:  # NotFast, or a broken file: python-can's reader gives the result or the error
+            return None
+        finally:
+            self.trace.close()
+        from hil.timing import KIND_ERROR, KIND_REMOTE
+
+        blocks: list[FrameBlock] = []
+        group: list[FrameBlock] = []  # consecutive pieces of chunks, up to max_frames rows together
+        rows = 0
+        for chunk in chunks:
+            block = FrameBlock(
+                t=chunk["t"], arbitration_id=chunk["arbitration_id"], extended=chunk["extended"],
+                remote=chunk["kind"] == KIND_REMOTE, error=chunk["kind"] == KIND_ERROR, dlc=chunk["dlc"],
+                length=chunk["length"], payload=chunk["payload"])
+            for first in range(0, len(block), self.max_frames):
+                piece = block if len(block) <= self.max_frames else block.take(
+                    np.arange(first, min(first + self.max_frames, len(block))))
+                if rows + len(piece) > self.max_frames:
+                    blocks.append(group[0] if len(group) == 1 else FrameBlock.join(group))
+                    group, rows = [], 0
+                group.append(piece)
+                rows += len(piece)
+        if group:
+            blocks.append(group[0] if len(group) == 1 else FrameBlock.join(group))
+        self.trace.count = sum(map(len, blocks))
+        return blocks
+
+    def _candump(self) -> Iterator[FrameBlock]:
+        trace = self.trace
+        lines_before = 0
+        for lines in trace.candump_batches(self.max_frames):
+            block, ok = parse_candump("".join(lines))
+            if ok.all():
+                trace.count += len(lines)
+                yield block
+            else:
+                yield from self._mixed(lines, lines_before, block, ok)
+            lines_before += len(lines)
+
+    def _mixed(self, lines: list[str], lines_before: int, block: FrameBlock, ok: np.ndarray
+               ) -> Iterator[FrameBlock]:
+        """A batch with lines for python-can's parser: its frames, then the error a line raised."""
+        trace = self.trace
+        start = trace.count
+        parsed_before = np.cumsum(ok) - ok  # frames of parsed lines before each line
+        taken: list[int] = []
+        messages: list[can.Message] = []
+        error = None
+        end = len(lines)
+        for j in np.flatnonzero(~ok).tolist():
+            trace.count = start + int(parsed_before[j]) + len(messages)
+            try:
+                msg = trace.candump_line(lines[j], lines_before + j + 1)
+            except TraceError as exc:
+                error, end = exc, j
+                break
+            if msg is not None:
+                taken.append(j)
+                messages.append(msg)
+        parsed = np.flatnonzero(ok[:end])
+        trace.count = start + len(parsed) + len(messages)
+        if len(parsed) or messages:
+            parts = [block.take(parsed)]
+            if messages:
+                parts.append(FrameBlock.from_messages(messages))
+            order = np.argsort(np.concatenate([parsed, np.array(taken, dtype=np.int64)]), kind="stable")
+            yield FrameBlock.join(parts).take(order)
+        if error is not None:
+            raise error

@@ -14,7 +14,10 @@ the common line, a classic data frame written as ``(seconds) channel ID#HEXDATA`
 `` R``/`` T``, single spaces, a 3- or 8-digit id without the error flag, whole data bytes, is parsed
 by one regular expression into the very ``can.Message`` python-can makes of it (about 2.5x faster);
 any other line (remote, CAN FD, error frames, other spacing, anything malformed) goes to python-can's
-own parser, so what it yields or raises is python-can's.
+own parser, so what it yields or raises is python-can's.  A bulk parser (``hil.tracecolumns``) can read
+candump text a batch of lines at a time through ``Trace.candump_batches`` and hand every line it does not
+take itself to ``Trace.candump_line``: the frames, the line numbers and the errors stay those of
+iterating the ``Trace``.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import pathlib
 import re
 import sys
 from collections.abc import Iterator
+from itertools import islice
 from typing import TextIO
 
 import can
@@ -34,7 +38,7 @@ from can.io.player import MESSAGE_READERS
 
 from hil.errors import RailhilError
 
-__all__ = ["FORMATS", "CandumpReader", "Trace", "TraceError", "open_trace"]
+__all__ = ["FORMATS", "CandumpReader", "Trace", "TraceError", "id_text", "open_trace"]
 
 #: what each suffix is expected to hold, for error messages
 FORMATS = {
@@ -51,6 +55,12 @@ STDIN = "-"
 
 class TraceError(RailhilError, ValueError):
     """A CAN trace that cannot be read: missing, of an unknown format, or corrupt."""
+
+
+def id_text(arbitration_id: int, extended: bool) -> str:
+    """An id as candump prints it: 3 hex digits for an 11-bit id, 8 for a 29-bit one, so the two never
+    mix (the trace tools print ids so)."""
+    return f"0x{arbitration_id:08X}" if extended else f"0x{arbitration_id:03X}"
 
 
 class _Lines:
@@ -209,7 +219,6 @@ class Trace:
             pass
 
     def __iter__(self) -> Iterator[can.Message]:
-        lines = self._lines
         handler = _Warnings()
         logger = logging.getLogger("can.io")
         logger.addHandler(handler)
@@ -221,16 +230,83 @@ class Trace:
             except GeneratorExit:
                 raise
             except Exception as exc:
-                where = f" line {lines.n}" if lines is not None and lines.n else ""
-                seen = f" {lines.line.strip()[:60]!r}" if lines is not None and lines.n else ""
-                raise TraceError(f"{self.name}{where}: not readable as {self.expected}{seen} "
-                                 f"(after {self.count} frames): {_one_line(exc)}") from exc
+                raise self._error(exc) from exc
         finally:
-            logger.removeHandler(handler)
-            self.skipped, self.first_skipped = handler.count, handler.first
-            try:
-                self._reader.stop()
-            except Exception:  # closing a half-read file must not hide the real error
-                pass
+            self._finish(logger, handler)
+        self._check_not_empty()
+
+    # --- candump text a batch of lines at a time (hil.tracecolumns) ------------------------------
+
+    @property
+    def is_candump(self) -> bool:
+        """True when the frames come from candump -L text (a .log file, .log.gz, or stdin)."""
+        return isinstance(self._reader, CandumpReader) and self._lines is not None
+
+    def candump_batches(self, max_lines: int) -> Iterator[list[str]]:
+        """The lines of candump -L text, up to `max_lines` at a time, as iterating the file gives them.
+
+        For a bulk parser of the text: it takes the lines it can, hands every other line to
+        ``candump_line`` in order, and adds the frames it takes itself to ``count`` before it does
+        (``count`` is the "after N frames" of an error).  A read error (a byte the text encoding
+        cannot decode, say) comes after a last batch of the lines read before it, as the TraceError
+        that iterating the Trace raises; so does "no CAN frames found" at the end.
+        """
+        if not self.is_candump:
+            raise TypeError(f"{self.name}: not candump text")
+        lines = self._lines
+        stream = lines.stream
+        handler = _Warnings()
+        logger = logging.getLogger("can.io")
+        logger.addHandler(handler)
+        try:
+            while True:
+                batch: list[str] = []
+                error = None
+                try:
+                    batch.extend(islice(stream, max_lines))  # keeps the lines read before an error
+                except Exception as exc:  # the text cannot be read on: what iterating it would raise
+                    error = exc
+                if batch:
+                    base = lines.n
+                    yield batch
+                    lines.n, lines.line = base + len(batch), batch[-1]
+                if error is not None:
+                    raise self._error(error) from error
+                if not batch:
+                    break
+        finally:
+            self._finish(logger, handler)
+        self._check_not_empty()
+
+    def candump_line(self, line: str, number: int) -> can.Message | None:
+        """python-can's frame of one candump -L line (``CandumpReader``), None for a line it skips.
+
+        `number` is the line's number in the text (1 for the first); an error is the TraceError that
+        iterating the Trace raises at that line."""
+        self._lines.n, self._lines.line = number, line
+        try:
+            return next(iter(CandumpReader.__iter__(_OneLine(line))), None)  # type: ignore[arg-type]
+        except Exception as exc:
+            raise self._error(exc) from exc
+
+    # --- shared by both ways of reading -----------------------------------------------------------
+
+    def _error(self, exc: BaseException) -> TraceError:
+        """The one-line TraceError for an exception of python-can's reader or of the text stream."""
+        lines = self._lines
+        where = f" line {lines.n}" if lines is not None and lines.n else ""
+        seen = f" {lines.line.strip()[:60]!r}" if lines is not None and lines.n else ""
+        return TraceError(f"{self.name}{where}: not readable as {self.expected}{seen} "
+                          f"(after {self.count} frames): {_one_line(exc)}")
+
+    def _finish(self, logger: logging.Logger, handler: _Warnings) -> None:
+        logger.removeHandler(handler)
+        self.skipped, self.first_skipped = handler.count, handler.first
+        try:
+            self._reader.stop()
+        except Exception:  # closing a half-read file must not hide the real error
+            pass
+
+    def _check_not_empty(self) -> None:
         if self.count == 0 and not self._empty_ok:
             raise TraceError(f"{self.name}: no CAN frames found (expected {self.expected})")

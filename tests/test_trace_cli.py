@@ -223,6 +223,24 @@ def test_unknown_message_and_signal_names_are_one_line_errors_with_the_closest(c
     assert_one_line_error(code, err, "--id", "0xZZ")
 
 
+# --- start-up: each subcommand imported when it runs ---------------------------------------------
+
+
+def test_help_lists_every_command_without_importing_them():
+    """`railhil --help` lists each subcommand with its help line from hil.cli.main, the same line as
+    the subcommand's module gives; `railhil trace ...` does not import the other subcommands."""
+    from hil.cli.main import COMMANDS, build_parser
+
+    assert build_parser().format_help() == build_parser(list(COMMANDS)).format_help()
+    code = ("import sys; from hil.cli.main import main\n"
+            "try:\n    main(['trace', 'decode', '--help'])\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in sys.modules if m in ('hil.cli.run', 'hil.cli.timing', 'hil.scenario')))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines()[-1] == "[]"
+    assert "--dbc DBC" in proc.stdout
+
+
 # --- bad input ------------------------------------------------------------------------------------
 
 

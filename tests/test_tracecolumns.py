@@ -23,8 +23,11 @@ from hypothesis import strategies as st
 from hil.timing import FrameArrays, frame_arrays
 from hil.tracecolumns import (
     BATCH_BYTES,
+    BLOCK_FRAMES,
     BlfColumnReader,
+    BlockReader,
     NotFast,
+    parse_candump,
     read_blf_columns,
     read_columns,
     read_trace_columns,
@@ -494,3 +497,163 @@ def test_candump_reader_on_the_corpus_logs():
         text = path.read_text(errors="replace")
         ours = python_can_outcome(CandumpReader, text)
         assert ours == python_can_outcome(can.CanutilsLogReader, text), path
+
+
+# --- FrameBlocks: frames with their data bytes, for `trace decode` (hil.fastdecode) ----------------
+
+
+def frame_fields(m: can.Message) -> tuple:
+    """What `trace decode` reads of a frame."""
+    return (m.timestamp, type(m.timestamp), m.arbitration_id, m.is_extended_id, m.is_remote_frame,
+            m.is_error_frame, m.dlc, bytes(m.data))
+
+
+def block_outcome(path, max_frames: int = BLOCK_FRAMES) -> tuple[list, str | None, int]:
+    """The frames BlockReader gives (each row as python-can's Message of it), the TraceError it
+    raised if any, and its trace's frame count; each block checked on the way."""
+    out, error = [], None
+    reader = BlockReader(path, max_frames)
+    try:
+        for block in reader:
+            assert 0 < len(block) <= max_frames
+            for c in ("arbitration_id", "extended", "remote", "error", "dlc", "length", "payload"):
+                assert len(getattr(block, c)) == len(block), c
+            assert (block.payload[np.arange(block.payload.shape[1]) >= block.length[:, None]] == 0).all()
+            if block.stamps is not None:  # the trace's text of the timestamp, where it is format(t, '.6f')
+                for stamp, t in zip(block.stamps.tolist(), block.t.tolist(), strict=True):
+                    assert stamp == b"" or stamp.decode() == f"{t:.6f}", (stamp, t)
+            out += [frame_fields(block.message(i)) for i in range(len(block))]
+    except TraceError as exc:
+        error = str(exc)
+    return out, error, reader.trace.count
+
+
+def python_can_block_outcome(path) -> tuple[list, str | None, int]:
+    """The same through python-can's reader (open_trace, one Message at a time)."""
+    out, error = [], None
+    trace = open_trace(path)
+    try:
+        for m in trace:
+            out.append(frame_fields(m))
+    except TraceError as exc:
+        error = str(exc)
+    return out, error, trace.count
+
+
+def assert_blocks_like_python_can(path, max_frames: int = BLOCK_FRAMES) -> list:
+    theirs = python_can_block_outcome(path)
+    assert block_outcome(path, max_frames) == theirs
+    return theirs[0]
+
+
+seconds_text = st.one_of(
+    st.floats(0, 5e9).map(lambda t: f"{t:.6f}"),
+    st.builds(lambda i, f: f"{i}.{f}", st.from_regex(r"[0-9]{1,12}", fullmatch=True),
+              st.from_regex(r"[0-9]{1,10}", fullmatch=True)),
+    st.sampled_from(["0.000000", "0.000050", "0.000100", "00012.500000", "0.5", "4000000000.000001",
+                     "9007199254.740993", "99999999999999999999.5", "3999999999.999999"]),
+)
+common_line = st.builds(lambda t, ch, i, ext, d, rx: f"({t}) {ch} {i:0{8 if ext else 3}X}#{d}{rx}",
+                        seconds_text, st.sampled_from(["can0", "vcan1", "0", "x_1"]),
+                        st.integers(0, 0x1FFFFFFF), st.booleans(), st.binary(max_size=12).map(bytes.hex),
+                        st.sampled_from(["", " R", " T"]))
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(lines=st.lists(st.one_of(common_line, common_line, candump_line), min_size=1, max_size=40),
+       newline=st.sampled_from(["\n", "\r\n"]), end=st.sampled_from(["", "\n"]),
+       max_frames=st.sampled_from([1, 3, 7, BLOCK_FRAMES]))
+def test_frame_blocks_of_candump_text_equal_python_can(tmp_path_factory, lines, newline, end, max_frames):
+    """parse_candump takes the common lines in bulk, python-can's parser every other one: the same
+    frames in the same order, the same TraceError at the same line after the same frames, whatever
+    the batches; the timestamps' texts kept are exactly format(t, '.6f')."""
+    path = tmp_path_factory.mktemp("log") / "t.log"
+    path.write_bytes((newline.join(lines) + end).encode())
+    assert_blocks_like_python_can(path, max_frames)
+
+
+def test_parse_candump_takes_the_common_lines_only():
+    text = ("(100.001394) can0 123#0102\n(1.5) can0 12345678#\n(0100.000001) c 7FF#AB R\n"
+            "(2.0) can0 123#R\n(3.0)  can0 123#00\n(1.000000) can0 20000080#00\n(4.0) can0 123#0g\n\n"
+            "(5.000000) ca-n 123#00\n(6.000000) can0 123#000\n")
+    block, ok = parse_candump(text)
+    assert ok.tolist() == [True, True, True] + [False] * 7
+    assert block.t[:3].tolist() == [100.001394, 1.5, 100.000001]
+    assert block.arbitration_id[:3].tolist() == [0x123, 0x12345678, 0x7FF]
+    assert block.extended[:3].tolist() == [False, True, False]
+    assert block.length[:3].tolist() == [2, 0, 1] and block.payload[0, :2].tolist() == [1, 2]
+    assert block.stamps[:3].tolist() == [b"100.001394", b"", b""]  # 1.5: not 6 decimals; 0100: a leading 0
+
+
+def test_frame_blocks_of_the_corpus_logs_and_traces():
+    suffixes = (".log", ".asc", ".trc", ".blf", ".gz")
+    traces = sorted(p for p in CORPUS.rglob("*") if p.is_file() and p.suffix.lower() in suffixes)
+    if not traces:
+        pytest.skip(NO_CORPUS)
+    for path in traces:
+        assert assert_blocks_like_python_can(path), path
+        assert_blocks_like_python_can(path, 5)
+
+
+def test_frame_blocks_after_a_byte_the_text_cannot_decode(tmp_path):
+    """A byte that is not UTF-8 after 30 000 lines: the frames of the lines read before it, then the
+    TraceError that iterating the trace raises, naming the same line after the same frames."""
+    path = tmp_path / "bad.log"
+    good = b"".join(b"(%d.%06d) can0 %03X#0011223344556677\n" % (i // 1000, i % 1000, i % 0x7FF)
+                    for i in range(30_000))
+    path.write_bytes(good + b"(31.000000) can0 123#\xff\xfe\n" + good[:4000])
+    frames = assert_blocks_like_python_can(path, 4096)
+    assert 25_000 < len(frames) <= 30_000
+
+
+blf_frame = st.one_of(
+    st.builds(lambda i, e, d: dict(arbitration_id=i, is_extended_id=e, dlc=len(d), data=d),
+              st.integers(0, 0x7FF), st.booleans(), st.binary(max_size=8)),
+    st.builds(lambda i, d, n: dict(arbitration_id=i, dlc=n, data=d[:8]),  # a DLC above the data
+              st.integers(0, 0x7FF), st.binary(min_size=8, max_size=8), st.integers(9, 15)),
+    st.builds(lambda i, n: dict(arbitration_id=i, is_remote_frame=True, dlc=n), st.integers(0, 0x7FF),
+              st.integers(0, 8)),
+    st.builds(lambda i, d: dict(arbitration_id=i, is_error_frame=True, dlc=len(d), data=d),
+              st.integers(0, 0x7FF), st.binary(max_size=8)),
+    st.builds(lambda i, d, r: dict(arbitration_id=i, is_fd=True, is_remote_frame=r, dlc=len(d), data=d),
+              st.integers(0, 0x7FF), st.sampled_from([0, 5, 8, 12, 16, 20, 24, 32, 48, 64]).map(
+                  lambda n: bytes(range(n))), st.booleans()),
+)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(frames=st.lists(blf_frame, min_size=1, max_size=80), container=st.sampled_from([100, 4096, 131072]),
+       max_frames=st.sampled_from([2, BLOCK_FRAMES]))
+def test_frame_blocks_of_blf_hold_python_cans_data(tmp_path_factory, frames, container, max_frames):
+    """BLF read by BlfColumnReader with the data bytes: python-can's data of every frame (DLC above 8,
+    remote frames without data, error frames with it, CAN FD)."""
+    path = write_blf(tmp_path_factory.mktemp("blf") / "t.blf", frames, container=container)
+    assert reads_fast(path) or container < 128  # python-can's writer may lose every frame (see above)
+    assert_blocks_like_python_can(path, max_frames)
+
+
+def reads_fast(path) -> bool:
+    """Whether BlfColumnReader reads the file with the data bytes (else it leaves it to python-can)."""
+    reader = can.BLFReader(str(path))
+    try:
+        return bool(BlfColumnReader(reader, payload=True).read_chunks())
+    except NotFast:
+        return False
+    finally:
+        reader.stop()
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(objects=st.lists(st.tuples(st.integers(0, 15), st.integers(0, 0x7FF), st.sampled_from([0, 8, 12, 64]),
+                                  st.integers(0, 80), st.sampled_from([0, 0x10, 0x1000])),
+                        min_size=1, max_size=30))
+def test_frame_blocks_of_can_fd_message_64_objects(tmp_path_factory, objects):
+    """CAN_FD_MESSAGE_64: the data after the struct, valid_bytes of it (zero-padded where the object
+    holds fewer), none for a remote frame -- python-can's data."""
+    path = tmp_path_factory.mktemp("fd64") / "fd64.blf"
+    with can.BLFWriter(str(path)) as writer:
+        for k, (dlc, arb, length, valid, flags) in enumerate(objects):
+            body = blf.CAN_FD_MSG_64_STRUCT.pack(1, dlc, valid, 0, arb, 0, flags, 0, 0, 0, 0, 0, 0, 0, 0)
+            add_object(writer, blf.CAN_FD_MESSAGE_64, body + bytes(range(1, length + 1)), 1.0 + k / 100)
+    assert reads_fast(path)
+    assert_blocks_like_python_can(path)

@@ -17,7 +17,7 @@ from cantools.database.can import Signal
 from hil.codec import Codec, FrameCodec
 from hil.dbc import closest
 from hil.errors import RailhilError
-from hil.traceio import Trace
+from hil.traceio import Trace, id_text
 
 __all__ = [
     "Output", "SignalRef", "TraceArgError", "check_window", "id_text", "jsonable", "kind_of", "lookup",
@@ -27,10 +27,6 @@ __all__ = [
 
 class TraceArgError(RailhilError, ValueError):
     """A trace command option that names something the DBC or the syntax does not have."""
-
-
-def id_text(arbitration_id: int, extended: bool) -> str:
-    return f"0x{arbitration_id:08X}" if extended else f"0x{arbitration_id:03X}"
 
 
 def parse_id(text: str, option: str = "--id") -> int:

@@ -1,12 +1,20 @@
-"""`railhil trace decode TRACE --dbc DBC` — the frames of a trace decoded with a DBC, with filters."""
+"""`railhil trace decode TRACE --dbc DBC` — the frames of a trace decoded with a DBC, with filters.
+
+Two paths write the same bytes: the per-frame path (``decoded_rows`` and ``row_texts``: one Row per
+python-can Message), the reference; and the fast path that ``run`` takes, a block of frames at a time
+(``hil.tracecolumns.BlockReader`` reads them, ``hil.fastdecode.BlockDecoder`` decodes and writes
+them, and hands the frames it does not take -- remote, error, multiplexed, too short -- to the
+per-frame path, in their place).  tests/test_fastdecode.py holds the two to the same output.
+"""
 
 from __future__ import annotations
 
 import argparse
 import csv
+import io
 import json
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +33,8 @@ from hil.cli.trace.common import (
 )
 from hil.codec import Codec
 from hil.dbc import closest, load_dbc
+from hil.fastdecode import BlockDecoder
+from hil.tracecolumns import BLOCK_FRAMES, BlockReader
 from hil.traceio import open_trace
 
 FORMAT_CHOICES = ("table", "csv", "jsonl")
@@ -134,28 +144,29 @@ def decoded_rows(frames: Iterable[can.Message], codec: Codec, sel: Selection, st
         yield Row(t, ident, fc.name, values)
 
 
-def run(args: argparse.Namespace) -> int:
-    codec = Codec(load_dbc(args.dbc))
-    sel = select(args, codec)
-    check_window(args.start, args.end)
-    frames = open_trace(args.trace)
-    counts = {"decoded": 0, "unknown": 0, "remote": 0, "error": 0, "failed": 0}
-    out = Output()
-    rows = decoded_rows(frames, codec, sel, args.start, args.end, counts)
-    if args.format == "csv":
-        writer = csv.writer(out, lineterminator="\n")
-        writer.writerow(("t", "id", "name", "signal", "value", "error"))
-        for r in rows:
-            if r.signals is None:
-                writer.writerow((f"{r.t:.6f}", r.id, r.name or ("" if r.kind == "data" else r.kind), "",
-                                 r.data, r.error or ""))
-            else:
-                for sig, value in r.signals.items():
-                    writer.writerow((f"{r.t:.6f}", r.id, r.name, sig, repr(value), ""))
-            if out.closed:
-                break
-    elif args.format == "jsonl":
-        for r in rows:
+def row_texts(fmt: str, width: int) -> Callable[[Iterable[Row]], str]:
+    """The per-frame path's text of rows in `fmt`: table (`width` = the name column's width), csv, jsonl."""
+    if fmt == "csv":
+        buffer = io.StringIO()
+        writer = csv.writer(buffer, lineterminator="\n")
+
+        def csv_text(rows: Iterable[Row]) -> str:
+            for r in rows:
+                if r.signals is None:
+                    writer.writerow((f"{r.t:.6f}", r.id, r.name or ("" if r.kind == "data" else r.kind), "",
+                                     r.data, r.error or ""))
+                else:
+                    for sig, value in r.signals.items():
+                        writer.writerow((f"{r.t:.6f}", r.id, r.name, sig, repr(value), ""))
+            text = buffer.getvalue()
+            buffer.seek(0)
+            buffer.truncate()
+            return text
+
+        return csv_text
+
+    def one(r: Row) -> str:
+        if fmt == "jsonl":
             obj: dict = {"t": r.t, "id": r.id, "name": r.name}
             if r.signals is not None:
                 obj["signals"] = {k: jsonable(v) for k, v in r.signals.items()}
@@ -167,27 +178,68 @@ def run(args: argparse.Namespace) -> int:
                     obj["dlc"] = r.dlc
                 if r.error:
                     obj["error"] = r.error
-            out.write(json.dumps(obj) + "\n")
+            return json.dumps(obj) + "\n"
+        if r.signals is not None:
+            body = " ".join(f"{k}={v:.10g}" for k, v in r.signals.items())
+            name = r.name
+        else:
+            body = {"remote": f"remote frame dlc={r.dlc}", "error": "error frame"}.get(
+                r.kind, f"data={r.data}" + (f"  ({r.error})" if r.error else ""))
+            name = r.name or ("?" if r.kind == "data" else r.kind.upper())
+        return f"{r.t:17.6f}  {r.id:<10}  {name:<{width}}  {body}\n"
+
+    return lambda rows: "".join(map(one, rows))
+
+
+def run(args: argparse.Namespace) -> int:
+    codec = Codec(load_dbc(args.dbc))
+    sel = select(args, codec)
+    check_window(args.start, args.end)
+    return decode(args.trace, codec, sel, args.format, args.start, args.end, dbc_name=str(args.dbc))
+
+
+def decode(trace: str | Path, codec: Codec, sel: Selection, fmt: str, start: float | None, end: float | None,
+           dbc_name: str, fast: bool = True, block_frames: int = BLOCK_FRAMES) -> int:
+    """Write the decoded frames of `trace` to stdout in `fmt`, the summary to stderr.
+
+    `fast` (the default): a block of up to `block_frames` frames at a time (hil.tracecolumns reads
+    them, hil.fastdecode decodes and writes them, the per-frame path below takes the frames it does
+    not); `fast` False: the per-frame path for every frame -- the reference that
+    tests/test_fastdecode.py holds the fast path to, byte for byte.
+    """
+    counts = {"decoded": 0, "unknown": 0, "remote": 0, "error": 0, "failed": 0}
+    width = max([len(fc.name) for fc in codec] + [6])
+    texts = row_texts(fmt, width)
+    if fast:
+        reader = BlockReader(trace, block_frames)
+        frames = reader.trace
+    else:
+        frames = open_trace(trace)
+    out = Output()
+    if fmt == "csv":
+        out.write("t,id,name,signal,value,error\n")
+    elif fmt == "table":
+        out.write(f"{'t_s':>17}  {'id':<10}  {'name':<{width}}  signals\n")
+    if fast:
+        def slow(msg: can.Message) -> str:
+            return texts(decoded_rows((msg,), codec, sel, start, end, counts))
+
+        decoder = BlockDecoder(codec, fmt, width=width, ids=sel.ids, names=sel.names, signals=sel.signals,
+                               start=start, end=end, slow=slow, counts=counts)
+        for block in reader:
+            out.write(decoder.text(block))
             if out.closed:
                 break
+        frames = reader.trace  # a new one if the BLF reader gave the file to python-can's
     else:
-        width = max([len(fc.name) for fc in codec] + [6])
-        out.write(f"{'t_s':>17}  {'id':<10}  {'name':<{width}}  signals\n")
-        for r in rows:
-            if r.signals is not None:
-                body = " ".join(f"{k}={v:.10g}" for k, v in r.signals.items())
-                name = r.name
-            else:
-                body = {"remote": f"remote frame dlc={r.dlc}", "error": "error frame"}.get(
-                    r.kind, f"data={r.data}" + (f"  ({r.error})" if r.error else ""))
-                name = r.name or ("?" if r.kind == "data" else r.kind.upper())
-            out.write(f"{r.t:17.6f}  {r.id:<10}  {name:<{width}}  {body}\n")
+        for row in decoded_rows(frames, codec, sel, start, end, counts):
+            out.write(texts((row,)))
             if out.closed:
                 break
     out.flush()
     notice_skipped(frames)
     if not out.closed:
-        summary = (f"{counts['decoded']} frames decoded, {counts['unknown']} with ids not in {args.dbc}, "
+        summary = (f"{counts['decoded']} frames decoded, {counts['unknown']} with ids not in {dbc_name}, "
                    f"{counts['remote']} remote, {counts['error']} error frames, "
                    f"{counts['failed']} failed to decode")
         print(summary, file=sys.stderr)
