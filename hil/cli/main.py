@@ -1,22 +1,41 @@
 """Entry point of the `railhil` command.
 
 Errors print one line `error: ...` and exit non-zero (2 for bad input); `--debug` shows the traceback.
+
+Each subcommand's module (with its numpy, matplotlib, pydantic... imports) is imported only when that
+subcommand runs: ``COMMANDS`` holds each one's module and help line, so that ``railhil --help`` lists
+them all without importing any (tests/test_trace_cli.py checks the help lines against the modules').
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 
-from hil.cli import run as run_cmd
-from hil.cli import timing as timing_cmd
-from hil.cli import trace as trace_cmd
 from hil.errors import RailhilError
 
-SUBCOMMANDS = (run_cmd, trace_cmd, timing_cmd)
+#: subcommand -> (module with add_subparser(sub) and the run function, its help line in `railhil --help`)
+COMMANDS = {
+    "run": ("hil.cli.run", "run a scenario and write its run folder"),
+    "trace": ("hil.cli.trace",
+              "inspect a recorded CAN trace: statistics, decoding, plots, comparison, replay"),
+    "timing": ("hil.cli.timing",
+               "cycle-time conformance of a trace against the DBC, bus load, response-time analysis, "
+               "latency chains"),
+    "faults": ("hil.cli.faults", "fault injection campaigns: the EN 50159 threat matrix"),
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def command_of(argv: list[str]) -> str | None:
+    """The subcommand named on a command line: its first word that is not an option (the top-level
+    options take no value)."""
+    return next((a for a in argv if not a.startswith("-")), None)
+
+
+def build_parser(load: list[str] | tuple[str, ...] | None = None) -> argparse.ArgumentParser:
+    """The parser of `railhil`, with the full parsers of the subcommands in `load` (their modules are
+    imported) and a placeholder with the help line for every other one."""
     parser = argparse.ArgumentParser(
         prog="railhil",
         description="HIL testbench for railway brake electronics over CAN.",
@@ -24,13 +43,19 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for module in SUBCOMMANDS:
-        module.add_subparser(sub)
+    for name, (module, help_line) in COMMANDS.items():
+        if load is not None and name in load:
+            importlib.import_module(module).add_subparser(sub)
+        else:
+            sub.add_parser(name, help=help_line)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    if argv is None:
+        argv = sys.argv[1:]
+    command = command_of(argv)
+    parser = build_parser([command] if command in COMMANDS else [])
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
