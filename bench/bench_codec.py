@@ -28,11 +28,12 @@ from hil.codec import Codec  # noqa: E402
 CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
 FRAMES = [
     (ROOT / "dbc" / "train_brake.dbc", "BECU1_PRESS_CMD",
-     {"Checksum": 0x5A, "Counter": 7, "WspValve": 1, "CylPressureSet": 251_230.0, "ValveCmd": -0.4321}),
+     {"CHECKSUM": 0x5A, "COUNTER": 7, "WspValve": 1, "CylPressureSet": 251_230.0, "ValveCmd": -0.4321}),
     (ROOT / "dbc" / "train_brake.dbc", "PLANT_CAR1_SENSORS",
      {"AxleSpeed": 61.235, "CylPressure": 180_000.0, "AccelLong": -0.987, "SensorCounter": 200}),
     (ROOT / "dbc" / "train_brake.dbc", "BCU_DEMAND",
-     {"Checksum": 0xC3, "Counter": 12, "Mode": 1, "BrakeStep": 5, "TargetDecel": 0.85}),
+     {"CHECKSUM": 0xC3, "COUNTER": 12, "Mode": 1, "BrakeStep": 5, "TargetDecel": 0.85,
+      "SecOCFreshness": 17, "SecOCMAC": 0x123456}),
     (CORPUS / "opendbc/opendbc/dbc/toyota_prius_2010_pt.dbc", "STEERING_IPAS",  # Motorola, 6 signals
      {"STATE": 3, "ANGLE": 1234, "SET_ME_X10": 16, "SET_ME_X00_1": 0, "DIRECTION_CMD": 2, "CHECKSUM": 0x77}),
 ]
