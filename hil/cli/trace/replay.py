@@ -54,7 +54,6 @@ from hil.cli.trace.common import Output, TraceArgError, check_window, notice_ski
 from hil.errors import BusError
 from hil.traceio import open_trace
 
-BUS_KEYS = ("channel", "interface", "bitrate", "fd", "data_bitrate", "can_filters", "timing", "bus_kwargs")
 DEFAULT_INTERFACE = "udp_multicast"
 SEND_TIMEOUT_S = 0.01      # bus.send waits at most this long for room in the transmit buffer
 VERIFY_QUIET_S = 1.0       # --verify stops waiting for missing frames after this long without one
@@ -123,14 +122,9 @@ def add_parser(tsub: argparse._SubParsersAction) -> None:
 
 def bus_config(args: argparse.Namespace) -> dict:
     """python-can's precedence: flags, then python-can's configuration, else udp_multicast."""
-    cfg: dict = {}
-    for key in BUS_KEYS:
-        if key in args:
-            value = getattr(args, key)
-            if key == "bus_kwargs":
-                cfg.update(value)
-            else:
-                cfg[key] = value
+    from hil.cli.run import bus_config_from_args  # the flags as `railhil run` reads them
+
+    cfg = bus_config_from_args(args)
     interface = cfg.get("interface")
     if interface is not None and interface not in can.VALID_INTERFACES:
         raise TraceArgError(f"--interface {interface!r}: not a python-can interface; expected one of "
