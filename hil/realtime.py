@@ -48,6 +48,7 @@ START_MARGIN_S = 0.3           # t0 lies this far after the last process reporte
 JOIN_TIMEOUT_S = 10.0
 REALTIME_NICE = -10            # node processes ask for this priority where allowed (root, CAP_SYS_NICE)
 CATCH_UP_CYCLES = 5            # a node at most this many periods late catches up instead of skipping
+OBSERVE_AFTER_DEATH_S = 1.0    # after a node process dies, the others run on this long (its fail-safe)
 
 
 def resolve_bus_config(cli: dict, scenario: Scenario) -> dict:
@@ -298,16 +299,25 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
               + " ".join(f"{n}={p.pid}" for n, p in procs.items()), file=sys.stderr, flush=True)
         print(f"realtime: watch it live with: {watch_command(cfg, dbc_path)}", file=sys.stderr, flush=True)
         limit = time.monotonic() + START_MARGIN_S + scenario.max_duration_s / scenario.realtime.speed + 30.0
+        death: str | None = None          # a node died: the others run on for OBSERVE_AFTER_DEATH_S
+        observe_until = 0.0
         while True:
             if progress_q is not None:
                 _show_progress(progress_q, progress)
+            if death is not None and time.monotonic() >= observe_until:
+                raise NodeDied(death)
             try:
-                kind, name, detail = results.get(timeout=0.2)
+                kind, name, detail = results.get(timeout=0.05 if death else 0.2)
             except queue.Empty:
                 dead = [n for n, p in procs.items() if p.exitcode is not None and n not in payloads]
-                if dead:
+                if dead and death is None:
                     code = procs[dead[0]].exitcode
-                    raise NodeDied(f"node {dead[0]} died (exit code {code}); run ended") from None
+                    death = f"node {dead[0]} died (exit code {code}); run ended"
+                    if dead[0] == "PLANT":                # nothing left to observe
+                        raise NodeDied(death) from None
+                    print(f"realtime: node {dead[0]} died; the others run on for "
+                          f"{OBSERVE_AFTER_DEATH_S:g} s so their reaction is recorded", file=sys.stderr)
+                    observe_until = time.monotonic() + OBSERVE_AFTER_DEATH_S
                 if time.monotonic() > limit:
                     raise NodeDied("the plant did not finish within the scenario's max_duration_s") from None
                 continue
@@ -315,6 +325,8 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                 raise NodeDied(f"node {name} died: {detail}")
             if kind == "done":
                 reason = detail
+                if death is not None:
+                    raise NodeDied(death)
                 break
             if kind == "result":
                 payloads[name] = detail

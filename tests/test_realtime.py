@@ -158,21 +158,59 @@ def test_interrupt_closes_the_trace_and_writes_the_run_folder(tmp_path):
     assert kpis["end_reason"] == "interrupted"
 
 
-def test_a_node_that_dies_is_named(tmp_path):
+def kill_during_braking(tmp_path, node: str) -> tuple[float, str]:
+    """Start the default scenario, kill -9 `node` once braking is established (~2 s in), let the run
+    end; return the kill time on the run's own clock [s] and stderr."""
+    import os
+    import time
+
     proc = railhil_popen("run", str(DEFAULT), "--realtime", "--out", str(tmp_path), "-q")
     try:
         pids, line = wait_for_start(proc)
-        assert wait_for_frames(line, 200) == 200
-        import os
-
-        os.kill(pids["BECU2"], signal.SIGKILL)
+        assert wait_for_frames(line, 2500) == 2500          # ~1.7 s of traffic: the demand is up
+        killed_at = time.time()
+        os.kill(pids[node], signal.SIGKILL)
         _, err = proc.communicate(timeout=90)
     finally:
         proc.kill()
     assert proc.returncode == 4, err
     last = err.strip().splitlines()[-1]
-    assert last.startswith("error: ") and "BECU2" in last and "died" in last
-    assert (tmp_path / "trace.blf").exists()
+    assert last.startswith("error: ") and node in last and "died" in last, err
+    t0 = json.loads((tmp_path / "run.json").read_text())["trace_t0_s"]
+    return killed_at - t0, err
+
+
+def test_a_killed_becu_is_named_and_the_bcu_reports_it_silent_within_3_cycles(tmp_path):
+    kill_s, _ = kill_during_braking(tmp_path, "BECU2")
+    db = load_dbc()
+    status = db.get_message_by_name("BCU_STATUS")
+    with can.LogReader(str(tmp_path / "trace.blf")) as reader:     # readable up to the end
+        t0 = json.loads((tmp_path / "run.json").read_text())["trace_t0_s"]
+        rows = [(m.timestamp - t0, status.decode(bytes(m.data))) for m in reader
+                if m.arbitration_id == status.frame_id]
+    flagged = [t for t, sig in rows if sig["Degraded"] == 1 and sig["CarsSilent"] == 1 << 1]
+    assert flagged, rows[-5:]
+    # BECU2_STATUS every 50 ms: silent after 3 of them (150 ms), seen on the next BCU_STATUS (100 ms)
+    assert flagged[0] - kill_s <= 0.150 + 0.100 + 0.05, (kill_s, flagged[0])
+    # not degraded between start-up (no car heard yet) and the kill
+    assert all(sig["Degraded"] == 0 for t, sig in rows if 0.5 < t < kill_s)
+
+
+def test_a_killed_bcu_makes_every_becu_brake_within_100_ms(tmp_path):
+    """kill -9 of the BCU: every BECU loses its demand and applies fail-safe braking (plant truth);
+    the run goes on for a second to record it, then reports the dead node."""
+    import numpy as np
+
+    kill_s, err = kill_during_braking(tmp_path, "BCU")
+    assert "the others run on" in err
+    cols = np.genfromtxt(tmp_path / "truth.csv", delimiter=",", names=True)
+    t = cols["t_s"]
+    assert t[-1] > kill_s + 0.5                                   # the plant recorded the aftermath
+    before = np.searchsorted(t, kill_s - 0.02)
+    after = np.searchsorted(t, kill_s + 0.100)
+    for i in range(1, 7):
+        p = cols[f"p_Pa_{i}"]
+        assert p[after] > p[before] + 20e3, (i, p[before], p[after])   # every cylinder filling
 
 
 def test_unopenable_bus_is_one_line_and_falls_back_on_request(tmp_path):
