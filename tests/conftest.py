@@ -18,3 +18,23 @@ def default_lockstep(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("default-lockstep")
     return run_scenario_lockstep(load_scenario(DEFAULT), out)
+
+
+def railhil(capsys, *args) -> tuple[int, str, str]:
+    """`railhil ARGS` run in-process through hil.cli.main: (exit code, stdout, stderr)."""
+    from hil.cli.main import main
+
+    capsys.readouterr()
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_one_line_error(code: int, err: str, *needles: str) -> None:
+    """Bad input: exit 2 and one line `error: ...` naming each of `needles`, no traceback."""
+    assert code == 2, (code, err)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    assert "Traceback" not in err
+    for needle in needles:
+        assert needle in lines[0], lines[0]

@@ -18,8 +18,8 @@ import can
 import cantools
 import pytest
 from can.io.player import MESSAGE_READERS
+from conftest import assert_one_line_error, railhil
 
-from hil.cli.main import main
 from hil.run import run_scenario_lockstep
 from hil.scenario import load_scenario
 
@@ -47,12 +47,6 @@ TRACE_PARAMS = [pytest.param(p, id=str(p.relative_to(CORPUS))) for p in CORPUS_T
     pytest.param(None, marks=pytest.mark.skip(reason=f"no trace corpus at {CORPUS} (set RAILHIL_CORPUS)"))]
 
 
-def railhil(capsys, *args: str) -> tuple[int, str, str]:
-    """main() in-process: (exit code, stdout, stderr)."""
-    capsys.readouterr()
-    code = main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def railhil_process(*args: str, stdin: bytes | None = None) -> subprocess.CompletedProcess:
@@ -60,13 +54,6 @@ def railhil_process(*args: str, stdin: bytes | None = None) -> subprocess.Comple
                           cwd=ROOT, timeout=120)
 
 
-def assert_one_line_error(code: int, err: str, *needles: str) -> None:
-    assert code == 2, (code, err)
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), err
-    assert "Traceback" not in err
-    for needle in needles:
-        assert needle in lines[0], lines[0]
 
 
 def jsonl(text: str) -> list[dict]:

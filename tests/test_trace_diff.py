@@ -16,8 +16,8 @@ from pathlib import Path
 import can
 import cantools
 import pytest
+from conftest import assert_one_line_error, railhil
 
-from hil.cli.main import main
 from hil.run import run_scenario_lockstep
 from hil.scenario import load_scenario
 
@@ -29,20 +29,8 @@ NO_CORPUS = pytest.mark.skipif(not CORPUS.is_dir(),
                                reason=f"no trace corpus at {CORPUS} (set RAILHIL_CORPUS)")
 
 
-def railhil(capsys, *args) -> tuple[int, str, str]:
-    """main() in-process: (exit code, stdout, stderr)."""
-    capsys.readouterr()
-    code = main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
-def assert_one_line_error(code: int, err: str, *needles: str) -> None:
-    assert code == 2, (code, err)
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), err
-    for needle in needles:
-        assert needle in lines[0], lines[0]
 
 
 def diff_json(capsys, *args) -> tuple[int, dict, str]:

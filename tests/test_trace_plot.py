@@ -15,8 +15,8 @@ import can
 import cantools
 import matplotlib.image
 import pytest
+from conftest import assert_one_line_error, railhil
 
-from hil.cli.main import main
 from hil.cli.trace import plot
 from hil.codec import Codec
 from hil.dbc import load_dbc
@@ -34,20 +34,8 @@ SOCIALLEDGE_DBC = CORPUS / "cantools" / "tests" / "files" / "dbc" / "socialledge
 MULTIPLEX_DBC = CORPUS / "cantools" / "tests" / "files" / "dbc" / "multiplex.dbc"
 
 
-def railhil(capsys, *args) -> tuple[int, str, str]:
-    """main() in-process: (exit code, stdout, stderr)."""
-    capsys.readouterr()
-    code = main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
-def assert_one_line_error(code: int, err: str, *needles: str) -> None:
-    assert code == 2, (code, err)
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), err
-    for needle in needles:
-        assert needle in lines[0], lines[0]
 
 
 def cantools_series(trace: Path, dbc, message: str, signal: str) -> tuple[list[float], list[float]]:
