@@ -28,7 +28,8 @@ from hil.codec import Codec  # noqa: E402
 CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
 FRAMES = [
     (ROOT / "dbc" / "train_brake.dbc", "BECU1_PRESS_CMD",
-     {"CHECKSUM": 0x5A, "COUNTER": 7, "WspValve": 1, "CylPressureSet": 251_230.0, "ValveCmd": -0.4321}),
+     {"CHECKSUM": 0x5A, "COUNTER": 7, "WspValve": 1, "CylPressureSet": 251_000.0, "ValveCmd": -0.432,
+      "SecOCFreshness": 99, "SecOCMAC": 0xABCDEF}),
     (ROOT / "dbc" / "train_brake.dbc", "PLANT_CAR1_SENSORS",
      {"AxleSpeed": 61.235, "CylPressure": 180_000.0, "AccelLong": -0.987, "SensorCounter": 200}),
     (ROOT / "dbc" / "train_brake.dbc", "BCU_DEMAND",

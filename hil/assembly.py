@@ -46,7 +46,7 @@ def node_names(scenario: Scenario) -> list[str]:
 
 def becu_messages(i: int) -> tuple[list[str], list[str]]:
     return ([f"PLANT_CAR{i}_SENSORS", "BCU_DEMAND", "BCU_EMERGENCY"],
-            [f"BECU{i}_PRESS_CMD", f"BECU{i}_STATUS", f"BECU{i}_GOV"])
+            [f"BECU{i}_PRESS_CMD", f"BECU{i}_STATUS", f"BECU{i}_DIAG"])
 
 
 G_MPS2 = 9.81          # bar/g -> Pa per m/s²: 1 bar = 1e5 Pa, g = 9.81 m/s²

@@ -278,7 +278,8 @@ def test_codec_lookup() -> None:
     fc = codec[49]
     assert isinstance(fc, FrameCodec)
     assert (fc.frame_id, fc.name, fc.length, fc.is_extended_id) == (49, "BECU1_PRESS_CMD", 8, False)
-    assert fc.signal_names == ("CHECKSUM", "COUNTER", "WspValve", "CylPressureSet", "ValveCmd")
+    assert fc.signal_names == ("CHECKSUM", "COUNTER", "WspValve", "ValveCmd", "CylPressureSet",
+                               "SecOCFreshness", "SecOCMAC")
     assert codec.by_name("BECU1_PRESS_CMD") is fc
     assert codec.get(49) is fc
     assert codec.get(0x7FF) is None
@@ -291,7 +292,8 @@ def test_codec_lookup() -> None:
 
 # --- saturation: never raise, saturate, count -----------------------------------------------------
 
-NOMINAL = {"CHECKSUM": 0x5A, "COUNTER": 7, "WspValve": 1, "CylPressureSet": 250_000.0, "ValveCmd": 0.25}
+NOMINAL = {"CHECKSUM": 0x5A, "COUNTER": 7, "WspValve": 1, "CylPressureSet": 250_000.0, "ValveCmd": 0.2,
+           "SecOCFreshness": 0xA5, "SecOCMAC": 0x123456}
 
 
 @pytest.mark.parametrize(
@@ -306,10 +308,10 @@ NOMINAL = {"CHECKSUM": 0x5A, "COUNTER": 7, "WspValve": 1, "CylPressureSet": 250_
         ("ValveCmd", np.float64(-0.5), -0.5, 0),
         ("ValveCmd", np.float32(0.5), 0.5, 0),
         ("ValveCmd", None, 0.0, 0),
-        ("CylPressureSet", 1e12, 655_350.0, 1),
+        ("CylPressureSet", 1e12, 511_000.0, 1),
         ("CylPressureSet", -3.0, 0.0, 1),
-        ("CylPressureSet", 12_345.0, 12_340.0, 0),  # 1234.5 -> 1234: round half to even, as cantools
-        ("CylPressureSet", 12_355.0, 12_360.0, 0),  # 1235.5 -> 1236
+        ("CylPressureSet", 12_500.0, 12_000.0, 0),  # 12.5 -> 12: round half to even, as cantools
+        ("CylPressureSet", 13_500.0, 14_000.0, 0),  # 13.5 -> 14
         ("WspValve", 3, 2.0, 1),  # the bits hold 3, the DBC range stops at 2
         ("WspValve", "VENT", 2.0, 0),  # a choice name
         ("WspValve", "BOGUS", 0.0, 1),
@@ -344,7 +346,7 @@ def test_missing_signals_encode_as_raw_zero_without_counting() -> None:
 def test_in_range_encode_equals_cantools_strict_on_the_tolerance_edge() -> None:
     db, codec = train()
     message = db.get_message_by_name("BECU1_PRESS_CMD")
-    values = {**NOMINAL, "ValveCmd": -1.0 - 9e-11, "CylPressureSet": 655_350.0 + 9e-6}
+    values = {**NOMINAL, "ValveCmd": -1.0 - 9e-11, "CylPressureSet": 511_000.0 + 9e-6}
     assert codec[49].encode(values) == message.encode(values, strict=True)
 
 

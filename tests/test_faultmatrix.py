@@ -1,8 +1,7 @@
 """The threat matrix, generated as tests: every EN 50159 threat x every safety frame of a 6-car stop
 from 30 km/h, in lockstep.  Each cell must be detected by every receiver within 3 cycles and leave
-the train safe (plant truth); the pressure commands, not authenticated (no room in their frame),
-fail the masquerade cell: one car's brake released for the window.  They are marked so (strict
-xfail: the day they pass, the mark goes)."""
+the train safe (plant truth).  Every safety frame of this run is authenticated, so a masquerading
+rogue frame (correct E2E trailer, release claimed) is rejected by SecOC and releases no brake."""
 
 import json
 import subprocess
@@ -27,7 +26,6 @@ def matrix_scenario():
 
 SCENARIO = matrix_scenario()
 MESSAGES = safety_messages(SCENARIO, load_dbc())
-NOT_AUTHENTICATED = {f"BECU{i}_PRESS_CMD" for i in range(1, 7)}
 
 
 @pytest.fixture(scope="module")
@@ -42,11 +40,7 @@ def test_the_matrix_covers_every_safety_frame_of_the_run():
         f"BECU{i}_PRESS_CMD" for i in range(1, 7)}
 
 
-CELLS = [pytest.param(m, t, marks=pytest.mark.xfail(
-            strict=True, reason=f"{m} is not authenticated: a rogue frame with a correct E2E trailer "
-                                "passes and releases the brake (issue #9)"))
-         if (t == "masquerade" and m in NOT_AUTHENTICATED) else (m, t)
-         for m in MESSAGES for t in MESSAGE_THREATS]
+CELLS = [(m, t) for m in MESSAGES for t in MESSAGE_THREATS]
 
 
 @pytest.mark.parametrize("message, threat", CELLS)

@@ -2,7 +2,7 @@
 node going bus-off, and what the E2E check of the receivers reports."""
 
 import pytest
-from conftest import DEFAULT
+from conftest import DEFAULT, ROOT
 
 from hil.errors import ScenarioError
 from hil.run import run_scenario_lockstep
@@ -12,10 +12,21 @@ T0 = 3.0                     # fault window start [s]; BCU_DEMAND runs every 10 
 CYCLE_US = 10_000
 
 
-def scenario_with(*faults, seconds=3.3, seed=1):
+def scenario_with(*faults, seconds=3.3, seed=1, dbc=None):
     base = load_scenario(DEFAULT)
     return parse_scenario({**base.model_dump(), "seed": seed, "max_duration_s": seconds,
-                           "faults": list(faults)})
+                           "faults": list(faults), **({"dbc": str(dbc)} if dbc else {})})
+
+
+def e2e_only_dbc(tmp_path):
+    """The train DBC with BECU1_PRESS_CMD's SecOCDataID taken away: the frame keeps its layout, E2E
+    covers all 8 bytes and nothing authenticates it -- the pressure command as it was before issue #9."""
+    text = (ROOT / "dbc" / "train_brake.dbc").read_text()
+    line = 'BA_ "SecOCDataID" BO_ 49 49;\n'
+    assert line in text
+    path = tmp_path / "e2e_only.dbc"
+    path.write_text(text.replace(line, ""))
+    return path
 
 
 def e2e_events_after(report, node, message, t0_s=T0):
@@ -24,7 +35,7 @@ def e2e_events_after(report, node, message, t0_s=T0):
 
 
 MAC, STALE = "SECOC_MAC_MISMATCH", "SECOC_STALE_FRESHNESS"
-# what a receiver reports first: BCU_DEMAND is authenticated (SecOC, then E2E); BECU1_PRESS_CMD has E2E only
+# what a receiver reports first, by (threat, authenticated): SecOC verifies before the E2E check
 DETECTED_AS = {
     ("corruption", True): {MAC, STALE}, ("corruption", False): {"ERROR"},
     ("insertion", True): {MAC, STALE}, ("insertion", False): {"ERROR"},
@@ -38,33 +49,37 @@ DETECTED_AS = {
 RECEIVERS = {"BCU_DEMAND": [f"BECU{i}" for i in range(1, 7)], "BECU1_PRESS_CMD": ["PLANT"]}
 
 
-@pytest.mark.parametrize("message", sorted(RECEIVERS))
+@pytest.mark.parametrize("message, authenticated", [("BCU_DEMAND", True), ("BECU1_PRESS_CMD", True),
+                                                    ("BECU1_PRESS_CMD", False)])
 @pytest.mark.parametrize("kind", sorted({k for k, _ in DETECTED_AS}))
-def test_each_threat_on_a_safety_frame_is_detected_within_3_cycles(tmp_path, kind, message):
+def test_each_threat_on_a_safety_frame_is_detected_within_3_cycles(tmp_path, kind, message, authenticated):
     fault = {"kind": kind, "message": message, "from_s": T0, "to_s": T0 + 0.05}
     if kind == "delay":
         fault["delay_ms"] = 25.0
-    report = run_scenario_lockstep(scenario_with(fault), tmp_path / "run")
+    dbc = None if authenticated else e2e_only_dbc(tmp_path)
+    report = run_scenario_lockstep(scenario_with(fault, dbc=dbc), tmp_path / "run")
     assert report.outcome.faults["counts"][kind] >= 1
     first_injected_s = report.outcome.faults["events"][0][0]
     for receiver in RECEIVERS[message]:
         seen = e2e_events_after(report, receiver, message)
         assert seen, f"{receiver} never noticed the {kind}"
         t_us, status = seen[0]
-        assert status in DETECTED_AS[kind, message == "BCU_DEMAND"], (receiver, seen[:3])
+        assert status in DETECTED_AS[kind, authenticated], (receiver, seen[:3])
         assert t_us - first_injected_s * 1e6 <= 3 * CYCLE_US, (receiver, t_us, first_injected_s)
     assert report.kpis["frames_lost"] == 0
 
 
 def test_masquerade_passes_e2e_but_not_authentication(tmp_path):
     """E2E is not security: a rogue frame with the next counter and a correct CRC is accepted on an
-    E2E-only frame, and the legitimate frame that follows is the one discarded as REPEATED; on the
-    authenticated brake demand the rogue frame (no key: a guessed MAC) is dropped, and the
-    legitimate stream goes on unharmed."""
-    e2e_only = {"kind": "masquerade", "message": "BECU1_PRESS_CMD", "from_s": T0, "to_s": T0 + 0.05,
-                "signal": "CylPressureSet", "value": 0.0}
-    report = run_scenario_lockstep(scenario_with(e2e_only), tmp_path / "e2e")
+    E2E-only frame, and the legitimate frame that follows is the one discarded as REPEATED; on an
+    authenticated frame (the brake demand, the pressure command) the rogue frame (no key: a guessed
+    MAC) is dropped, and the legitimate stream goes on unharmed."""
+    rogue = {"kind": "masquerade", "message": "BECU1_PRESS_CMD", "from_s": T0, "to_s": T0 + 0.05,
+             "signal": "CylPressureSet", "value": 0.0}
+    report = run_scenario_lockstep(scenario_with(rogue, dbc=e2e_only_dbc(tmp_path)), tmp_path / "e2e")
     assert {s for _, s in e2e_events_after(report, "PLANT", "BECU1_PRESS_CMD")} == {"REPEATED"}
+    report = run_scenario_lockstep(scenario_with(rogue), tmp_path / "press-signed")
+    assert {s for _, s in e2e_events_after(report, "PLANT", "BECU1_PRESS_CMD")} == {MAC}
     signed = {"kind": "masquerade", "message": "BCU_DEMAND", "from_s": T0, "to_s": T0 + 0.05,
               "signal": "TargetDecel", "value": 0.0}
     report = run_scenario_lockstep(scenario_with(signed), tmp_path / "signed")

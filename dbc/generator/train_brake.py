@@ -14,7 +14,8 @@ Conventions
   `CHECKSUM` (byte 0) and `COUNTER` (low nibble of byte 1): the AUTOSAR E2E profile 1 layout.  The
   message attributes `E2EProfile` ("P01") and `E2EDataID` (the frame id: unique on this bus, data id
   mode BOTH) tell the node runtime to protect and check them (hil/e2e.py).
-- The brake demand and the emergency frame (whose EmergencyActive = 0 releases) are authenticated,
+- The brake demand, the pressure commands and the emergency frame (whose EmergencyActive = 0
+  releases) are authenticated,
   SecOC profile 1: bytes 0-3 are the E2E-protected authentic part, `SecOCFreshness` (byte 4) and
   `SecOCMAC` (bytes 5-7) the trailer; attribute `SecOCDataID` names the data id (hil/secoc.py).
 - Names: message `<SENDER>_<WHAT>`, per-car messages `<SENDER><n>_<WHAT>` / `PLANT_CAR<n>_<WHAT>`,
@@ -137,11 +138,13 @@ def messages() -> list[Msg]:
             e2e("the pressure command") + [
                 Sig("WspValve", 12, 2, maximum=2, comment="wheel-slide protection dump valve",
                     choices=WSP_CHOICES),
-                Sig("CylPressureSet", 16, 16, scale=10.0, maximum=655350.0, unit="Pa",
-                    comment="brake-cylinder pressure set-point (gauge)"),
-                Sig("ValveCmd", 32, 16, scale=0.0001, minimum=-1.0, maximum=1.0, signed=True,
+                # 9 bits each so that the SecOC trailer fits: 0.4 % of the valve's flow is the step of an
+                # 8-bit PWM valve driver, 1 kPa is finer than a 0.5 %-of-10-bar pressure transducer
+                Sig("ValveCmd", 14, 9, scale=0.004, minimum=-1.0, maximum=1.0, signed=True,
                     comment="EP valve opening: +1 full fill from the reservoir, -1 full vent"),
-            ]))
+                Sig("CylPressureSet", 23, 9, scale=1000.0, maximum=511000.0, unit="Pa",
+                    comment="brake-cylinder pressure set-point (gauge)"),
+            ] + secoc("the pressure command"), secoc_data_id=0x030 + i))
     for i in range(1, MAX_CARS + 1):
         msgs.append(Msg(
             0x100 + i, f"PLANT_CAR{i}_SENSORS", "PLANT", [f"BECU{i}", "BCU"], 10,
@@ -176,8 +179,8 @@ def messages() -> list[Msg]:
             ]))
     for i in range(1, MAX_CARS + 1):
         msgs.append(Msg(
-            0x150 + i, f"BECU{i}_GOV", f"BECU{i}", ["BCU"], 50,
-            f"Car {i}: BECU{i} reference governor (seed 001 eq. 9): governed reference and margin.",
+            0x150 + i, f"BECU{i}_DIAG", f"BECU{i}", ["BCU"], 50,
+            f"Car {i}: BECU{i} diagnostics: reference governor (seed 001 eq. 9) and sensor monitoring.",
             [
                 Sig("GovernedDecel", 0, 16, scale=0.001, maximum=65.535, unit="m/s^2",
                     comment="deceleration reference r the governor lets through (= the demand when off)"),
@@ -185,6 +188,12 @@ def messages() -> list[Msg]:
                     signed=True, comment="torque ceiling minus the largest predicted brake torque under r"),
                 Sig("GovernorFeasible", 32, 1, maximum=1,
                     comment="0 = not even r = 0 is admissible: the state left the governor's set"),
+                Sig("SpeedSensorFault", 33, 1, maximum=1,
+                    comment="1 = wheel-speed sensor stuck or implausible: excluded, WSP inhibited"),
+                Sig("AccelSensorFault", 34, 1, maximum=1,
+                    comment="1 = accelerometer biased or implausible: excluded, the axle speed is used"),
+                Sig("AccelBiasEst", 40, 12, scale=0.002, minimum=-4.096, maximum=4.094, unit="m/s^2",
+                    signed=True, comment="accelerometer reading minus the axle's acceleration, filtered"),
             ]))
     msgs += [
         Msg(0x160, "BCU_STATUS", "BCU", ["DESK"] + becus(), 100,
@@ -193,11 +202,13 @@ def messages() -> list[Msg]:
                 Sig("Mode", 0, 2, maximum=3, comment="BCU brake mode", choices=BCU_MODES),
                 Sig("BrakeStep", 2, 3, maximum=7, comment="brake step in force"),
                 Sig("Degraded", 5, 1, maximum=1,
-                    comment="1 = degraded: at least one car silent for 3 of its status cycles"),
+                    comment="1 = degraded: a car silent for 3 of its status cycles, or implausible"),
                 Sig("CarsSilent", 8, 8, maximum=255,
                     comment="bit i-1 set = no status from car i for 3 of its cycles (150 ms)"),
                 Sig("TrainSpeedEst", 16, 16, scale=0.01, maximum=655.35, unit="m/s",
-                    comment="train speed estimate (max of the cars' estimates)"),
+                    comment="train speed estimate (max of the plausible cars' estimates)"),
+                Sig("CarsImplausible", 32, 8, maximum=255,
+                    comment="bit i-1 set = car i's speed estimate disagrees with the train's: excluded"),
             ]),
         Msg(0x180, "RADIO_LEADER_POS", "PLANT", ["ACD"], 1000,
             "Radio link: position of the leading train (relayed by the control centre).",
