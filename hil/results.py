@@ -2,6 +2,10 @@
 
 KPIs come from the plant's ground truth (not from what the controllers believe); the demand the
 controllers were given is read back from the trace, decoded with the DBC.
+
+Runs whose BECUs use seed 001's deceleration PI (`[becu] control = "decel"`) also get the seed-001 KPIs
+under kpis.json's key "seed001" (`seed001_kpis`, definitions there) and, as plot.png, a figure laid out
+like the paper's Figs. 8-9 (`plot_seed001`).
 """
 
 from __future__ import annotations
@@ -19,8 +23,16 @@ from hil.codec import Codec
 from hil.errors import RailhilError
 from hil.plant_node import STANDSTILL_MPS
 from hil.scenario import Scenario
+from plant_sim.adhesion import mu_slip_speed_scalar
 
 MOVING_MPS = 0.5        # a car below this speed is not judged for slip or deceleration tracking
+G_MPS2 = 9.81           # g, the unit of seed 001's decelerations (plant_sim.params.TrainParams.g_mps2)
+SETTLE_BAND = 0.02      # settled: within ±2 % of the steady-state deceleration from then on (chosen)
+
+# Seed 001's published figures (Danielson & Di Cairano, ACC 2020, §IV-A), printed next to ours
+PAPER_FIG8_MEAN_ERROR_G = 0.0718      # Fig. 8a, no governor: lim 1/T ∫ r⁰ − v̇ dt (WSP limit cycle)
+PAPER_FIG8_SS_ERROR_G = 0.0682        # Fig. 8b, governor: lim r⁰ − v̇, reference cut to r ≈ 0.2 g
+PAPER_FIG8_STOPPING_GAIN_M = 1.62     # §IV-A: the governor improves stopping accuracy over 30 s by this
 
 
 def write_truth_csv(columns: dict[str, np.ndarray], path: Path) -> None:
@@ -106,15 +118,140 @@ def compute_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[
     if n > 1:
         dl = np.column_stack([cols[f"coupler_dl_m_{i}"] for i in range(1, n)])
         kpis["max_abs_coupler_dl_m"] = round(float(np.max(np.abs(dl))), 4)
+    if scenario.becu.control == "decel":
+        kpis["seed001"] = seed001_kpis(scenario, cols, target, t_brake, i_stop)
     return kpis
 
 
-def plot_run(scenario: Scenario, cols: dict[str, np.ndarray], path: Path, title: str) -> None:
+def _r(x: float | None, nd: int = 4) -> float | None:
+    return None if x is None else round(float(x), nd) + 0.0      # + 0.0: no "-0.0"
+
+
+def seed001_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[np.ndarray, np.ndarray],
+                 t_brake: float, i_stop: int) -> dict:
+    """Seed 001's figures of merit, from the plant's truth (decelerations in g, g = 9.81 m/s²).
+
+    * braking window: from the first brake command to the stop or the end of the run, samples (10 ms)
+      where the train moves (faster than MOVING_MPS); r⁰ is BCU_DEMAND.TargetDecel from the trace, v̇ the
+      mass-weighted train deceleration of the truth.
+    * `max_slip_every_step_mps`: per car, the largest true slip speed v − rω over EVERY 1 ms plant step
+      up to the window's last sample (plant truth column slip_speed_max_mps, not the 10 ms samples);
+      `slip_within_limit`: whether that is ≤ s̄ = `slip_limit_mps` (becu.slip_max_mps, eq. (8)).
+    * `wsp_activations`, `wsp_time_s`: per car, FILL→VENT transitions of the applied WSP valve and the
+      time it was not FILL [s].
+    * `mean_error_g`: mean of r⁰ − v̇ over the window (the paper's lim 1/T ∫ r⁰ − v̇ dt, Fig. 8a).
+    * steady state: the last `report.steady_state_window_s` of the window, at most its second half;
+      `steady_state_error_g` is mean r⁰ − v̇ there, `steady_state_bound_g` = r⁰ − μ(s̄)·g with μ the
+      scenario's adhesion curve (plant.adhesion = "slip_speed"; else None): the smallest steady error
+      any reference can give without s > s̄, and `steady_state_excess_g` = error − bound.
+    * `settling_time_s`: from the brake command to the first sample after which v̇ stays within
+      ±SETTLE_BAND of its steady-state mean until the window ends; None (not settled) when v̇ leaves
+      that band inside the steady-state window itself (a limit cycle);
+      `overshoot_g`: largest v̇ in the window less that mean.
+    * `distance_m`: distance travelled over the window; `beyond_ideal_m`: how much farther than ideal
+      braking at exactly r⁰(t) from the same start, = ∬ (r⁰ − v̇) dt². The paper's stopping-accuracy
+      effect (1.62 m) is the difference of `distance_m` between the runs without and with governor.
+    """
+    n = scenario.train.cars
+    t = cols["t_s"]
+    v = _per_car(cols, "v_mps", n)
+    a = _per_car(cols, "a_mps2", n)
+    masses = np.asarray(scenario.train.masses())
+    decel = -(a @ masses) / masses.sum()
+    tt, tv = target
+    r0 = np.interp(t, tt, tv, left=0.0) if tt.size else np.zeros_like(t)
+    window = (t >= t_brake) & (np.arange(len(t)) <= i_stop) & np.any(v > MOVING_MPS, axis=1)
+    idx = np.flatnonzero(window)
+    s_bar = scenario.becu.slip_max_mps
+    out: dict = {"slip_limit_mps": s_bar, "paper_figure": scenario.report.paper_figure}
+    wsp = _per_car(cols, "wsp_valve", n)
+    vent = wsp == 2
+    out["wsp_activations"] = [int(k) for k in np.sum(vent[1:] & ~vent[:-1], axis=0) + vent[0]]
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    out["wsp_time_s"] = [round(float(k) * dt, 3) for k in np.sum(wsp != 0, axis=0)]
+    if idx.size < 2:
+        out["window_s"] = None
+        return out
+    i1 = int(idx[-1])
+    tw, dw, rw = t[idx], decel[idx], r0[idx]
+    s_max = _per_car(cols, "slip_speed_max_mps", n)[i1]
+    out["max_slip_every_step_mps"] = [round(float(s), 5) for s in s_max]
+    out["slip_within_limit"] = [bool(s <= s_bar) for s in s_max]
+    out["window_s"] = [round(float(tw[0]), 3), round(float(tw[-1]), 3)]
+    err = rw - dw
+    out["mean_error_g"] = _r(float(np.mean(err)) / G_MPS2)
+    span = tw[-1] - tw[0]
+    ss = tw >= tw[-1] - min(scenario.report.steady_state_window_s, span / 2.0)
+    out["steady_state_window_s"] = [round(float(tw[ss][0]), 3), round(float(tw[-1]), 3)]
+    d_ss = float(np.mean(dw[ss]))
+    r0_ss = float(np.mean(rw[ss]))
+    out["steady_state_decel_g"] = _r(d_ss / G_MPS2)
+    out["steady_state_error_g"] = _r((r0_ss - d_ss) / G_MPS2)
+    bound = None
+    if scenario.plant.adhesion == "slip_speed":
+        mu_bar = mu_slip_speed_scalar(s_bar, scenario.plant.mu_peak, scenario.plant.slip_peak_mps)
+        bound = max(r0_ss / G_MPS2 - mu_bar, 0.0)
+        out["mu_at_slip_limit"] = _r(mu_bar, 5)
+    out["steady_state_bound_g"] = _r(bound)
+    out["steady_state_excess_g"] = _r(None if bound is None else (r0_ss - d_ss) / G_MPS2 - bound)
+    outside = np.flatnonzero(np.abs(dw - d_ss) > SETTLE_BAND * abs(d_ss))
+    if outside.size == 0:
+        settle = 0.0
+    elif outside[-1] + 1 < len(tw) and not ss[outside[-1]]:
+        settle = float(tw[outside[-1] + 1]) - t_brake
+    else:
+        settle = None          # still outside the band in the steady-state window: not settled
+    out["settling_time_s"] = _r(settle, 3)
+    out["overshoot_g"] = _r((float(np.max(dw)) - d_ss) / G_MPS2)
+    x = cols["x_m_1"]
+    x_b = float(np.interp(t_brake, t, x))
+    v_b = float(np.interp(t_brake, t, cols["v_mps_1"]))
+    dist = float(x[i1]) - x_b
+    # x_ideal(T) = x_b + v_b (T − t_b) − ∫ (T − t) r⁰(t) dt over [t_b, T]
+    seg = (t >= t_brake) & (np.arange(len(t)) <= i1)
+    ideal = v_b * (t[i1] - t_brake) - float(np.trapezoid((t[i1] - t[seg]) * r0[seg], t[seg]))
+    out["distance_m"] = round(dist, 3)
+    out["beyond_ideal_m"] = round(dist - ideal, 3)
+    return out
+
+
+def read_signals(trace: Path, db: Database, codec: Codec, wanted: dict[str, tuple[str, str]],
+                 t0_s: float = 0.0, speed: float = 1.0) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Several signals of a trace in one pass: name -> (message, signal) in, name -> (simulated times
+    [s], values) out (a message the DBC lacks gives empty arrays)."""
+    by_id: dict[int, list[tuple[str, str]]] = {}
+    for name, (message, signal) in wanted.items():
+        try:
+            fid = db.get_message_by_name(message).frame_id
+        except KeyError:
+            continue
+        by_id.setdefault(fid, []).append((name, signal))
+    series: dict[str, tuple[list, list]] = {name: ([], []) for name in wanted}
+    with can.LogReader(str(trace)) as reader:
+        for msg in reader:
+            entries = by_id.get(msg.arbitration_id)
+            if entries is None or msg.is_error_frame or msg.is_remote_frame:
+                continue
+            decoded = codec[msg.arbitration_id].decode(bytes(msg.data))
+            for name, signal in entries:
+                series[name][0].append((msg.timestamp - t0_s) * speed)
+                series[name][1].append(decoded[signal])
+    return {name: (np.asarray(ts), np.asarray(vs)) for name, (ts, vs) in series.items()}
+
+
+def plot_run(scenario: Scenario, cols: dict[str, np.ndarray], path: Path, title: str,
+             trace_t0_s: float | None = None, trace_speed: float = 1.0) -> None:
+    """plot.png: speed, cylinder pressure and slip per car; for seed-001 runs (control = "decel") the
+    layout of the paper's Figs. 8-9 instead (`plot_seed001`), which also reads the trace next to it
+    (trace_t0_s: the trace's timestamp at simulated time 0; None = lockstep, whose trace starts at 0)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if scenario.becu.control == "decel":
+        plot_seed001(scenario, cols, path, title, trace_t0_s, trace_speed)
+        return
     n = scenario.train.cars
     t = cols["t_s"]
     fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
@@ -130,6 +267,72 @@ def plot_run(scenario: Scenario, cols: dict[str, np.ndarray], path: Path, title:
     for ax in axes:
         ax.grid(True, alpha=0.3)
     fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _wsp_intervals(t: np.ndarray, active: np.ndarray) -> list[tuple[float, float]]:
+    """[start, end) times [s] of the runs of True in `active` (sampled at t)."""
+    edges = np.diff(np.concatenate([[0], active.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    step = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    return [(float(t[a]), float(t[b - 1]) + step) for a, b in zip(starts, ends, strict=True)]
+
+
+def plot_seed001(scenario: Scenario, cols: dict[str, np.ndarray], path: Path, title: str,
+                 trace_t0_s: float | None = None, trace_speed: float = 1.0) -> None:
+    """Seed 001's Figs. 8-9 for a run: deceleration v̇ with the requested r⁰ and the governed r (car 1's
+    BECU1_DIAG.GovernedDecel, from the trace), true slip speed with s̄, cylinder pressure p with the
+    set-point u, brake torque τ; WSP intervals (any car's WSP valve not FILL) shaded on every panel."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from hil.dbc import DEFAULT_DBC, load_dbc
+
+    n = scenario.train.cars
+    t = cols["t_s"]
+    trace = path.parent / "trace.blf"
+    sig: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    if trace.exists():
+        db = load_dbc(Path(scenario.dbc) if scenario.dbc else DEFAULT_DBC)
+        sig = read_signals(trace, db, Codec(db), {"r0": ("BCU_DEMAND", "TargetDecel"),
+                                                  "r": ("BECU1_DIAG", "GovernedDecel")},
+                           0.0 if trace_t0_s is None else trace_t0_s, trace_speed)
+        end = float(t[-1]) + 1.0 if len(t) else 0.0
+        if trace_t0_s is None and any(ts.size and ts[0] > end for ts, _ in sig.values()):
+            sig = {}                 # a real-time trace (wall-clock timestamps) without its t0: not aligned
+    fig, axes = plt.subplots(4, 1, figsize=(10, 11), sharex=True)
+    ax_d, ax_s, ax_p, ax_t = axes
+    for i in range(1, n + 1):
+        lbl = f" car {i}" if n > 1 else ""
+        ax_d.plot(t, -cols[f"a_mps2_{i}"] / G_MPS2, lw=0.8, label="v̇ (plant)" + lbl)
+        ax_s.plot(t, cols[f"slip_speed_mps_{i}"], lw=0.8, label="s = v − rω" + lbl)
+        ax_p.plot(t, cols[f"p_Pa_{i}"] / 1e5, lw=0.8, label="p" + lbl)
+        if f"p_set_Pa_{i}" in cols:
+            ax_p.plot(t, cols[f"p_set_Pa_{i}"] / 1e5, lw=0.8, ls="--", label="u (set-point)" + lbl)
+        ax_t.plot(t, cols[f"tau_Nm_{i}"] / 1e3, lw=0.8, label="τ" + lbl)
+    if "r0" in sig and sig["r0"][0].size:
+        ax_d.step(sig["r0"][0], sig["r0"][1] / G_MPS2, where="post", color="k", lw=1.0, label="r⁰ (demand)")
+    if scenario.becu.governor and "r" in sig and sig["r"][0].size:
+        ax_d.step(sig["r"][0], sig["r"][1] / G_MPS2, where="post", color="tab:red", lw=1.0,
+                  label="r (governed, car 1)")
+    ax_s.axhline(scenario.becu.slip_max_mps, color="tab:red", ls=":", lw=1.0,
+                 label=f"s̄ = {scenario.becu.slip_max_mps} m/s")
+    wsp = _per_car(cols, "wsp_valve", n) != 0
+    for ax in axes:
+        for a, b in _wsp_intervals(t, np.any(wsp, axis=1)):
+            ax.axvspan(a, b, color="tab:orange", alpha=0.25, lw=0)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8, loc="upper right")
+    ax_d.set_ylabel("deceleration [g]")
+    ax_s.set_ylabel("slip speed [m/s]")
+    ax_p.set_ylabel("cylinder pressure [bar]")
+    ax_t.set_ylabel("brake torque [kN m]")
+    ax_t.set_xlabel("time [s]   (shaded: WSP engaged)")
+    fig.suptitle(f"{title}, reference governor {'on' if scenario.becu.governor else 'off'}")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -158,12 +361,51 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
         injected = ", ".join(f"{k} {v}" for k, v in (kpis.get("faults_injected") or {}).items()) or "none"
         seen = ", ".join(f"{k} {v}" for k, v in kpis.get("protection_events", {}).items()) or "nothing"
         lines.append(f"faults injected         {injected}; receivers reported {seen}")
+    lines += seed001_summary_lines(kpis.get("seed001"))
     bus = kpis.get("bus")
     if bus:
         lines.append(f"bus ({bus['bitrate_bps'] // 1000} kbit/s)       load {100 * bus['load']:.1f} %, "
                      f"worst response {bus['worst_response_us']:.0f} us ({bus['worst_response_message']}), "
                      f"{bus['deadline_misses']} deadline misses")
     lines.append("files: " + ", ".join(str(f) for f in files))
+    return lines
+
+
+def seed001_summary_lines(k: dict | None) -> list[str]:
+    """The seed-001 KPIs as summary lines, with the paper's figure next to ours where the scenario redoes
+    one of its figures ([report] paper_figure)."""
+    if not k or k.get("window_s") is None:
+        return []
+    fig8 = k.get("paper_figure") == "seed001_fig8"
+
+    def paper(text: str) -> str:
+        return f"   (paper: {text})" if fig8 else ""
+
+    held = all(k["slip_within_limit"])
+    lines = [
+        "max slip, every step    " + " ".join(f"{s:.4f}" for s in k["max_slip_every_step_mps"])
+        + f" m/s: s {'≤' if held else '>'} s̄ = {k['slip_limit_mps']} m/s "
+        + ("at every plant step" if held else "NOT held"),
+        "WSP per car             " + ", ".join(f"{a} activations / {w:.2f} s"
+                                               for a, w in zip(k["wsp_activations"], k["wsp_time_s"],
+                                                               strict=True)),
+        f"mean decel error        {k['mean_error_g']:.4f} g over "
+        f"{k['window_s'][0]:.1f}-{k['window_s'][1]:.1f} s"
+        + paper(f"{PAPER_FIG8_MEAN_ERROR_G} g without governor, Fig. 8a"),
+        f"steady-state error      {k['steady_state_error_g']:.4f} g over {k['steady_state_window_s'][0]:.1f}-"
+        f"{k['steady_state_window_s'][1]:.1f} s"
+        + (f", bound r⁰ − μ(s̄)g {k['steady_state_bound_g']:.4f} g ({k['steady_state_excess_g']:+.4f} g)"
+           if k.get("steady_state_bound_g") is not None else "")
+        + paper(f"{PAPER_FIG8_SS_ERROR_G} g with governor, Fig. 8b"),
+        "decel settling (±2 %)   " + (f"{k['settling_time_s']:.2f} s" if k["settling_time_s"] is not None
+                                      else "not settled") + f", overshoot {k['overshoot_g']:.4f} g",
+        f"distance over manoeuvre {k['distance_m']:.2f} m, "
+        f"{k['beyond_ideal_m']:.2f} m beyond ideal r⁰ braking"
+        + paper(f"governor gains {PAPER_FIG8_STOPPING_GAIN_M} m: compare runs with becu.governor on/off"),
+    ]
+    if k.get("paper_figure") == "seed001_fig9":
+        lines.append("paper, Fig. 9 (no figures published): without governor overshoot into WSP and cycling; "
+                     "with it no WSP and faster settling")
     return lines
 
 

@@ -7,7 +7,10 @@ reference example.
 
 from __future__ import annotations
 
+import difflib
 import tomllib
+import types
+import typing
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -232,6 +235,16 @@ class BecuSpec(_Strict):
         return self
 
 
+class ReportSpec(_Strict):
+    """What the run reports beyond the standard KPIs."""
+
+    # the paper figure this scenario redoes: its published numbers are printed next to ours in the run
+    # summary (hil.results); the seed-001 KPIs themselves are computed for every control = "decel" run
+    paper_figure: Literal["seed001_fig8", "seed001_fig9"] | None = None
+    # steady state = the last this many seconds of the braking window (at most its second half) [s]
+    steady_state_window_s: Annotated[float, Field(gt=0, le=600)] = 10.0
+
+
 class SecOcSpec(_Strict):
     """Keys of the authenticated messages (DBC attribute SecOCDataID): AES-128, 32 hex digits."""
 
@@ -284,6 +297,7 @@ class Scenario(_Strict):
     sensors: SensorSpec = Field(default_factory=SensorSpec)
     bcu: BcuSpec = Field(default_factory=BcuSpec)
     becu: BecuSpec = Field(default_factory=BecuSpec)
+    report: ReportSpec = Field(default_factory=ReportSpec)
 
     @model_validator(mode="after")
     def _governor_needs_curve(self) -> Scenario:
@@ -328,7 +342,98 @@ def parse_scenario(data: dict, source: str = "<scenario>") -> Scenario:
         raise ScenarioError(f"{source}: {_describe(errors[0])}{more}") from None
 
 
-def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
+# ------------------------------------------------------------------------------ --set KEY=VALUE overrides
+def _unwrap(annotation):
+    """The type behind Optional[...] / Annotated[...]: (kind, inner) with kind "model", "dict", "list" or
+    "value"."""
+    while True:
+        origin = typing.get_origin(annotation)
+        if origin is Annotated:
+            annotation = typing.get_args(annotation)[0]
+        elif origin in (typing.Union, types.UnionType):
+            args = [a for a in typing.get_args(annotation) if a is not type(None)]
+            if len(args) != 1:
+                return "value", annotation
+            annotation = args[0]
+        else:
+            break
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return "model", annotation
+    if origin is dict:
+        return "dict", typing.get_args(annotation)[1]
+    if origin is list:
+        return "list", typing.get_args(annotation)[0]
+    return "value", annotation
+
+
+def parse_set(text: str) -> tuple[str, object]:
+    """`KEY=VALUE` of `railhil run --set`: the dotted scenario key and the value parsed as TOML
+    (`true`, `0.25`, `"decel"`, `[0.0, 1.0]`); text that is not a TOML value is taken as a string, so
+    `becu.control=decel` works without shell-quoted quotes."""
+    key, sep, raw = text.partition("=")
+    key, raw = key.strip(), raw.strip()
+    if not sep or not key or not raw:
+        raise ScenarioError(f"--set {text!r}: expected KEY=VALUE with a dotted scenario key, "
+                            f"e.g. becu.governor=false")
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    return key, value
+
+
+def apply_set(data: dict, key: str, value: object, source: str) -> None:
+    """Put `value` at the dotted `key` of the raw scenario table `data` (in place), checking every part
+    of the key against the Scenario model: an unknown key is a ScenarioError naming the closest valid
+    one. Lists take an index (`desk.0.at_s`); dicts of models take any name (`nodes.BECU3.drift_ppm`).
+    The value itself is validated with the whole scenario afterwards (parse_scenario)."""
+    parts = key.split(".")
+    kind, inner = "model", Scenario
+    node: object = data
+    for depth, part in enumerate(parts):
+        here = ".".join(parts[:depth + 1])
+        last = depth == len(parts) - 1
+        if kind == "model":
+            fields = inner.model_fields
+            if part not in fields:
+                close = difflib.get_close_matches(part, list(fields), n=1, cutoff=0.5)
+                hint = (f"; did you mean '{'.'.join(parts[:depth] + close)}'?" if close
+                        else f"; valid keys here: {', '.join(fields)}")
+                raise ScenarioError(f"{source}: --set {key}: '{here}' is not a scenario key{hint}")
+            kind, inner = _unwrap(fields[part].annotation)
+        elif kind == "dict":
+            kind, inner = _unwrap(inner)
+        elif kind == "list":
+            items = node
+            if not part.isdigit() or not isinstance(items, list) or int(part) >= len(items):
+                n = len(items) if isinstance(items, list) else 0
+                raise ScenarioError(f"{source}: --set {key}: '{here}' needs an index below {n} of "
+                                    f"the scenario's list '{'.'.join(parts[:depth])}'")
+            if last:
+                items[int(part)] = value
+                return
+            node = items[int(part)]
+            kind, inner = _unwrap(inner)
+            continue
+        else:
+            raise ScenarioError(f"{source}: --set {key}: '{'.'.join(parts[:depth])}' is a value, "
+                                f"it has no key '{part}'")
+        assert isinstance(node, dict)
+        if last:
+            node[part] = value
+            return
+        child = node.get(part)
+        if child is None:
+            child = node[part] = {} if kind in ("model", "dict") else []
+        if kind in ("model", "dict") and not isinstance(child, dict):
+            raise ScenarioError(f"{source}: --set {key}: '{here}' is not a table in the scenario")
+        node = child
+
+
+def load_scenario(path: str | Path, overrides: dict | None = None,
+                  sets: list[str] | tuple[str, ...] = ()) -> Scenario:
+    """Load and validate a scenario file. `overrides` replace top-level keys; `sets` are `railhil run
+    --set KEY=VALUE` texts (dotted keys, TOML values) applied after them, in order."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -342,7 +447,18 @@ def load_scenario(path: str | Path, overrides: dict | None = None) -> Scenario:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
     for key, value in (overrides or {}).items():
         data[key] = value
-    scenario = parse_scenario(data, str(path))
+    set_keys = []
+    for text in sets:
+        key, value = parse_set(text)
+        apply_set(data, key, value, str(path))
+        set_keys.append(key)
+    try:
+        scenario = parse_scenario(data, str(path))
+    except ScenarioError as exc:
+        given = [k for k in set_keys if f"key '{k}'" in str(exc)]
+        if given:
+            raise ScenarioError(f"{exc} (given by --set {given[-1]}=...)") from None
+        raise
     if scenario.dbc is not None:
         dbc_path = (path.parent / scenario.dbc).resolve()
         scenario = scenario.model_copy(update={"dbc": str(dbc_path)})

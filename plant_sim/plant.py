@@ -120,6 +120,8 @@ class TruthSnapshot(NamedTuple):
     u: list          # EP valve command applied over the last step [-]
     w: list          # WSP dump valve state applied over the last step (0 FILL, 1 HOLD, 2 VENT)
     theta: list      # adhesion curve parameters (θ1, θ2, θ3) at the car
+    s_max: list      # largest slip speed v − rω over EVERY integration step since the start [m/s]
+    p_set: list      # cylinder pressure set-point applied over the last step [Pa] ("lag" model; else 0)
 
 
 class Plant:
@@ -162,6 +164,8 @@ class Plant:
         self._p = [0.0] * n
         self._tau = [0.0] * n
         self._u_list: list = [0.0] * n          # inputs of the last step, as applied
+        self._ps_list: list = [0.0] * n         # pressure set-points of the last step ("lag" model)
+        self._s_max: list = [0.0] * n           # running max of s over every step (seed 001: s ≤ s̄ always)
         self._w_list: list = [0] * n
         self._shape = (n,)
         self._f_other = [0.0] * n               # every force but adhesion over the last step
@@ -228,6 +232,7 @@ class Plant:
             ps = [0.0] * self._n if pressure_set is None else np.asarray(pressure_set, dtype=float).tolist()
             if len(ps) != self._n:
                 raise PlantConfigError(f"Plant.step: need {self._n} pressure set-points, got {len(ps)}")
+            self._ps_list = ps
             phi, p_max, bp = self._phi, self._bp.p_max_Pa, self._bp
             p, tau = [], []
             for p_i, tau_i, ps_i, w_i in zip(self._p, self._tau, ps, w_list, strict=True):
@@ -270,6 +275,7 @@ class Plant:
             f_others.append(f_other)
 
         self._x, self._v_prev, self._v, self._s = x_new, v, v_new, s_new
+        self._s_max = list(map(max, self._s_max, s_new))
         self._p, self._tau, self._f_other = p, tau, f_others
         self._u_list, self._w_list = u_list, w_list
         self._n_steps += 1
@@ -305,13 +311,14 @@ class Plant:
         θ is copied because a blend updates it in place. `truth_series` turns snapshots into truth.
         """
         return TruthSnapshot(self._x, self._v_prev, self._v, self._s, self._p, self._tau, self._f_other,
-                             self._u_list, self._w_list, list(self._theta))
+                             self._u_list, self._w_list, list(self._theta), self._s_max, self._ps_list)
 
     def truth_series(self, snaps: Sequence[TruthSnapshot]) -> dict[str, np.ndarray]:
         """Ground truth for a sequence of snapshots: the keys of `truth()`, arrays (k, n) per car and
         (k, n − 1) per coupler, derived in one pass at the end of a run rather than every sample."""
         ap, cc = self._ap, self._cc
-        x, v_prev, v, s, p, tau, f_other, u, w, theta = (np.array(col) for col in zip(*snaps, strict=True))
+        x, v_prev, v, s, p, tau, f_other, u, w, theta, s_max, p_set = (np.array(col)
+                                                                      for col in zip(*snaps, strict=True))
         sigma = slip_ratio(s, v)
         dl = coupler_extension(x, cc)
         accel = (v - v_prev) * (1.0 / self._dt)
@@ -321,12 +328,15 @@ class Plant:
             "a_mps2": accel,
             "omega_rad_s": (v - s) * (1.0 / cc.r_m),
             "slip_speed_mps": s,
+            # running max of s over every integration step since the start (not only these samples)
+            "slip_speed_max_mps": s_max.astype(float),
             "slip_ratio": sigma,
             "mu": mu(theta, sigma, v, ap),
             "mu_opt": _mu_opt(theta, v, ap),
             "sigma_opt": _sigma_opt(theta, v, ap),
             "p_Pa": p.astype(float),
             "tau_Nm": tau.astype(float),
+            "p_set_Pa": p_set.astype(float),        # "lag" model: CylPressureSet as applied; else 0
             "valve_cmd": np.clip(u.astype(float), -1.0, 1.0),
             "wsp_valve": w.astype(np.int64),
             # the adhesion force that moved the car over the last step, F_other − m v̇ (eq. (3) seed 003);

@@ -1,11 +1,13 @@
 """Reference governor (seed 001 eq. 9, firmware_py.governor): unit tests and the safety property test.
 
-The property test samples closed-loop states and requests, lets the governor choose r, then runs the
-model the governor reasons about -- PI (eq. 16) through firmware_py.pi, cylinder lag (eq. 4), hysteresis
-(eq. 10a) -- with r held constant against friction sequences inside the inclusion that switch the
-scheduling parameter ξ every step, and checks the slip itself: the slip ODE of eq. (3) is integrated at
-1 ms with a curve of the family (seed 001's μ(s) with the issue's peak), the friction being the curve's
-value at the current slip. Accepted states never lead to s > s̄.
+The property test samples closed-loop states (150 per PI, two PIs) and requests, lets the governor choose
+r, then runs the closed loop -- PI (eq. 16) through firmware_py.pi, cylinder lag (eq. 4), hysteresis
+(eq. 10a) -- with r held constant for 8 s against friction sequences inside the inclusion that switch the
+scheduling parameter ξ every 10 ms step (random bits, alternating, random interior values, random
+blocks). The friction force F follows the inclusion F⁺ = a(ξ) F + (1 − a(ξ)) κ τ and the slip is read
+back through the inverse of the issue's curve (s = f⁻¹(F) below the peak). Accepted states never lead to
+s > s̄. The nonlinear slip ODE of eq. (3) itself, integrated at 1 ms by the plant, is checked on the
+lockstep runs of tests/test_seed001.py (s ≤ s̄ at every plant step).
 """
 
 from __future__ import annotations

@@ -55,3 +55,61 @@ def test_rail_condition_as_a_table_reaches_the_plant(tmp_path):
 def test_missing_file(tmp_path):
     with pytest.raises(ScenarioError, match="no such scenario file"):
         load_scenario(tmp_path / "nope.toml")
+
+
+# ------------------------------------------------------------------------------ railhil run --set KEY=VALUE
+RG = ROOT / "scenarios" / "rg_low_adhesion.toml"
+
+
+@pytest.mark.parametrize("text, key, value", [
+    ("becu.governor=false", "becu.governor", False),
+    ("train.initial_speed_kmh=120", "train.initial_speed_kmh", 120),
+    ("becu.control=decel", "becu.control", "decel"),             # not TOML: taken as a string
+    ('becu.control="decel"', "becu.control", "decel"),
+    ("bcu.step_decel_mps2=[0.0, 1, 2, 3, 4, 5, 6, 7]", "bcu.step_decel_mps2", [0.0, 1, 2, 3, 4, 5, 6, 7]),
+    (" seed = 3 ", "seed", 3),
+])
+def test_set_values_are_toml(text, key, value):
+    from hil.scenario import parse_set
+
+    assert parse_set(text) == (key, value)
+
+
+def test_set_overrides_nested_keys_and_validates_them():
+    base = load_scenario(RG)
+    sc = load_scenario(RG, sets=["becu.governor=false", "train.initial_speed_kmh=100",
+                                 "nodes.BECU1.drift_ppm=50", "desk.0.at_s=1.5",
+                                 "report.paper_figure=seed001_fig9"])
+    assert base.becu.governor and not sc.becu.governor
+    assert sc.train.initial_speed_kmh == 100.0 and sc.nodes["BECU1"].drift_ppm == 50.0
+    assert sc.desk[0].at_s == 1.5 and sc.desk[0].brake_step == base.desk[0].brake_step
+    assert sc.becu.model_dump(exclude={"governor"}) == base.becu.model_dump(exclude={"governor"})
+
+
+@pytest.mark.parametrize("text, needles", [
+    ("becu.govrnor=false", ["becu.govrnor", "not a scenario key", "did you mean 'becu.governor'"]),
+    ("bcu.jerk_limit=5", ["bcu.jerk_limit", "did you mean 'bcu.jerk_limit_mps3'"]),
+    ("becu.governor=maybe", ["becu.governor", "'maybe'", "valid boolean", "--set becu.governor"]),
+    ("becu.control=pid", ["becu.control", "'pid'", "'pressure' or 'decel'"]),
+    ("train.cars=12", ["train.cars", "12", "less than or equal to 8"]),
+    ("train.cars.x=1", ["train.cars", "is a value"]),
+    ("desk.5.at_s=1", ["desk.5", "index below 1"]),
+    ("becu.governor", ["KEY=VALUE"]),
+])
+def test_bad_set_is_one_line_naming_the_key(text, needles):
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(RG, sets=[text])
+    msg = str(err.value)
+    assert "\n" not in msg
+    for needle in needles:
+        assert needle in msg, msg
+
+
+def test_cli_bad_set_exits_2_with_one_line(capsys, tmp_path):
+    from hil.cli.main import main
+
+    code = main(["run", str(RG), "--set", "becu.slip_max=0.2", "--out", str(tmp_path / "run"), "-q"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.count("\n") == 0
+    assert err.startswith("error: ") and "did you mean 'becu.slip_max_mps'" in err
+    assert not (tmp_path / "run").exists()                  # nothing ran

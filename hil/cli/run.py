@@ -33,6 +33,11 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fallback-lockstep", action="store_true",
                    help="with --realtime: if the bus cannot be opened here, say so and run lockstep instead")
     p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
+    p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one scenario value (repeatable): a dotted key as in the TOML file and a "
+                        "TOML value, e.g. --set becu.governor=false --set train.initial_speed_kmh=120; "
+                        "text that is not TOML is taken as a string (--set becu.control=decel). "
+                        "Checked like the file: an unknown key or bad value is an error")
     p.add_argument("--out", type=Path, default=None,
                    help="run folder (default runs/<scenario>-<mode>-<YYYYmmdd-HHMMSS>)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress line")
@@ -77,7 +82,7 @@ class Progress:
 
 def run(args: argparse.Namespace) -> int:
     overrides = {"seed": args.seed} if args.seed is not None else None
-    scenario = load_scenario(args.scenario, overrides)
+    scenario = load_scenario(args.scenario, overrides, args.sets)
     mode = args.mode
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = args.out or Path("runs") / f"{scenario.name}-{mode}-{stamp}"
