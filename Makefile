@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test test-slow bench lint vcan clean
+.PHONY: run test test-slow fuzz bench lint vcan clean
 
 $(STAMP): pyproject.toml
 	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'"; exit 2; }
@@ -24,6 +24,11 @@ test: $(STAMP)
 ## make test-slow: the long suites too
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m "slow or not slow"
+
+## make fuzz: 10^6 fuzzed frames through decode + SecOC + E2E, twice: the protocol layers alone and the
+## node runtime of the default train (RAILHIL_FUZZ_FRAMES=N for more, RAILHIL_FUZZ_SEED=S for another seed)
+fuzz: $(STAMP)
+	$(PY) -m pytest -q -s -m slow -k fuzzed tests/test_e2e.py tests/test_fuzz.py
 
 ## make bench: speed figures, railhil next to plain python-can/cantools, measured in one run
 bench: $(STAMP)
