@@ -165,7 +165,9 @@ def measure_periods(arrays: FrameArrays) -> dict[tuple[int, bool], PeriodStats]:
     t = arrays.t[data]
     order = np.lexsort((t, key))  # by id, then by time within an id
     key, t = key[order], t[order]
-    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.array([], dtype=int)
+    if not len(key):  # no data frame at all (an empty trace, or error frames only)
+        return {}
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     ends = np.r_[starts[1:], len(key)]
     out = {}
     for s, e in sorted(zip(starts, ends, strict=True), key=lambda se: (int(key[se[0]]) & 1, int(key[se[0]]))):

@@ -62,7 +62,7 @@ import numpy as np
 from can.io import blf
 from can.util import dlc2len
 
-from hil.traceio import STDIN, Trace, TraceError, open_trace
+from hil.traceio import STDIN, Salvage, Trace, TraceError, open_trace
 
 if TYPE_CHECKING:
     from hil.timing import FrameArrays
@@ -477,13 +477,17 @@ def _is_blf(path: str | pathlib.Path) -> bool:
     return bool(suffixes) and suffixes[-1] == ".blf"
 
 
-def read_trace_columns(path: str | pathlib.Path) -> tuple[FrameArrays, Trace]:
+def read_trace_columns(path: str | pathlib.Path, salvage: bool = False) -> tuple[FrameArrays, Trace]:
     """The columns of a trace, and its ``Trace`` (for ``skipped``/``name``, as after iterating it).
 
-    Equal to ``frame_arrays(open_trace(path))``; raises the same ``TraceError``."""
+    Equal to ``frame_arrays(open_trace(path))``; raises the same ``TraceError``.  With `salvage`, a
+    TraceError that reading the frames raises (a corrupt line, a cut file) is not raised but kept in
+    the Trace's ``error``, and the columns are those of the frames read before it: for a tool that
+    reports what was read, then the error.  An error of opening the file is raised either way."""
     from hil.timing import frame_arrays
 
     trace = open_trace(path)
+    arrays = None
     if _is_blf(path) and isinstance(trace.reader, blf.BLFReader):
         try:
             arrays = read_blf_columns(trace.reader)
@@ -493,9 +497,17 @@ def read_trace_columns(path: str | pathlib.Path) -> tuple[FrameArrays, Trace]:
             trace.close()
         if arrays is not None:
             trace.count = len(arrays)
-            return arrays, trace
-        trace = open_trace(path)
-    return frame_arrays(trace), trace
+            if trace.cut is not None:  # python-can's reader ends a cut file quietly
+                trace.error = trace.cut_error()
+        else:
+            trace = open_trace(path)
+    if arrays is None:
+        frames = Salvage(trace)
+        arrays = frame_arrays(frames)
+        trace.error = frames.error
+    if trace.error is not None and not salvage:
+        raise trace.error
+    return arrays, trace
 
 
 def read_columns(path: str | pathlib.Path) -> FrameArrays:
@@ -829,6 +841,8 @@ class BlockReader:
             blocks = self._blf()
             if blocks is not None:
                 yield from blocks
+                if self.trace.cut is not None:  # python-can's reader ends a cut file quietly
+                    raise self.trace.cut_error()
                 return
             self.trace = open_trace(self.path)  # python-can's reader gives the result or the error
         frames = iter(self.trace)

@@ -7,7 +7,11 @@ candump -L text (``(1.5) can0 123#DEADBEEF``) from stdin with python-can's ``Can
 The file is checked and its reader opened when ``open_trace`` is called, so a missing file or an
 unknown suffix fails at once; corrupt content fails while iterating.  A non-empty file in which the
 reader finds no frame at all (a text file of another format) is an error too: python-can's text
-readers skip lines they do not understand without a word.
+readers skip lines they do not understand without a word.  So is an empty file (0 bytes; empty
+stdin is 0 frames), and a BLF file cut short (``blf_cut``): python-can's reader ends it quietly,
+here its frames come first, then the TraceError that says where it was cut and how many were read.
+``Salvage`` keeps that error instead of raising it, for the tools that report the frames read before
+any damage and then the error (nothing already recorded is lost).
 
 candump -L text is read by python-can's ``CanutilsLogReader`` with one shortcut (``CandumpReader``):
 the common line, a classic data frame written as ``(seconds) channel ID#HEXDATA`` with an optional
@@ -28,17 +32,18 @@ import logging
 import pathlib
 import re
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from itertools import islice
 from typing import TextIO
 
 import can
+from can.io import blf
 from can.io.canutils import CAN_ERR_FLAG
 from can.io.player import MESSAGE_READERS
 
 from hil.errors import RailhilError
 
-__all__ = ["FORMATS", "CandumpReader", "Trace", "TraceError", "id_text", "open_trace"]
+__all__ = ["FORMATS", "CandumpReader", "Salvage", "Trace", "TraceError", "blf_cut", "id_text", "open_trace"]
 
 #: what each suffix is expected to hold, for error messages
 FORMATS = {
@@ -169,10 +174,78 @@ def open_trace(path: str | pathlib.Path) -> Trace:
             reader = CandumpReader(lines)
         else:
             reader = can.LogReader(path)
+    except OSError as exc:  # permission denied, an I/O error: the system's reason, not a format's
+        raise TraceError(f"{path}: cannot read the trace file: {exc.strerror or _one_line(exc)}") from exc
     except Exception as exc:  # python-can raises many types; all mean "not readable as expected"
+        if path.stat().st_size == 0:  # a reader that parses a file header at once (BLF)
+            raise TraceError(f"{path}: empty file (0 bytes): no CAN frames (expected {expected})") from exc
         raise TraceError(f"{path}: not readable as {expected}: {_one_line(exc)}") from exc
-    empty_ok = path.stat().st_size == 0
-    return Trace(reader, str(path), expected, lines, empty_ok=empty_ok)
+    trace = Trace(reader, str(path), expected, lines, empty_ok=False)
+    trace.empty_file = path.stat().st_size == 0
+    if suffix == ".blf" and not compressed:
+        trace.cut = blf_cut(path)
+    return trace
+
+
+def blf_cut(path: pathlib.Path) -> str | None:
+    """Where a BLF file was cut short, or None when it is whole (or too broken for this check: then
+    python-can's reader raises on it).
+
+    python-can's reader ends a BLF file quietly where it is cut: the frames of a last, cut log
+    container that it can still decompress are read and the rest is dropped without a word.  Here the
+    top-level objects are walked as python-can walks them (a 16-byte base header with the object's
+    size, then the padding python-can skips); the file is cut when an object runs past its end, or
+    when the file is shorter than the size its header declares (python-can's writer writes the size
+    when it closes the file)."""
+    header = blf.FILE_HEADER_STRUCT
+    base = blf.OBJ_HEADER_BASE_STRUCT
+    size = path.stat().st_size
+    with path.open("rb") as f:
+        head = f.read(header.size)
+        if len(head) < header.size:
+            return None
+        fields = header.unpack(head)
+        if fields[0] != b"LOGG":
+            return None
+        declared, pos, n = fields[10], fields[1], 0
+        while pos + base.size <= size:
+            f.seek(pos)
+            signature, _, _, obj_size, obj_type = base.unpack(f.read(base.size))
+            if signature != b"LOBJ" or obj_size < base.size:
+                return None
+            n += 1
+            if pos + obj_size > size:
+                what = "log container" if obj_type == blf.LOG_CONTAINER else f"object of type {obj_type}"
+                return (f"the file ends inside its object {n} (a {what} of {obj_size} bytes at byte {pos}), "
+                        f"{pos + obj_size - size} bytes short")
+            pos += obj_size + obj_size % 4
+    if declared > size:
+        return f"the file has {size} bytes, its header declares {declared}"
+    return None
+
+
+class Salvage:
+    """The frames of a Trace up to a TraceError, which is kept in ``error`` instead of raised.
+
+    For the tools that report what was read before a file's damage (a corrupt line, a cut), then the
+    error: nothing already recorded is lost."""
+
+    def __init__(self, frames: Iterable[can.Message]) -> None:
+        self.frames = frames
+        self.error: TraceError | None = None
+
+    def __iter__(self) -> Iterator[can.Message]:
+        try:
+            yield from self.frames
+        except TraceError as exc:
+            self.error = exc
+            if isinstance(self.frames, Trace):
+                self.frames.error = exc
+
+    def raise_error(self) -> None:
+        """Raise the TraceError that ended the frames, if one did."""
+        if self.error is not None:
+            raise self.error
 
 
 class _Warnings(logging.Handler):
@@ -202,6 +275,9 @@ class Trace:
         self.count = 0
         self.skipped = 0
         self.first_skipped = ""
+        self.empty_file = False  # the file has 0 bytes (an error once its frames, none, are read)
+        self.cut: str | None = None  # where a BLF file was cut short (blf_cut), found when it was opened
+        self.error: TraceError | None = None  # what ended the frames, kept by a reader told to salvage
         self._reader = reader
         self._lines = lines
         self._empty_ok = empty_ok
@@ -308,5 +384,14 @@ class Trace:
             pass
 
     def _check_not_empty(self) -> None:
+        """At the end of the frames: a file cut short, or one without a frame, is an error."""
+        if self.cut is not None:
+            raise self.cut_error()
         if self.count == 0 and not self._empty_ok:
-            raise TraceError(f"{self.name}: no CAN frames found (expected {self.expected})")
+            what = "empty file (0 bytes): no CAN frames" if self.empty_file else "no CAN frames found"
+            raise TraceError(f"{self.name}: {what} (expected {self.expected})")
+
+    def cut_error(self) -> TraceError:
+        """The TraceError of a file cut short, raised after its frames (``count`` of them were read)."""
+        return TraceError(f"{self.name}: truncated ({self.expected}): {self.cut}; "
+                          f"{self.count} frames read before the cut")

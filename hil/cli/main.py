@@ -1,6 +1,9 @@
 """Entry point of the `railhil` command.
 
 Errors print one line `error: ...` and exit non-zero (2 for bad input); `--debug` shows the traceback.
+An exception that is not a RailhilError is a bug: it too prints one line (exit 1), naming the
+exception and the --debug command line that shows its traceback; an OSError on a named file (permission
+denied, a disk full) prints the file and the system's reason (exit 2).
 
 Each subcommand's module (with its numpy, matplotlib, pydantic... imports) is imported only when that
 subcommand runs: ``COMMANDS`` holds each one's module and help line, so that ``railhil --help`` lists
@@ -14,6 +17,8 @@ import importlib
 import sys
 
 from hil.errors import RailhilError
+
+INTERNAL_ERROR = 1  # exit code of an unexpected exception (bad input exits 2: hil.errors)
 
 #: subcommand -> (module with add_subparser(sub) and the run function, its help line in `railhil --help`)
 COMMANDS = {
@@ -67,6 +72,18 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:  # a file the user named that the system refuses (permission, disk full...)
+        if args.debug or exc.filename is None:
+            raise
+        print(f"error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # a bug, not bad input: still one line, and how to get the traceback
+        if args.debug:
+            raise
+        text = " ".join(str(exc).split())
+        print(f"error: internal error, a railhil bug ({type(exc).__name__}: {text[:200]}); run "
+              f"'railhil --debug {' '.join(argv)}' for the traceback and report it", file=sys.stderr)
+        return INTERNAL_ERROR
 
 
 if __name__ == "__main__":

@@ -3,8 +3,9 @@
 One row per cyclic DBC message (GenMsgCycleTime > 0): count, period mean / σ / p99 / max [ms], late,
 missed and burst periods, and a verdict PASS / FAIL / MISSING (defined in hil.timing); then the
 bus load the trace put on the bus.  Exit 0 when every message PASSes, 1 when any is FAIL or
-MISSING (a verdict, not an error), 2 for bad input.  ``--periods-only`` needs no DBC: the periods
-of every id of the trace, no verdict.
+MISSING (a verdict, not an error), 2 for bad input; a trace damaged part-way (a corrupt line, a BLF
+file cut short) gives the report of the frames before the damage, then the error, exit 2.
+``--periods-only`` needs no DBC: the periods of every id of the trace, no verdict.
 
 ``--rta``: the worst-case response time of every cyclic message from the DBC alone (hil.rta, Davis
 et al. 2007) — with no trace, the analysis only (exit 0 when every message is schedulable); with a
@@ -57,7 +58,7 @@ from hil.timing import (
     rta_check,
 )
 from hil.tracecolumns import read_trace_columns
-from hil.traceio import open_trace
+from hil.traceio import Salvage, TraceError, open_trace
 
 FORMAT_CHOICES = ("table", "json", "junit")
 SUITE = "railhil.timing"
@@ -501,8 +502,9 @@ def rta_only(args: argparse.Namespace) -> tuple[str, int]:
     return text, code
 
 
-def trace_report(args: argparse.Namespace, trace_name: str) -> tuple[str, int]:
-    """`railhil timing TRACE --dbc DBC [--rta] [--chain ...] [--histogram ...]`."""
+def trace_report(args: argparse.Namespace, trace_name: str) -> tuple[str, int, TraceError | None]:
+    """`railhil timing TRACE --dbc DBC [--rta] [--chain ...] [--histogram ...]`: the report, its exit
+    code, and the error of a damaged trace (the report is of the frames read before it)."""
     if args.dbc is None:
         raise TimingArgError("--dbc DBC is required (or --periods-only for periods without a DBC)")
     check_tolerance(args.tolerance, "--tolerance")
@@ -515,9 +517,14 @@ def trace_report(args: argparse.Namespace, trace_name: str) -> tuple[str, int]:
     kept: list[can.Message] = []
     if chains:                      # chains need the frames themselves: one pass through python-can
         trace = open_trace(args.trace)
-        arrays = frame_arrays(tap(trace, chain_frame_keys(chains), kept))
+        frames = Salvage(trace)
+        arrays = frame_arrays(tap(frames, chain_frame_keys(chains), kept))
+        damage = frames.error
     else:                           # columns only: BLF read without a can.Message per frame
-        arrays, trace = read_trace_columns(args.trace)
+        arrays, trace = read_trace_columns(args.trace, salvage=True)
+        damage = trace.error
+    if damage is not None and not len(arrays):  # nothing read: the error alone
+        raise damage
     notice_skipped(trace)
     report = analyse(arrays, db, args.tolerance, overrides, bitrate, args.window, ignore=args.ignore)
     rta = rta_against_trace(arrays, rta_report) if rta_report is not None else ()
@@ -556,7 +563,7 @@ def trace_report(args: argparse.Namespace, trace_name: str) -> tuple[str, int]:
             text += "\n" + rta_text(rta_report, rta, with_trace=True)
         for n, r in enumerate(chain_results, 1):
             text += "\n" + chain_text(n, r)
-    return text, code
+    return text, code, damage
 
 
 def timing(args: argparse.Namespace) -> int:
@@ -576,18 +583,22 @@ def timing(args: argparse.Namespace) -> int:
             raise TimingArgError("a trace file is required (or --rta --dbc DBC for the response-time "
                                  "analysis of the DBC alone)")
         text, code = rta_only(args)
+        damage = None
     elif args.periods_only:
         for option, given in (("--override", args.override), ("--rta", args.rta), ("--chain", args.chain),
                               ("--histogram", args.histogram)):
             if given:
                 raise TimingArgError(f"{option} needs a DBC verdict, not --periods-only")
         trace_name = "<stdin>" if args.trace == "-" else str(args.trace)
-        arrays, trace = read_trace_columns(args.trace)
+        arrays, trace = read_trace_columns(args.trace, salvage=True)
+        damage = trace.error
+        if damage is not None and not len(arrays):  # nothing read: the error alone
+            raise damage
         notice_skipped(trace)
         load = bus_load(arrays, args.bitrate, args.window) if args.bitrate is not None else None
         text, code = periods_report(measure_periods(arrays), args.format, trace_name, load), 0
     else:
-        text, code = trace_report(args, "<stdin>" if args.trace == "-" else str(args.trace))
+        text, code, damage = trace_report(args, "<stdin>" if args.trace == "-" else str(args.trace))
     if args.output is not None:
         try:
             args.output.write_text(text)
@@ -598,4 +609,6 @@ def timing(args: argparse.Namespace) -> int:
         out = Output()
         out.write(text)
         out.flush()
+    if damage is not None:  # the report above is of the frames read before the damage
+        raise damage
     return code

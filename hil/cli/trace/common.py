@@ -102,7 +102,8 @@ class Output:
 
 
 def notice_skipped(trace: Trace) -> None:
-    if trace.skipped:
+    """The lines python-can skipped, on stderr; not when reading ended in an error (one line: the error)."""
+    if trace.skipped and trace.error is None:
         print(f"notice: {trace.name}: python-can skipped {trace.skipped} unreadable lines "
               f"(first: {trace.first_skipped})", file=sys.stderr)
 

@@ -52,7 +52,7 @@ import numpy as np
 
 from hil.cli.trace.common import Output, TraceArgError, check_window, notice_skipped, parse_id
 from hil.errors import BusError
-from hil.traceio import open_trace
+from hil.traceio import Salvage, open_trace
 
 DEFAULT_INTERFACE = "udp_multicast"
 SEND_TIMEOUT_S = 0.01      # bus.send waits at most this long for room in the transmit buffer
@@ -601,7 +601,8 @@ def run(args: argparse.Namespace) -> int:
             receiver.wait_ready()
         bus = open_bus(cfg)
         progress = progress_bar(not args.quiet and sys.stderr.isatty())
-        wall0 = send_all(trace, bus, report, args.start, args.end, ids, args.send_timeout, progress)
+        frames = Salvage(trace)  # a corrupt or cut file: the frames before the damage are replayed
+        wall0 = send_all(frames, bus, report, args.start, args.end, ids, args.send_timeout, progress)
         if progress is not None:
             progress.close()
             progress = None
@@ -623,6 +624,7 @@ def run(args: argparse.Namespace) -> int:
         for line in [*report.lines(), report.summary()]:
             out.write(line + "\n")
     out.flush()
+    frames.raise_error()  # after the report of what was replayed
     if report.interrupted:
         return 130
     return 0 if report.ok else 1

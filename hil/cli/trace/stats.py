@@ -16,7 +16,7 @@ import can
 from hil.cli.trace.common import Output, id_text, kind_of, notice_skipped, num
 from hil.codec import Codec
 from hil.dbc import load_dbc
-from hil.traceio import open_trace
+from hil.traceio import Salvage, open_trace
 
 FORMAT_CHOICES = ("table", "csv", "jsonl")
 
@@ -86,7 +86,10 @@ def collect_stats(frames: Iterable[can.Message]) -> tuple[dict[tuple, IdStats], 
 def run(args: argparse.Namespace) -> int:
     codec = Codec(load_dbc(args.dbc)) if args.dbc is not None else None
     trace = open_trace(args.trace)
-    table, total, first, last = collect_stats(trace)
+    frames = Salvage(trace)  # a corrupt or cut file: the table of the frames before it, then the error
+    table, total, first, last = collect_stats(frames)
+    if total == 0:
+        frames.raise_error()  # nothing read: the error alone
     notice_skipped(trace)
     duration = last - first if total else 0.0
     n_err = sum(r.count for r in table.values() if r.kind == "error")
@@ -140,4 +143,5 @@ def run(args: argparse.Namespace) -> int:
             for row in rows:
                 out.write(json.dumps(row) + "\n")
     out.flush()
+    frames.raise_error()
     return 0
