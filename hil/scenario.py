@@ -24,7 +24,8 @@ RAIL_CONDITION_NAMES = ("extra_dry", "dry", "wet", "extra_wet")
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # allow_inf_nan=False: a NaN or an infinity is a bad value for every number of a scenario
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class TrainSpec(_Strict):
@@ -324,13 +325,36 @@ def _describe(err: dict) -> str:
     loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
     value = err.get("input")
     if err["type"] == "extra_forbidden":
-        return f"key '{loc}' is not a scenario key"
+        return f"key '{loc}' is not a scenario key{_closest_key(err['loc'])}"
     if err["type"] == "missing":
         return f"key '{loc}' is missing"
     shown = repr(value)
     if len(shown) > 60:
         shown = shown[:57] + "..."
     return f"key '{loc}' = {shown}: {err['msg']}"
+
+
+def _closest_key(loc: tuple) -> str:
+    """'; did you mean ...' for an unknown key at `loc`, from the fields of the model it sits in."""
+    kind, inner = "model", Scenario
+    for part in loc[:-1]:
+        if kind == "model":
+            field = inner.model_fields.get(str(part))
+            if field is None:
+                return ""
+            kind, inner = _unwrap(field.annotation)
+        elif kind in ("dict", "list"):       # part is a name or an index
+            kind, inner = _unwrap(inner)
+        else:
+            return ""
+    if kind != "model":
+        return ""
+    fields = list(inner.model_fields)
+    close = difflib.get_close_matches(str(loc[-1]), fields, n=1, cutoff=0.5)
+    prefix = ".".join(str(p) for p in loc[:-1])
+    if close:
+        return f"; did you mean '{prefix + '.' if prefix else ''}{close[0]}'?"
+    return f"; valid keys here: {', '.join(fields)}"
 
 
 def parse_scenario(data: dict, source: str = "<scenario>") -> Scenario:
