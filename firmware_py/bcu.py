@@ -3,11 +3,18 @@
 DESK brake step (0..7) -> target deceleration for every car; an emergency request (desk or ACD) ->
 full braking, latched until standstill and released request.  Later issues add deceleration feedback
 (seed 004), precise stopping (seed 002) and the consensus reference (seed 003).
+
+Train speed: the highest speed estimate (BECUn_STATUS.SpeedEst) of the cars that are heard from and
+plausible.  A car whose estimate disagrees with the median of the train for longer than 3 of its
+status cycles is implausible (issue #9): excluded (latched), flagged in CarsImplausible, Degraded.
+A car that reports a failed sensor (BECUn_DIAG.SpeedSensorFault / AccelSensorFault) also makes the
+train Degraded (its estimate stays in: its BECU already excluded the failed sensor).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import statistics
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -32,6 +39,19 @@ def bcu_mode_transition(mode: BcuMode, brake_step: int, emergency_req: bool, sta
     return BcuMode.SERVICE if brake_step > 0 else BcuMode.RELEASED
 
 
+def disagreeing_cars(speeds: Sequence[float], trusted: Sequence[bool], limit_mps: float,
+                     min_voters: int = 3) -> list[bool]:
+    """Cars whose speed estimate [m/s] is more than `limit_mps` away from the median of the trusted cars
+    that are heard from (pure).  NaN = not heard from: never disagreeing.  Needs `min_voters` such cars:
+    with two, nobody can tell which one is wrong.  The median includes the car itself: with three cars
+    the median of the other two is their mean, which one stuck car drags along."""
+    voters = [v for v, ok in zip(speeds, trusted, strict=True) if ok and v == v]
+    if len(voters) < min_voters:
+        return [False] * len(speeds)
+    median = statistics.median(voters)
+    return [v == v and abs(v - median) > limit_mps for v in speeds]
+
+
 @dataclass(frozen=True)
 class BcuParams:
     cycle_us: int = 10_000                   # BCU cycle, DESIGN.md node table
@@ -43,13 +63,19 @@ class BcuParams:
     standstill_mps: float = 0.1              # train speed estimate below which the train stands
     # a car whose BECUn_STATUS (50 ms, DBC) is older than 3 of its cycles is silent: degraded mode
     status_timeout_us: int = 150_000
+    # issue #9: a car whose SpeedEst is more than implausible_mps off the train's median for longer than
+    # 3 of its BECUn_STATUS cycles (50 ms, DBC) is implausible.  2 m/s (7 km/h) is far above what cars
+    # coupled in one train differ by (coupler play; a BECU's estimate rides on its accelerometer during
+    # slides: < 0.3 m/s in the default and stop_30kmh runs) (chosen)
+    implausible_mps: float = 2.0
+    implausible_after_us: int = 150_000
 
 
 class Bcu:
     """step(now_us, rx) -> BCU_DEMAND / BCU_EMERGENCY / BCU_STATUS signals."""
 
     OUTPUTS = ("Mode", "BrakeStep", "TargetDecel", "EmergencyActive", "Source", "CarsSilent", "Degraded",
-               "TrainSpeedEst")
+               "TrainSpeedEst", "CarsImplausible")
 
     def __init__(self, n_cars: int, params: BcuParams | None = None) -> None:
         self.p = params or BcuParams()
@@ -57,8 +83,12 @@ class Bcu:
         self.mode = BcuMode.RELEASED
         self.target = 0.0
         self.timer = CycleTimer(self.p.cycle_us)
-        self.inputs = ("BrakeStep", "EmergencyReq") + tuple(
-            f"BECU{i}_STATUS.SpeedEst" for i in range(1, n_cars + 1))
+        self.speed_keys = tuple(f"BECU{i}_STATUS.SpeedEst" for i in range(1, n_cars + 1))
+        self.fault_keys = tuple(f"BECU{i}_DIAG.{sig}" for i in range(1, n_cars + 1)
+                                for sig in ("SpeedSensorFault", "AccelSensorFault"))
+        self.inputs = ("BrakeStep", "EmergencyReq") + self.speed_keys + self.fault_keys
+        self.implausible = [False] * n_cars           # latched per car
+        self._disagree_since: list[int | None] = [None] * n_cars
 
     def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
         p = self.p
@@ -66,14 +96,17 @@ class Bcu:
         step_raw, _ = finite_or(rx["BrakeStep"], 0.0)
         emergency_req, _ = finite_or(rx["EmergencyReq"], 0.0)
         brake_step = int(min(max(step_raw, 0), 7))
-        speeds = [finite_or(rx[name], float("nan"))[0] for name in self.inputs[2:]]
+        speeds = [finite_or(rx[name], float("nan"))[0] for name in self.speed_keys]
         age_us = getattr(rx, "age_us", None)         # reception times: the node runtime's RxTable
         if age_us is not None:                        # a car heard from, but not lately, is silent too
             speeds = [float("nan") if (a := age_us(name, now_us)) is not None and a > p.status_timeout_us
-                      else v for name, v in zip(self.inputs[2:], speeds, strict=True)]
-        known = [v for v in speeds if v == v]
+                      else v for name, v in zip(self.speed_keys, speeds, strict=True)]
+        self._vote(now_us, speeds)
+        known = [v for v, bad in zip(speeds, self.implausible, strict=True) if v == v and not bad]
         train_speed = max(known) if known else float("nan")
         silent = sum(1 << i for i, v in enumerate(speeds) if v != v)
+        implausible = sum(1 << i for i, bad in enumerate(self.implausible) if bad)
+        sensor_fault = any(finite_or(rx.get(key, 0.0), 0.0)[0] >= 0.5 for key in self.fault_keys)
         standstill = bool(known) and train_speed < p.standstill_mps
 
         self.mode = bcu_mode_transition(self.mode, brake_step, emergency_req >= 0.5, standstill)
@@ -91,6 +124,21 @@ class Bcu:
             "EmergencyActive": int(emergency),
             "Source": 1 if emergency else 0,
             "CarsSilent": silent,
-            "Degraded": int(silent != 0),
+            "Degraded": int(silent != 0 or implausible != 0 or sensor_fault),
             "TrainSpeedEst": train_speed if known else 0.0,
+            "CarsImplausible": implausible,
         }
+
+    def _vote(self, now_us: int, speeds: list[float]) -> None:
+        """Latch the cars that disagree with the train's median for longer than implausible_after_us."""
+        p = self.p
+        trusted = [not bad for bad in self.implausible]
+        for k, off in enumerate(disagreeing_cars(speeds, trusted, p.implausible_mps)):
+            if not off or self.implausible[k]:
+                self._disagree_since[k] = None
+                continue
+            since = self._disagree_since[k]
+            if since is None:
+                self._disagree_since[k] = now_us
+            elif now_us - since > p.implausible_after_us:
+                self.implausible[k] = True

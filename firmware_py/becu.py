@@ -8,10 +8,20 @@ loop behaves as seed 001's first-order cylinder (eq. 4).
 
 Inputs (DBC signal names, bound by hil): AxleSpeed, CylPressure, AccelLong (the car's sensors),
 TargetDecel and Mode (BCU_DEMAND), EmergencyActive (BCU_EMERGENCY).
-Outputs: the pressure command frame (CylPressureSet, ValveCmd, WspValve) and the status frame.
+Outputs: the pressure command frame (CylPressureSet, ValveCmd, WspValve), the status frame and the
+diagnostics frame (governor; SpeedSensorFault, AccelSensorFault, AccelBiasEst).
 
 With BecuParams.control = "decel" the set-point comes from seed 001's deceleration PI (eq. 16) instead,
 optionally behind the reference governor (eq. 9, firmware_py.governor), which sets GovernorActive.
+
+Sensor plausibility (issue #9): the wheel-speed sensor is declared failed (SpeedSensorFault, latched)
+when its reading says the wheel stands while the accelerometer says the car moves for longer than a
+real slide lasts, or when its reading is frozen while the accelerometer says the speed changed; the
+speed estimate then runs on the accelerometer alone and WSP is inhibited (the brake stays applied).
+The accelerometer's bias (accelerometer − the axle's acceleration, filtered) is AccelBiasEst; above a
+limit for a time it is AccelSensorFault (latched) and the axle's acceleration replaces it.  A vent-time
+watchdog refills a cylinder that WSP has kept vented too long.  See `speed_sensor_check`,
+`accel_bias_check` and `vent_watchdog`.
 """
 
 from __future__ import annotations
@@ -20,6 +30,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import NamedTuple
 
 from firmware_py.cycle import CycleTimer
 from firmware_py.governor import GovernorDecision, GovernorParams, GovernorState, govern, play
@@ -43,6 +54,11 @@ class WspParams:
     hold_fraction: float = 0.5           # VENT -> HOLD below this fraction of the vent threshold
     refill_fraction: float = 0.25        # HOLD -> FILL below this fraction of the vent threshold
     min_speed_mps: float = 1.0           # WSP inhibited below this speed (lets the train stop)
+    # vent-time watchdog: a cylinder kept out of FILL (vent or hold) longer than this is refilled and WSP
+    # stays off until the wheel has recovered. 5 s is the "standard five (5) second" WSP safety timer of
+    # Canadian patent CA 2025196 (axle health discriminatory safety timer); UIC 541-05 limits continuous
+    # venting too, but its figure was not found in the sources at hand
+    max_vent_s: float = 5.0
 
 
 def wsp_transition(state: Wsp, slip_mps: float, speed_mps: float, p: WspParams) -> Wsp:
@@ -64,6 +80,127 @@ def wsp_transition(state: Wsp, slip_mps: float, speed_mps: float, p: WspParams) 
     if state == Wsp.HOLD:
         return Wsp.FILL if slip_mps < p.refill_fraction * vent_at else Wsp.HOLD
     return Wsp.FILL
+
+
+def vent_watchdog(vent_s: float, tripped: bool, venting: bool, recovered: bool, dt_s: float,
+                  max_vent_s: float) -> tuple[float, bool]:
+    """Pure vent-time watchdog: (time vented continuously [s], tripped).
+
+    `venting`: WSP wants the cylinder out of FILL this cycle; `recovered`: the wheel's slip is back
+    below the refill threshold.  Trips when venting lasts longer than `max_vent_s`; while tripped the
+    caller keeps the cylinder in FILL; it re-arms once the wheel has recovered."""
+    if tripped:
+        return 0.0, not recovered
+    vent_s = vent_s + dt_s if venting else 0.0
+    return (0.0, True) if vent_s > max_vent_s else (vent_s, False)
+
+
+# Steepest gradient a scenario may declare: hil.scenario's GradientPoint.permille is bounded to ±60 ‰.
+# On it the accelerometer legitimately reads g·sin(atan(0.060)) = 0.588 m/s² more than the axle's
+# acceleration, so the bias limit must lie above that.
+STEEPEST_GRADIENT_MPS2 = 9.81 * 0.060 / math.sqrt(1.0 + 0.060 ** 2)
+
+
+@dataclass(frozen=True)
+class SensorCheckParams:
+    """Plausibility limits of the car's wheel-speed sensor and accelerometer (issue #9)."""
+
+    # wheel-speed sensor, "stands": a reading below stand_mps while the speed estimate (accelerometer)
+    # is above moving_mps for longer than lock_s.  A real slide ends within lock_s: WSP vents above a
+    # few tenths of a m/s of slip and the wheel spins up within tenths of a second; the longest slide
+    # to a standing wheel in the rg_* scenarios and the wet section of default is 0 s (chosen)
+    stand_mps: float = 0.3                 # wheel reading that says the wheel stands [m/s] (chosen, ~1 km/h)
+    moving_mps: float = 3.0                # ... while the car moves faster than this [m/s] (chosen)
+    lock_s: float = 1.0                    # ... for longer than this [s] (chosen, see above)
+    # wheel-speed sensor, "frozen": the same reading on every fresh frame while the accelerometer
+    # (corrected by its bias estimate, which holds the gradient term) integrates to a speed change of
+    # more than frozen_dv_mps.  With the sensor noise of the plant (0.002–0.02 rad/s std against a
+    # 0.005 rad/s resolution) a live reading does not repeat for long at speed (chosen)
+    frozen_dv_mps: float = 0.5             # [m/s]
+    frozen_min_mps: float = 1.0            # only readings above this [m/s]: a standing wheel reads 0 forever
+    # accelerometer bias: first-order filter (time constant bias_tau_s) of accelerometer − d(r·ω)/dt,
+    # updated on fresh wheel frames while the wheel is not sliding (below); above bias_limit_mps2 for
+    # longer than bias_hold_s it is a fault.  The limit must lie above STEEPEST_GRADIENT_MPS2
+    # (0.588 m/s²), which the accelerometer legitimately reads on the steepest gradient a scenario
+    # allows.  What a slide leaves in the filter (the slip that built up before the gate below closed,
+    # Δslip/τ) was at most 0.29 m/s² in the wet section of default (seeds 1–3) and 0.04 m/s² in the
+    # rg_* runs: on a gradient near 60 ‰ combined with such slides the limit can be reached (chosen;
+    # a longer τ lowers that transient but slows detection: a 0.8 m/s² bias needs τ·ln 8 + hold)
+    bias_tau_s: float = 1.5                # [s]
+    bias_limit_mps2: float = 0.7           # [m/s²]
+    bias_hold_s: float = 0.5               # [s]
+    # "not sliding": estimated slip below slide_gate_mps, WSP in FILL and the axle's acceleration within
+    # what the car can do (car_accel_max_mps2, below); a slide is bridged (one update over the whole
+    # span once the wheel is back, so the slip's rise and fall cancel), but a span is closed after
+    # span_max_s whatever the slip (a biased accelerometer inflates the estimated slip)
+    slide_gate_mps: float = 0.1            # [m/s] (chosen: a third of the WSP's lowest vent threshold)
+    span_max_s: float = 1.0                # [s] (chosen)
+    # the axle-derived acceleration that replaces a failed accelerometer: d(r·ω)/dt through a first-order
+    # filter, bounded to what the car itself can do (a sliding wheel decelerates far faster), so that a
+    # slide still shows as slip against the reference speed (chosen: 0.25 g, seed 001's r⁰)
+    axle_accel_tau_s: float = 0.1          # [s]
+    car_accel_max_mps2: float = 2.5        # [m/s²]
+
+    def __post_init__(self) -> None:
+        if not self.bias_limit_mps2 > STEEPEST_GRADIENT_MPS2:
+            raise ValueError(f"SensorCheckParams: bias_limit_mps2 {self.bias_limit_mps2} must be above "
+                             f"{STEEPEST_GRADIENT_MPS2:.3f} m/s², the steepest gradient's g·sin θ")
+
+
+class SpeedCheck(NamedTuple):
+    """State of the wheel-speed sensor check (`speed_sensor_check`)."""
+
+    fault: bool = False
+    cause: str = ""              # "stands" | "frozen" once latched
+    stand_s: float = 0.0         # time the reading has said "stands" while the car moves [s]
+    frozen_s: float = 0.0        # time the reading has been frozen (≥ frozen_min_mps) [s]
+    frozen_dv_mps: float = 0.0   # bias-corrected accelerometer integrated over the frozen span [m/s]
+
+
+def speed_sensor_check(s: SpeedCheck, wheel_mps: float, prev_wheel_mps: float, v_ref_mps: float,
+                       accel_mps2: float, span_s: float, p: SensorCheckParams) -> SpeedCheck:
+    """The wheel-speed sensor check on one fresh reading (pure; latched once it fails).  Call it per
+    new sensor frame only: a stale frame (none arrived this cycle) is not a frozen sensor.
+
+    wheel_mps: r·ω of the reading; prev_wheel_mps: the previous reading; v_ref_mps: the car's speed
+    estimate (from the accelerometer while the wheel disagrees); accel_mps2: accelerometer minus its
+    bias estimate, over the span; span_s: time since the previous reading [s]."""
+    if s.fault:
+        return s
+    stand_s = s.stand_s + span_s if (wheel_mps < p.stand_mps and v_ref_mps > p.moving_mps) else 0.0
+    if wheel_mps == prev_wheel_mps and wheel_mps >= p.frozen_min_mps:
+        frozen_s, dv = s.frozen_s + span_s, s.frozen_dv_mps + accel_mps2 * span_s
+    else:
+        frozen_s, dv = 0.0, 0.0
+    if stand_s > p.lock_s:
+        return SpeedCheck(True, "stands", stand_s, frozen_s, dv)
+    if abs(dv) > p.frozen_dv_mps:
+        return SpeedCheck(True, "frozen", stand_s, frozen_s, dv)
+    return SpeedCheck(False, "", stand_s, frozen_s, dv)
+
+
+class AccelCheck(NamedTuple):
+    """State of the accelerometer bias check (`accel_bias_check`)."""
+
+    fault: bool = False
+    bias_mps2: float = 0.0       # filtered accelerometer − d(r·ω)/dt [m/s²] (AccelBiasEst)
+    above_s: float = 0.0         # time |bias| has been above the limit [s]
+
+
+def accel_bias_check(s: AccelCheck, accel_mean_mps2: float, wheel_accel_mps2: float, span_s: float,
+                     p: SensorCheckParams) -> AccelCheck:
+    """One update of the accelerometer bias check over `span_s` seconds since the last update (pure;
+    latched once it fails).
+
+    accel_mean_mps2: the accelerometer's mean over the span; wheel_accel_mps2: the wheel's speed
+    change over the span divided by it.  Their difference is the bias plus g·sin θ plus the slip's
+    rate of change, which averages out over a slide."""
+    if s.fault or span_s <= 0.0:
+        return s
+    gain = min(span_s / p.bias_tau_s, 1.0)
+    bias = s.bias_mps2 + gain * (accel_mean_mps2 - wheel_accel_mps2 - s.bias_mps2)
+    above_s = s.above_s + span_s if abs(bias) > p.bias_limit_mps2 else 0.0
+    return AccelCheck(above_s > p.bias_hold_s, bias, above_s)
 
 
 @dataclass(frozen=True)
@@ -98,6 +235,7 @@ class BecuParams:
     # "handover" restarts it bumplessly from the vented set-point u = 0
     wsp_resume: str = "freeze"
     pressure_observer_gain: float = 0.1     # governor's cylinder observer: correction per cycle (chosen)
+    sensors: SensorCheckParams = field(default_factory=SensorCheckParams)   # plausibility, issue #9
 
     def __post_init__(self) -> None:
         if self.control not in ("pressure", "decel"):
@@ -115,7 +253,8 @@ class Becu:
     INPUTS = ("AxleSpeed", "CylPressure", "AccelLong", "TargetDecel", "Mode", "EmergencyActive")
     OUTPUTS = ("CylPressureSet", "ValveCmd", "WspValve", "SpeedEst", "SlipSpeedEst", "WspActive",
                "GovernorActive", "IntegratorSat", "InputMissing", "OptSlipEst", "OptSlipPos",
-               "GovernedDecel", "GovernorMargin", "GovernorFeasible")
+               "GovernedDecel", "GovernorMargin", "GovernorFeasible", "SpeedSensorFault", "AccelSensorFault",
+               "AccelBiasEst")
 
     def __init__(self, params: BecuParams | None = None) -> None:
         self.p = params or BecuParams()
@@ -132,6 +271,20 @@ class Becu:
         self.timer = CycleTimer(self.p.cycle_us)
         self.missing_inputs = 0       # cycles with a missing or non-finite input (diagnostic)
         self.failsafe_cycles = 0      # cycles braked by the fail-safe (diagnostic)
+        # sensor plausibility (issue #9)
+        self.speed_check = SpeedCheck()
+        self.accel_check = AccelCheck()
+        self.speed_fault_us: int | None = None     # when SpeedSensorFault latched (diagnostic)
+        self.accel_fault_us: int | None = None     # when AccelSensorFault latched (diagnostic)
+        self._wheel_prev = math.nan   # previous fresh wheel reading r·ω [m/s]
+        self._rx_us: int | None = None   # reception time of the sensor frame used last cycle
+        self._axle_accel = 0.0        # d(r·ω)/dt, filtered [m/s²]
+        self._anchor_wheel = math.nan  # bias filter: wheel reading at its last update [m/s] ...
+        self._accel_sum = 0.0         # ... the accelerometer integrated since [m/s] ...
+        self._span_s = 0.0            # ... over this time [s]
+        self.vent_s = 0.0             # WSP: time out of FILL without a break [s]
+        self.wsp_tripped = False      # WSP: the vent-time watchdog holds the cylinder in FILL
+        self.wsp_watchdog_trips = 0   # times the watchdog refilled a cylinder (diagnostic)
 
     def pressure_for_decel(self, decel_mps2: float) -> float:
         """Set-point that gives `decel` on the squeeze line: F = m a, tau = F r, p = tau/alpha + preload."""
@@ -193,6 +346,62 @@ class Becu:
         age = age_us("TargetDecel", now_us) if age_us is not None else None
         return age is not None and age > self.p.failsafe_cycles * self.p.cycle_us
 
+    def _fresh_sensor_frame(self, now_us: int, rx: Mapping[str, float], dt_s: float) -> tuple[bool, float]:
+        """(a sensor frame arrived since the last cycle, time since the previous one [s]).  A plain
+        mapping (unit tests) has no reception times: every cycle is a fresh frame, `dt_s` apart."""
+        age_us = getattr(rx, "age_us", None)
+        if age_us is None:
+            return True, dt_s
+        age = age_us("AxleSpeed", now_us)
+        if age is None:
+            return False, dt_s
+        t_rx = now_us - age
+        last, self._rx_us = self._rx_us, t_rx
+        if last is None:
+            return True, dt_s
+        return t_rx != last, (t_rx - last) * 1e-6
+
+    def _check_sensors(self, now_us: int, wheel_v: float, accel: float, span_s: float) -> None:
+        """Plausibility of the wheel-speed sensor and the accelerometer on a fresh sensor frame (after the
+        speed estimate of this cycle, before WSP)."""
+        sc = self.p.sensors
+        prev = self._wheel_prev
+        self._wheel_prev = wheel_v
+        if not math.isfinite(prev) or span_s <= 0.0:
+            self._anchor_wheel = wheel_v
+            return
+        gain = min(span_s / sc.axle_accel_tau_s, 1.0)
+        self._axle_accel += gain * ((wheel_v - prev) / span_s - self._axle_accel)
+        ac = self.accel_check
+        before = self.speed_check
+        corrected = accel - ac.bias_mps2 if not ac.fault else clip(self._axle_accel, -sc.car_accel_max_mps2,
+                                                                     sc.car_accel_max_mps2)
+        check = speed_sensor_check(before, wheel_v, prev, self.v_ref, corrected, span_s, sc)
+        self.speed_check = check
+        if check.fault:
+            if not before.fault:
+                self.speed_fault_us = now_us
+                if check.cause == "frozen":          # the speed the frozen reading would have reached
+                    self.v_ref = max(wheel_v + check.frozen_dv_mps, 0.0)
+                self.wsp = Wsp.FILL
+            return                                   # no axle to compare the accelerometer with
+        self._accel_sum += accel * span_s
+        self._span_s += span_s
+        if check.stand_s > 0.0 or check.frozen_s > 0.0:
+            return                                   # the wheel is not trusted yet: wait for the span's end
+        sliding = (self.v_ref - wheel_v > sc.slide_gate_mps or self.wsp != Wsp.FILL
+                   or abs(self._axle_accel) > sc.car_accel_max_mps2)   # the wheel does what the car cannot
+        if sliding and self._span_s < sc.span_max_s:
+            return                                   # bridge the slide: update once the wheel is back
+        span = self._span_s
+        wheel_rate = (wheel_v - self._anchor_wheel) / span
+        if not (sliding and abs(wheel_rate) > sc.car_accel_max_mps2):   # a slide still on: no evidence
+            self.accel_check = accel_bias_check(ac, self._accel_sum / span, wheel_rate, span, sc)
+        self._anchor_wheel, self._accel_sum, self._span_s = wheel_v, 0.0, 0.0
+        if self.accel_check.fault and not ac.fault:
+            self.accel_fault_us = now_us
+            self.v_ref = wheel_v                     # drop what the biased accelerometer integrated
+
     def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
         p = self.p
         dt_s = self.timer.dt_s(now_us)
@@ -211,14 +420,33 @@ class Becu:
             self.failsafe_cycles += 1
 
         wheel_v = omega * p.wheel_radius_m
-        self.v_ref = self.estimate_speed(wheel_v, accel, dt_s)
-        slip = self.v_ref - wheel_v                                   # eq. (2), seed 001
-        self.wsp = wsp_transition(self.wsp, slip, self.v_ref, p.wsp)
+        sc = p.sensors
+        # the car's acceleration: the accelerometer, or the axle's (bounded) once the accelerometer failed
+        accel_used = accel if not self.accel_check.fault else clip(
+            self._axle_accel, -sc.car_accel_max_mps2, sc.car_accel_max_mps2)
+        if self.speed_check.fault:                   # no wheel: the accelerometer alone, bias-corrected
+            self.v_ref = max(self.v_ref + (accel - self.accel_check.bias_mps2) * dt_s, 0.0)
+        else:
+            self.v_ref = self.estimate_speed(wheel_v, accel_used, dt_s)
+        fresh, span_s = self._fresh_sensor_frame(now_us, rx, dt_s)
+        if fresh and ok1 and ok3:
+            self._check_sensors(now_us, wheel_v, accel, span_s)
+        speed_fault = self.speed_check.fault
+        slip = 0.0 if speed_fault else self.v_ref - wheel_v          # eq. (2), seed 001
+        if speed_fault:
+            self.wsp = Wsp.FILL                      # WSP inhibited: a failed sensor never vents the brake
+        else:
+            wanted = wsp_transition(self.wsp, slip, self.v_ref, p.wsp)
+            self.vent_s, tripped = vent_watchdog(self.vent_s, self.wsp_tripped, wanted != Wsp.FILL,
+                                                 wanted == Wsp.FILL, dt_s, p.wsp.max_vent_s)
+            self.wsp_watchdog_trips += tripped and not self.wsp_tripped
+            self.wsp_tripped = tripped
+            self.wsp = Wsp.FILL if tripped else wanted
 
         overridden = self.wsp != Wsp.FILL
         governed = False
         if p.control == "decel":
-            p_set, governed = self.decel_control(decel, -accel, pressure, dt_s, overridden)
+            p_set, governed = self.decel_control(decel, -accel_used, pressure, dt_s, overridden)
         else:
             p_set = self.pressure_for_decel(decel)
         valve = self.pressure_pi.update(p_set - pressure, dt_s, freeze=overridden)
@@ -240,4 +468,7 @@ class Becu:
             "GovernedDecel": self.r_gov if (self.r_gov is not None and governed) else decel,
             "GovernorMargin": clip(self.decision.margin_Nm, -65536.0, 65534.0) if self.decision else 0.0,
             "GovernorFeasible": int(self.decision.feasible) if self.decision else 1,
+            "SpeedSensorFault": int(speed_fault),
+            "AccelSensorFault": int(self.accel_check.fault),
+            "AccelBiasEst": clip(self.accel_check.bias_mps2, -4.096, 4.094),   # the DBC signal's range
         }

@@ -120,7 +120,8 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_na
         period, offset, inputs, outputs = 100_000, DESK_OFFSET_US, ctrl.inputs, ctrl.outputs
     elif name == "BCU":
         ctrl = Bcu(n, bcu_params(scenario))
-        rx_msgs = ["DESK_CMD"] + [f"BECU{i}_STATUS" for i in range(1, n + 1)]
+        rx_msgs = (["DESK_CMD"] + [f"BECU{i}_STATUS" for i in range(1, n + 1)]
+                   + [f"BECU{i}_DIAG" for i in range(1, n + 1)])
         tx_msgs = ["BCU_DEMAND", "BCU_EMERGENCY", "BCU_STATUS"]
         period, offset = ctrl.p.cycle_us, BCU_OFFSET_US
         inputs, outputs = ctrl.inputs, ctrl.OUTPUTS

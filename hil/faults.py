@@ -22,10 +22,27 @@ Threats (EN 50159 §5.1; applied to the frames of `message` released in [from_s,
 * ``babbling``     — `node` floods the bus with frames of identifier `frame_id` (default 0x000, the
   highest priority) back to back for the whole window.
 * ``bus_off``      — `node` sends nothing in the window (its controller went bus-off).
+
+Sender and sensor faults (issue #9; applied at the source, so every check downstream sees a valid
+frame and only plausibility can catch them):
+
+* ``stuck``  — `signal` of `message` is stuck in the sending node's software: at `value` (physical
+  units of the DBC signal), or, without `value`, frozen at the last value the node sent before
+  `from_s`.  The node runtime applies it to its outputs before encoding (hil.node), so the E2E CRC
+  and the SecOC MAC are computed over the stuck value.
+* ``sensor`` — a sensor of car `car` fails in the plant node (hil.plant_node; plant_sim stays
+  fault-free physics): `sensor` = "wheel_speed" (AxleSpeed, rad/s), "pressure" (CylPressure, Pa) or
+  "accelerometer" (AccelLong, m/s²); `mode` = "stuck" (the reading frozen at its last value before
+  `from_s`, or at `value`) or "bias" (`value`, in the sensor's SI unit, added to the reading, which
+  is then quantised to the sensor's resolution again).
+
+Neither draws random numbers; like the others they are counted in the fault log (one event per
+frame or reading altered).
 """
 
 from __future__ import annotations
 
+import math
 import random
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -39,13 +56,16 @@ from hil.codec import Codec
 from hil.dbc import closest
 from hil.errors import ScenarioError
 
-__all__ = ["FAULT_KINDS", "MESSAGE_THREATS", "ROGUE", "FaultInjector", "FaultLog", "FaultSpec",
-           "build_injector"]
+__all__ = ["FAULT_KINDS", "MESSAGE_THREATS", "ROGUE", "SENSOR_SIGNALS", "SOURCE_FAULTS", "FaultInjector",
+           "FaultLog", "FaultSpec", "build_injector"]
 
 MESSAGE_THREATS = ("repetition", "deletion", "insertion", "resequencing", "corruption", "delay", "masquerade")
 NODE_FAULTS = ("babbling", "bus_off")
+SOURCE_FAULTS = ("stuck", "sensor")
 ROGUE = -1           # sender index of the attacker's frames (a node of its own on the bus)
-FAULT_KINDS = MESSAGE_THREATS + NODE_FAULTS
+FAULT_KINDS = MESSAGE_THREATS + NODE_FAULTS + SOURCE_FAULTS
+#: sensor name of a `sensor` fault -> the PLANT_CARn_SENSORS signal it produces (SI unit of `value`)
+SENSOR_SIGNALS = {"wheel_speed": "AxleSpeed", "pressure": "CylPressure", "accelerometer": "AccelLong"}
 
 
 class FaultSpec(BaseModel):
@@ -54,19 +74,24 @@ class FaultSpec(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     kind: Literal["repetition", "deletion", "insertion", "resequencing", "corruption", "delay",
-                  "masquerade", "babbling", "bus_off"]
+                  "masquerade", "babbling", "bus_off", "stuck", "sensor"]
     from_s: Annotated[float, Field(ge=0)]
     to_s: Annotated[float, Field(gt=0)]
-    message: str | None = None              # message threats: the DBC message attacked
+    message: str | None = None              # message threats and stuck: the DBC message
     node: str | None = None                 # babbling / bus_off: the node
     probability: Annotated[float, Field(ge=0, le=1)] = 1.0
     delay_ms: Annotated[float, Field(ge=0, le=10_000)] = 0.0
-    signal: str | None = None               # masquerade: the signal the rogue frame sets ...
-    value: float | None = None              # ... to this value
+    signal: str | None = None               # masquerade / stuck: the signal the rogue frame sets ...
+    value: float | None = None              # ... to this value (stuck / sensor: see the module docstring)
     frame_id: Annotated[int, Field(ge=0, le=0x7FF)] = 0x000   # babbling: the identifier it floods
+    car: Annotated[int, Field(ge=1, le=8)] | None = None      # sensor: the car (1-based)
+    sensor: Literal["wheel_speed", "pressure", "accelerometer"] | None = None
+    mode: Literal["stuck", "bias"] | None = None              # sensor: stuck reading or added bias
 
     @model_validator(mode="after")
     def _consistent(self) -> FaultSpec:
+        if self.value is not None and not math.isfinite(self.value):
+            raise ValueError(f"value {self.value} must be a finite number")
         if self.to_s <= self.from_s:
             raise ValueError(f"to_s {self.to_s} must be after from_s {self.from_s}")
         if self.kind in MESSAGE_THREATS and not self.message:
@@ -77,6 +102,21 @@ class FaultSpec(BaseModel):
             raise ValueError("a masquerade fault needs 'signal' and 'value' (what the rogue frame claims)")
         if self.kind in ("delay",) and self.delay_ms <= 0:
             raise ValueError("a delay fault needs delay_ms > 0")
+        if self.kind == "stuck" and (not self.message or self.signal is None):
+            raise ValueError("a stuck fault needs 'message' and 'signal' (and optionally 'value'; without it "
+                             "the signal freezes at its last value before from_s)")
+        if self.kind == "sensor":
+            if self.car is None or self.sensor is None or self.mode is None:
+                raise ValueError("a sensor fault needs 'car', 'sensor' (wheel_speed, pressure, "
+                                 "accelerometer) and 'mode' (stuck, bias)")
+            if self.mode == "bias" and self.value is None:
+                raise ValueError("a sensor fault with mode = 'bias' needs 'value', the bias in the sensor's "
+                                 "SI unit (rad/s, Pa, m/s²)")
+        if self.kind in SOURCE_FAULTS and self.probability != 1.0:
+            raise ValueError(f"a {self.kind} fault is not random: 'probability' applies to message "
+                             f"threats only")
+        if self.kind != "sensor" and (self.car, self.sensor, self.mode) != (None, None, None):
+            raise ValueError("'car', 'sensor' and 'mode' belong to sensor faults only")
         return self
 
 
@@ -116,7 +156,11 @@ class FaultInjector:
         self.forge = forge
         self.babble_rng = random.Random(f"{seed}/fault/babble")
         self.active: list[_Active] = []
+        self.sources: list[tuple[int, FaultSpec]] = []     # stuck / sensor: applied at the source (attach)
         for i, spec in enumerate(specs):
+            if spec.kind in SOURCE_FAULTS:
+                self.sources.append((i, spec))
+                continue
             fid = frame_ids[spec.message] if spec.message else None
             node = node_index[spec.node] if spec.node else None
             self.active.append(_Active(spec, fid, node, round(spec.from_s * 1e9), round(spec.to_s * 1e9),
@@ -190,9 +234,49 @@ class FaultInjector:
             return out + [(t, forged, True)]
         raise ValueError(f"unknown fault kind {kind!r}")
 
+    def attach(self, nodes: list) -> None:
+        """Install the stuck and sensor faults in the nodes that produce the values: a `stuck` one in the
+        node that sends its message (`Node.stick`), a `sensor` one in the plant node
+        (`PlantController.add_sensor_fault`).  A message no node of the scenario sends cyclically is a
+        ScenarioError naming the fault."""
+        from hil.node import StuckSignal  # heavier modules (plant_node imports the scenario: a cycle)
+        from hil.plant_node import SensorFault
+        for i, spec in self.sources:
+            start_us, end_us = round(spec.from_s * 1e6), round(spec.to_s * 1e6)
+            if spec.kind == "stuck":
+                what = f"{spec.message}.{spec.signal}"
+                stuck = StuckSignal(spec.signal, start_us, end_us, spec.value,
+                                    lambda t_us, what=what: self.log.add(t_us * 1000, "stuck", what))
+                if not any(node.stick(spec.message, stuck) for node in nodes):
+                    raise ScenarioError(f"scenario key 'faults[{i}].message' = {spec.message!r}: no node of "
+                                        f"this scenario sends it cyclically; nodes are "
+                                        f"{', '.join(n.name for n in nodes)}")
+                continue
+            plants = [n.controller for n in nodes if hasattr(n.controller, "add_sensor_fault")]
+            if not plants:
+                raise ScenarioError(f"scenario key 'faults[{i}]': a sensor fault needs the PLANT node")
+            what = f"car{spec.car}.{spec.sensor}"
+            plants[0].add_sensor_fault(SensorFault(
+                spec.car - 1, SENSOR_SIGNALS[spec.sensor], spec.mode, spec.value, start_us, end_us,
+                lambda t_us, what=what: self.log.add(t_us * 1000, "sensor", what)))
+
     def babble_windows(self) -> list[tuple[int, int, int, int]]:
         """(start ns, end ns, node index, frame id) of each babbling fault."""
         return [(a.start_ns, a.end_ns, a.node, a.spec.frame_id) for a in self.babblers]
+
+
+def _check_stuck(i: int, f: FaultSpec, msg, e2e_protected: bool, authentic: int) -> None:
+    """A stuck signal must be one the sender's software produces, and its value one the signal holds."""
+    sig = msg.get_signal_by_name(f.signal)
+    protection = (e2e_protected and f.signal in ("CHECKSUM", "COUNTER")) or sig.start >= 8 * authentic
+    if protection:
+        raise ScenarioError(f"scenario key 'faults[{i}].signal' = {f.signal!r}: written by the E2E/SecOC "
+                            f"protection of {msg.name} after the software's values; a stuck fault needs a "
+                            f"signal the sender's software produces")
+    lo, hi = sig.minimum, sig.maximum
+    if f.value is not None and ((lo is not None and f.value < lo) or (hi is not None and f.value > hi)):
+        raise ScenarioError(f"scenario key 'faults[{i}].value' = {f.value}: outside the range of "
+                            f"{msg.name}.{f.signal}, [{lo}, {hi}] {sig.unit or ''}".rstrip())
 
 
 def build_injector(scenario, db: Database, codec: Codec, node_names_: list[str]) -> FaultInjector | None:
@@ -215,6 +299,11 @@ def build_injector(scenario, db: Database, codec: Codec, node_names_: list[str])
             if f.signal not in signals:
                 raise ScenarioError(f"scenario key 'faults[{i}].signal' = {f.signal!r}: {f.message} has no "
                                     f"such signal (closest: {closest(f.signal, signals)})")
+            if f.kind == "stuck":
+                _check_stuck(i, f, msg, _e2e_config(msg) is not None, _authentic_length(msg))
+        if f.kind == "sensor" and f.car > scenario.train.cars:
+            raise ScenarioError(f"scenario key 'faults[{i}].car' = {f.car}: the train has "
+                                f"{scenario.train.cars} car(s), expected 1..{scenario.train.cars}")
 
     rng = random.Random(f"{scenario.seed}/fault/forge")
 

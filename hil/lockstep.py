@@ -125,6 +125,8 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
     for node in nodes:
         node.use_keys(keys, scenario.secoc.window)
     injector = build_injector(scenario, db, codec, [n.name for n in nodes])
+    if injector is not None:
+        injector.attach(nodes)              # stuck signals and failed sensors live in the nodes
     plant_node = nodes[0]
     plant: PlantController = plant_node.controller
     releases = node_releases(scenario, db, nodes)

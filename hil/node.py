@@ -19,8 +19,8 @@ BindingError naming it and the closest DBC names.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
 
 from cantools.database.can import Database
 
@@ -65,6 +65,33 @@ class RxTable(Mapping[str, float]):
 
 
 @dataclass
+class StuckSignal:
+    """A signal stuck in the sending node's software (hil.faults `stuck`): in [start_us, end_us) every
+    frame the node sends carries `value` [DBC physical unit], or, when `value` is None, the last value
+    it sent before start_us.  Applied to the frame's values before encoding, so the E2E CRC and the
+    SecOC MAC are computed over it (the frame is valid on the bus)."""
+
+    signal: str                     # DBC signal name in the frame
+    start_us: int
+    end_us: int
+    value: float | None
+    on_apply: Callable[[int], None] | None = None   # called with the node time [µs] per frame altered
+    last: float | None = None       # the value sent last before start_us
+
+    def apply(self, values: dict[str, float], now_us: int) -> None:
+        if now_us < self.start_us:
+            self.last = values.get(self.signal, 0.0)
+            return
+        if now_us >= self.end_us:
+            return
+        if self.value is None and self.last is None:      # nothing sent before: frozen from now on
+            self.last = values.get(self.signal, 0.0)
+        values[self.signal] = self.last if self.value is None else self.value
+        if self.on_apply is not None:
+            self.on_apply(now_us)
+
+
+@dataclass
 class TxFrame:
     codec: FrameCodec
     cycle_us: int
@@ -76,6 +103,7 @@ class TxFrame:
     e2e_state: e2e.ProtectState | None = None
     secoc: secoc.SecOcSender | None = None
     authentic: int = 8                     # bytes before the SecOC trailer
+    stuck: list[StuckSignal] = field(default_factory=list)   # injected sender faults (hil.faults)
 
 
 def _attribute(msg, name: str):
@@ -287,6 +315,15 @@ class Node:
             self.stats.secoc_rejected = {}
         self._next_due_us = min((tx.next_due_us for tx in self.tx), default=1 << 62)
 
+    def stick(self, message: str, stuck: StuckSignal) -> bool:
+        """Make a signal of a frame this node sends cyclically stuck (hil.faults); False: the node does
+        not send `message`."""
+        for tx in self.tx:
+            if tx.codec.name == message:
+                tx.stuck.append(stuck)
+                return True
+        return False
+
     @property
     def rx_ids(self) -> frozenset[int]:
         return frozenset(self._rx_map)
@@ -373,6 +410,9 @@ class Node:
             values = {sig: outputs.get(key, 0.0) for sig, key in tx.fields}
             if tx.counter:
                 values[E2E_COUNTER] = tx.count % E2E_COUNTER_MODULO
+            if tx.stuck:
+                for stuck in tx.stuck:
+                    stuck.apply(values, now_us)
             data = tx.codec.encode(values)
             if tx.secoc is not None:
                 data = data[:tx.authentic]

@@ -4,6 +4,8 @@ the plant's ground truth, from which the KPIs are computed."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from cantools.database.can import Database
@@ -11,12 +13,46 @@ from cantools.database.can import Database
 from hil.scenario import Scenario
 from plant_sim.params import AdhesionParams, BrakeParams, PlantParams, SensorParams, TrainParams
 from plant_sim.plant import Plant, TruthSnapshot
+from plant_sim.sensors import quantise
 from plant_sim.track import Track
 
 TRUTH_PERIOD_US = 10_000         # ground truth is sampled every 10 ms
 STANDSTILL_MPS = 0.01            # every car slower than this counts as standing still (chosen)
 SENSOR_FIELDS = (("AxleSpeed", "axle_speed_rad_s"), ("CylPressure", "cyl_pressure_Pa"),
                  ("AccelLong", "accel_mps2"))
+
+
+@dataclass
+class SensorFault:
+    """A failed sensor of one car (hil.faults `sensor`), applied to the reading the plant reports.
+
+    mode "stuck": in [start_us, end_us) the reading is `value`, or, when `value` is None, the last
+    reading before start_us.  mode "bias": `value` (the sensor's SI unit: rad/s, Pa, m/s²) is added
+    to the reading, which is then quantised to the sensor's resolution again and kept ≥ 0 where the
+    sensor cannot read negative (wheel speed, pressure).  The plant's physics is untouched."""
+
+    car: int                       # 0-based
+    signal: str                    # PLANT_CARn_SENSORS signal: AxleSpeed, CylPressure or AccelLong
+    mode: str                      # "stuck" | "bias"
+    value: float | None
+    start_us: int
+    end_us: int
+    on_apply: Callable[[int], None] | None = None   # called with the plant time [µs] per reading altered
+    last: float | None = None      # the reading before start_us
+
+
+#: resolution of each sensor in plant_sim.params.SensorParams, and whether it reads ≥ 0 only
+SENSOR_QUANTUM = {"AxleSpeed": ("axle_speed_quantum_rad_s", True),
+                  "CylPressure": ("pressure_quantum_Pa", True),
+                  "AccelLong": ("accel_quantum_mps2", False)}
+
+
+def faulty_reading(reading: float, fault: SensorFault, quantum: float, non_negative: bool) -> float:
+    """What a failed sensor reports instead of `reading` while its fault is active (pure)."""
+    if fault.mode == "stuck":
+        return fault.last if fault.value is None else fault.value
+    out = float(quantise(np.asarray(reading + fault.value), quantum))
+    return max(out, 0.0) if non_negative else out
 
 
 def build_track(scenario: Scenario) -> Track:
@@ -145,6 +181,25 @@ class PlantController:
         self._valve = np.zeros(n_cars)
         self._wsp = np.zeros(n_cars, dtype=np.int64)
         self.standstill = False     # every car below STANDSTILL_MPS at the last truth sample
+        self.sensor_faults: list[SensorFault] = []
+
+    def add_sensor_fault(self, fault: SensorFault) -> None:
+        """A failed sensor (hil.faults `sensor`): applied to the readings this node sends."""
+        self.sensor_faults.append(fault)
+
+    def _apply_sensor_faults(self, now_us: int, out: dict[str, float]) -> None:
+        sp = self.plant.params.sensors
+        for f in self.sensor_faults:
+            key = f"PLANT_CAR{f.car + 1}_SENSORS.{f.signal}"
+            if now_us < f.start_us:
+                f.last = out[key]
+            elif now_us < f.end_us:
+                if f.last is None:
+                    f.last = out[key]
+                attr, non_negative = SENSOR_QUANTUM[f.signal]
+                out[key] = faulty_reading(out[key], f, getattr(sp, attr), non_negative)
+                if f.on_apply is not None:
+                    f.on_apply(now_us)
 
     def glance(self) -> dict[str, np.ndarray]:
         """Speeds and positions now, for progress displays."""
@@ -187,6 +242,8 @@ class PlantController:
                 for sig, attr in SENSOR_FIELDS:
                     out[prefix + sig] = float(getattr(s, attr)[i])
                 out[prefix + "SensorCounter"] = counter
+            if self.sensor_faults:
+                self._apply_sensor_faults(now_us, out)
             self.sense_count += 1
             self.next_sense_us += self.sensor_period_us
         if now_us >= self.next_truth_us:

@@ -42,6 +42,41 @@ class RunReport:
         return [head] + summary_lines(self.kpis, self.files)
 
 
+def plausibility_events(trace: Path, db, codec: Codec, n_cars: int, t0_s: float = 0.0,
+                        speed: float = 1.0) -> dict[str, dict[str, float]]:
+    """When the ECUs first flagged a sensor or a car (issue #9), from the trace: simulated time [s]
+    of the first BECUn_DIAG frame with SpeedSensorFault / AccelSensorFault = 1 and of the first
+    BCU_STATUS frame with a car's CarsImplausible bit, by flag and car ("car2")."""
+    watch: dict[int, tuple[object, str]] = {}
+    for i in range(1, n_cars + 1):
+        watch[db.get_message_by_name(f"BECU{i}_DIAG").frame_id] = (codec.by_name(f"BECU{i}_DIAG"), f"car{i}")
+    status = db.get_message_by_name("BCU_STATUS").frame_id
+    watch[status] = (codec.by_name("BCU_STATUS"), "")
+    first: dict[str, dict[str, float]] = {}
+
+    def flag(kind: str, car: str, t: float) -> None:
+        first.setdefault(kind, {}).setdefault(car, round(t, 4))
+
+    with can.LogReader(str(trace)) as reader:
+        for msg in reader:
+            hit = watch.get(msg.arbitration_id)
+            if hit is None or msg.is_error_frame or msg.is_remote_frame:
+                continue
+            fc, car = hit
+            values = fc.decode(bytes(msg.data))
+            t = (msg.timestamp - t0_s) * speed
+            if msg.arbitration_id == status:
+                bits = int(values.get("CarsImplausible", 0))
+                for k in range(n_cars):
+                    if bits >> k & 1:
+                        flag("CarsImplausible", f"car{k + 1}", t)
+                continue
+            for sig in ("SpeedSensorFault", "AccelSensorFault"):
+                if values.get(sig, 0) >= 0.5:
+                    flag(sig, car, t)
+    return first
+
+
 def dbc_path_of(scenario: Scenario) -> Path:
     return Path(scenario.dbc) if scenario.dbc else DEFAULT_DBC
 
@@ -76,6 +111,9 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     kpis["protection_events"] = dict(sorted(detected.items()))
     if outcome.faults is not None:
         kpis["faults_injected"] = dict(sorted(outcome.faults["counts"].items()))
+    flagged = plausibility_events(trace, db, codec, scenario.train.cars, trace_t0_s, trace_speed)
+    if flagged or outcome.faults is not None:
+        kpis["plausibility_flags"] = flagged       # first time [s] each sensor / car was flagged
     kpis["mode"] = outcome.mode
     kpis["seed"] = scenario.seed
     kpis["simulated_s"] = outcome.end_us / 1e6

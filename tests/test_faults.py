@@ -115,6 +115,18 @@ def test_faults_are_seeded(tmp_path):
     ({"kind": "bus_off", "node": "BECU9", "from_s": 1, "to_s": 2}, "faults[0].node"),
     ({"kind": "masquerade", "message": "BCU_DEMAND", "signal": "TargetDecl", "value": 0, "from_s": 1,
       "to_s": 2}, "closest: TargetDecel"),
+    ({"kind": "stuck", "message": "BECU2_STATUS", "signal": "SpeedEstt", "from_s": 1, "to_s": 2},
+     "closest: SpeedEst"),
+    ({"kind": "stuck", "message": "BECU7_STATUS", "signal": "SpeedEst", "from_s": 1, "to_s": 2},
+     "faults[0].message"),                                          # a 6-car train: nobody sends it
+    ({"kind": "stuck", "message": "BECU1_PRESS_CMD", "signal": "COUNTER", "from_s": 1, "to_s": 2},
+     "E2E/SecOC protection"),
+    ({"kind": "stuck", "message": "BECU1_PRESS_CMD", "signal": "SecOCMAC", "from_s": 1, "to_s": 2},
+     "E2E/SecOC protection"),
+    ({"kind": "stuck", "message": "BECU2_STATUS", "signal": "SpeedEst", "value": 700.0, "from_s": 1,
+      "to_s": 2}, "faults[0].value"),
+    ({"kind": "sensor", "car": 7, "sensor": "pressure", "mode": "stuck", "from_s": 1, "to_s": 2},
+     "faults[0].car"),
 ])
 def test_bad_fault_names_are_one_line_errors(tmp_path, fault, needle):
     with pytest.raises(ScenarioError, match=needle.replace("[", r"\[").replace("]", r"\]")):
@@ -126,6 +138,17 @@ def test_bad_fault_names_are_one_line_errors(tmp_path, fault, needle):
     ({"kind": "delay", "message": "BCU_DEMAND", "from_s": 1, "to_s": 2}, "delay_ms > 0"),
     ({"kind": "deletion", "message": "BCU_DEMAND", "from_s": 2, "to_s": 1}, "must be after from_s"),
     ({"kind": "melt", "message": "BCU_DEMAND", "from_s": 1, "to_s": 2}, "faults.0.kind"),
+    ({"kind": "stuck", "message": "BECU2_STATUS", "from_s": 1, "to_s": 2}, "needs 'message' and 'signal'"),
+    ({"kind": "sensor", "car": 1, "sensor": "wheel_speed", "from_s": 1, "to_s": 2}, "and 'mode'"),
+    ({"kind": "sensor", "car": 1, "sensor": "wheel_speed", "mode": "bias", "from_s": 1, "to_s": 2},
+     "needs 'value'"),
+    ({"kind": "sensor", "car": 1, "sensor": "gyro", "mode": "stuck", "from_s": 1, "to_s": 2},
+     "faults.0.sensor"),
+    ({"kind": "sensor", "car": 1, "sensor": "pressure", "mode": "stuck", "probability": 0.5, "from_s": 1,
+      "to_s": 2}, "not random"),
+    ({"kind": "sensor", "car": 1, "sensor": "pressure", "mode": "bias", "value": float("nan"), "from_s": 1,
+      "to_s": 2}, "finite"),
+    ({"kind": "deletion", "message": "BCU_DEMAND", "car": 2, "from_s": 1, "to_s": 2}, "sensor faults only"),
 ])
 def test_inconsistent_fault_entries_are_scenario_errors(fault, needle):
     with pytest.raises(ScenarioError, match=needle):
