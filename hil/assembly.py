@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from cantools.database.can import Database
 
-from firmware_py.bcu import Bcu, BcuParams
+from firmware_py.bcu import Bcu, BcuMode, BcuParams
 from firmware_py.becu import Becu, BecuParams
 from firmware_py.governor import GovernorParams, governor_params
 from firmware_py.pi import PIParams
@@ -110,7 +110,7 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_na
     n = scenario.train.cars
     if name == "PLANT":
         plant = build_plant(scenario)
-        ctrl = PlantController(plant, n, db)
+        ctrl = PlantController(plant, n, db, dbc_name)
         rx_msgs = [f"BECU{i}_PRESS_CMD" for i in range(1, n + 1)]
         tx_msgs = [f"PLANT_CAR{i}_SENSORS" for i in range(1, n + 1)]
         period, offset, inputs, outputs = plant.params.dt_us, PLANT_OFFSET_US, ctrl.inputs, ctrl.outputs
@@ -134,4 +134,17 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_na
     else:
         raise BindingError(f"no node {name!r} in this scenario; nodes are {', '.join(node_names(scenario))}")
     binding = Binding.build(db, name, inputs, outputs, rx_msgs, tx_msgs, dbc_name)
-    return Node(name, ctrl, binding, codec, db, period_us=period, offset_us=offset)
+    return Node(name, ctrl, binding, codec, db, period_us=period, offset_us=offset,
+                safe_outputs=safe_outputs(ctrl))
+
+
+def safe_outputs(ctrl) -> dict[str, float]:
+    """What a node sends in place of an output its controller could not give (step() raised, or the
+    value is NaN, infinite or not a number): railway fail-safe, a brake ECU that fails brakes.  A BECU
+    fills its cylinder to p̄; the BCU commands the emergency brake.  Other nodes: 0 (hil.node)."""
+    if isinstance(ctrl, Becu):
+        return {"CylPressureSet": ctrl.p.p_max_Pa, "ValveCmd": 1.0, "WspValve": 0, "InputMissing": 1}
+    if isinstance(ctrl, Bcu):
+        return {"Mode": int(BcuMode.EMERGENCY), "TargetDecel": ctrl.p.emergency_decel_mps2,
+                "EmergencyActive": 1, "Source": 3, "Degraded": 1}
+    return {}

@@ -71,7 +71,7 @@ SENSOR_SIGNALS = {"wheel_speed": "AxleSpeed", "pressure": "CylPressure", "accele
 class FaultSpec(BaseModel):
     """One `[[faults]]` entry of a scenario."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     kind: Literal["repetition", "deletion", "insertion", "resequencing", "corruption", "delay",
                   "masquerade", "babbling", "bus_off", "stuck", "sensor"]

@@ -247,7 +247,9 @@ class NodeStats:
     frames_sent: int = 0
     frames_received: int = 0
     bad_frames: int = 0            # received frames that did not decode (wrong length, bad mux)
-    bad_outputs: int = 0           # non-finite controller outputs replaced by the safe value
+    bad_outputs: int = 0           # non-finite or non-numeric controller outputs replaced by the safe value
+    clamped_outputs: int = 0       # outputs outside their DBC range, sent saturated to it
+    unknown_frames: int = 0        # received frames whose identifier the DBC does not define (ignored)
     e2e_discarded: int = 0         # protected frames not given to the controller (status not usable)
     e2e_status: dict | None = None  # E2E status -> count (frames and cycles without a frame)
     e2e_events: list | None = None  # (t_us, message, status): every E2E status but OK and every SecOC
@@ -331,6 +333,8 @@ class Node:
     def receive(self, frame_id: int, data: bytes, t_us: int) -> None:
         fc = self._rx_codecs.get(frame_id)
         if fc is None:
+            if frame_id not in self.codec:     # not a frame of this bus at all: counted, ignored
+                self.stats.unknown_frames += 1
             return
         try:
             values = fc.decode(data)
@@ -394,11 +398,20 @@ class Node:
             stats.step_errors += 1
             stats.last_error = f"{type(exc).__name__}: {exc}"
             result = dict(self.safe)
+        if not isinstance(result, Mapping):      # a step() that returns no outputs is a controller bug too
+            stats.step_errors += 1
+            stats.last_error = f"step() returned {type(result).__name__}, expected a dict of output signals"
+            result = dict(self.safe)
         outputs = self.outputs
         for key, value in result.items():
-            if value.__class__ is not int and not math.isfinite(value):
-                stats.bad_outputs += 1
-                value = self.safe.get(key, 0.0)
+            if value.__class__ is not int:
+                try:
+                    finite = math.isfinite(value)
+                except TypeError:                # not a number at all
+                    finite = False
+                if not finite:
+                    stats.bad_outputs += 1
+                    value = self.safe.get(key, 0.0)
             outputs[key] = value
         frames = []
         slot_us = now_us if nominal_us is None else nominal_us
@@ -413,7 +426,10 @@ class Node:
             if tx.stuck:
                 for stuck in tx.stuck:
                     stuck.apply(values, now_us)
+            clamped = tx.codec.clamped
             data = tx.codec.encode(values)
+            if tx.codec.clamped != clamped:      # the codec saturated an out-of-range value
+                stats.clamped_outputs += tx.codec.clamped - clamped
             if tx.secoc is not None:
                 data = data[:tx.authentic]
             if tx.e2e is not None:

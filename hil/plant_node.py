@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 from cantools.database.can import Database
 
+from hil.errors import BindingError
 from hil.scenario import Scenario
 from plant_sim.params import AdhesionParams, BrakeParams, PlantParams, SensorParams, TrainParams
 from plant_sim.plant import Plant, TruthSnapshot
@@ -140,6 +141,15 @@ class TruthLog:
         return cols
 
 
+def _message(db: Database, name: str, dbc_name: str):
+    """The DBC message the plant needs, or a BindingError naming it (a DBC of another bus)."""
+    try:
+        return db.get_message_by_name(name)
+    except KeyError:
+        raise BindingError(f"node PLANT: {dbc_name} has no message {name!r}; the plant needs the train "
+                           f"brake frames of dbc/train_brake.dbc") from None
+
+
 FAILSAFE_CYCLES = 3        # pressure-command cycles without a usable frame before the fail-safe applies
 
 
@@ -152,7 +162,7 @@ class PlantController:
     actuators apply the brake on their own — EP valve fully open to the reservoir, dump valve
     closed, set-point p̄ — until commands come back (`failsafe_us` counts the time per car)."""
 
-    def __init__(self, plant: Plant, n_cars: int, db: Database) -> None:
+    def __init__(self, plant: Plant, n_cars: int, db: Database, dbc_name: str = "the DBC") -> None:
         self.plant = plant
         self.n = n_cars
         self.valve_keys = [f"BECU{i}_PRESS_CMD.ValveCmd" for i in range(1, n_cars + 1)]
@@ -164,9 +174,12 @@ class PlantController:
         self._pset = np.zeros(n_cars)
         self.outputs = tuple(f"PLANT_CAR{i}_SENSORS.{sig}" for i in range(1, n_cars + 1)
                              for sig, _ in SENSOR_FIELDS + (("SensorCounter", ""),))
-        cycle_ms = db.get_message_by_name("PLANT_CAR1_SENSORS").cycle_time
+        cycle_ms = _message(db, "PLANT_CAR1_SENSORS", dbc_name).cycle_time
+        if not cycle_ms:
+            raise BindingError(f"node PLANT: message PLANT_CAR1_SENSORS of {dbc_name} has no cycle time "
+                               "(GenMsgCycleTime); the plant sends its sensor frames at that period")
         self.sensor_period_us = int(cycle_ms) * 1000
-        command_ms = db.get_message_by_name("BECU1_PRESS_CMD").cycle_time or 10
+        command_ms = _message(db, "BECU1_PRESS_CMD", dbc_name).cycle_time or 10
         self.failsafe_after_us = FAILSAFE_CYCLES * int(command_ms) * 1000
         self.failsafe_us = np.zeros(n_cars, dtype=np.int64)   # time spent in fail-safe braking, per car
         self._p_max = plant.params.brake.p_max_Pa

@@ -391,6 +391,11 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
     from hil.results import check_out_dir
     from hil.run import TRACE_NAME, dbc_path_of, finish_run
 
+    if scenario.faults:                           # not silently dropped: say where they work
+        from hil.errors import ScenarioError
+        kinds = ", ".join(sorted({f.kind for f in scenario.faults}))
+        raise ScenarioError(f"scenario {scenario.name!r}: [[faults]] ({kinds}) are injected by the lockstep "
+                            "run; run it with --lockstep (in real time, kill a node process instead)")
     cfg = resolve_bus_config(cli_bus_config, scenario)
     dbc_path = dbc_path_of(scenario)
     db = load_dbc(dbc_path)                       # bad DBC: one line, before any process starts

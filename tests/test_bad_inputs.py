@@ -34,7 +34,7 @@ import can
 import numpy as np
 import pytest
 from can.io import blf
-from conftest import ROOT, railhil
+from conftest import ROOT, assert_one_line_error, railhil
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pydantic import BaseModel
@@ -320,9 +320,7 @@ for _key, _needles in DBC_CASES:
     ]
 CASES += [
     Case("dbc_without_the_train_messages-run", lambda b: run(b, "scen_leaf"),
-         lambda b: ("LeafPowertrainBus.dbc", "PLANT_CAR1_SENSORS"),
-         xfail="hil/plant_node.py PlantController looks up PLANT_CAR1_SENSORS in the DBC before the "
-               "binding checks it: KeyError traceback (now one 'internal error' line, exit 1)"),
+         lambda b: ("LeafPowertrainBus.dbc", "PLANT_CAR1_SENSORS")),
     # scenarios
     Case("scenario_not_toml", lambda b: run(b, "scen_not_toml"),
          lambda b: ("not_toml.toml", "not valid TOML", "line 1")),
@@ -355,8 +353,7 @@ CASES += [
     Case("scenario_fault_message_not_in_dbc", lambda b: run(b, "scen_fault_unknown_message"),
          lambda b: ("faults[0].message", "'BCU_DEMANT'", "closest: BCU_DEMAND")),
     Case("scenario_fault_nan_value", lambda b: run(b, "scen_fault_nan_value"),
-         lambda b: ("fault_nan_value.toml", "faults.0.value", "nan"),
-         xfail="hil/faults.py FaultSpec.value (float | None, no finite check) accepts nan"),
+         lambda b: ("fault_nan_value.toml", "faults.0.value", "nan")),
     Case("scenario_faults_not_a_list", lambda b: run(b, "scen_faults_not_a_list"),
          lambda b: ("faults_not_a_list.toml", "'faults'", "valid list")),
     Case("scenario_missing", lambda b: run(b, "scen_missing"),
@@ -470,13 +467,20 @@ def test_permission_denied_trace_and_dbc(bad):
         check_one_line_error(proc.returncode, proc.stdout, proc.stderr, needles)
 
 
-def test_an_unexpected_exception_is_one_line_and_debug_shows_the_traceback(bad, leaf_scenario, capsys):
+def test_an_unexpected_exception_is_one_line_and_debug_shows_the_traceback(bad, capsys, monkeypatch):
     """A bug (an exception that is not a RailhilError) still prints one line, exit 1, saying how to get
-    the traceback; --debug gives it.  (The Leaf DBC case: see the xfail in the catalogue.)"""
-    argv = [str(a) for a in run(bad, "scen_leaf")]
+    the traceback; --debug gives it.  The bug is injected into `trace stats`' table builder."""
+    import hil.cli.trace.stats as stats
+
+    def broken(frames):
+        raise KeyError("injected bug")
+
+    monkeypatch.setattr(stats, "collect_stats", broken)
+    argv = ["trace", "stats", str(bad.good_blf)]
     code, out, err = railhil(capsys, *argv)
     assert code == 1 and "Traceback" not in err
     assert err.count("\n") == 1 and err.startswith("error: internal error") and "--debug" in err
+    assert "KeyError" in err and "injected bug" in err
     with pytest.raises(KeyError):
         railhil(capsys, "--debug", *argv)
 
@@ -574,8 +578,6 @@ def test_node_ignores_a_frame_of_an_id_not_in_the_dbc(small_scenario):
     assert node.stats.frames_received == 0 and node.stats.bad_frames == 0
 
 
-@pytest.mark.xfail(strict=True, reason="hil/node.py: NodeStats has no count of frames whose id the DBC "
-                                       "does not define (Node.receive returns without a word)")
 def test_node_counts_a_frame_of_an_id_not_in_the_dbc(small_scenario):
     node, _ = becu1(small_scenario)
     node.receive(0x7F0, bytes(8), 1000)
@@ -604,9 +606,6 @@ def test_node_saturates_an_out_of_range_output_and_the_codec_counts_it(small_sce
     assert fc.clamped - before == 1
 
 
-@pytest.mark.xfail(strict=True, reason="hil/node.py: an out-of-range output is saturated by the codec "
-                                       "(FrameCodec.clamped) but NodeStats does not count it, so run.json "
-                                       "does not show it")
 def test_node_counts_an_out_of_range_output(small_scenario):
     node, _ = becu1(small_scenario)
     node, _ = becu1(small_scenario, Faulty(node.controller, "range"), safe={})
@@ -625,9 +624,6 @@ def test_node_sends_safe_values_when_step_raises(small_scenario):
 
 
 @pytest.mark.parametrize("kind", ["none", "text"])
-@pytest.mark.xfail(strict=True, reason="hil/node.py Node.cycle: a step() that returns None, or a value "
-                                       "that is not a number, raises (AttributeError / TypeError from "
-                                       "math.isfinite) instead of being counted and replaced")
 def test_node_survives_a_step_that_returns_no_numbers(small_scenario, kind):
     node, _ = becu1(small_scenario)
     node, _ = becu1(small_scenario, Faulty(node.controller, kind), safe={"CylPressureSet": 0.0})
@@ -679,9 +675,6 @@ def test_a_lockstep_run_counts_controller_faults_and_keeps_its_trace(faulty_run)
     assert max(stamps) > 0.9 * report.outcome.end_us / 1e6
 
 
-@pytest.mark.xfail(strict=True, reason="hil/node.py / hil/run.py: out-of-range controller outputs are "
-                                       "saturated but not counted in NodeStats, so run.json does not "
-                                       "show them")
 def test_a_lockstep_run_shows_out_of_range_outputs_in_run_json(faulty_run):
     report, injected = faulty_run
     stats = json.loads((report.out_dir / "run.json").read_text())["node_stats"]["BECU1"]
@@ -763,3 +756,13 @@ def test_scenario_loader_loads_or_raises_one_scenario_error_line(tmp_path_factor
         assert "\n" not in text and text.startswith(str(path)), text
     else:
         assert isinstance(scenario, Scenario)
+
+
+def test_faults_in_a_real_time_run_are_refused_not_dropped(tmp_path, capsys):
+    """[[faults]] are injected by the lockstep run: a real-time run of such a scenario says so."""
+    scenario = tmp_path / "faulty.toml"
+    scenario.write_text('name = "faulty"\nmax_duration_s = 1\n[[faults]]\nkind = "deletion"\n'
+                        'message = "BCU_DEMAND"\nfrom_s = 0.1\nto_s = 0.2\n')
+    code, out, err = railhil(capsys, "run", scenario, "--realtime", "--out", tmp_path / "run")
+    assert_one_line_error(code, err, "[[faults]]", "deletion", "--lockstep")
+    assert not (tmp_path / "run").exists()
