@@ -37,3 +37,8 @@ class NodeDied(RailhilError, RuntimeError):
     """A node process of a real-time run ended unexpectedly."""
 
     exit_code = 4
+
+
+class SerialLinkError(RailhilError, OSError):
+    """A serial line (the GPS link) whose port cannot be opened or used: names the port and what was
+    expected (a device path such as /dev/ttyUSB0, or a pyserial URL such as loop://)."""
