@@ -121,7 +121,8 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     kpis_json = out_dir / "kpis.json"
     write_kpis(kpis, kpis_json)
     plot = out_dir / "plot.png"
-    plot_run(scenario, cols, plot, f"{scenario.name} ({outcome.mode}, seed {scenario.seed})")
+    plot_run(scenario, cols, plot, f"{scenario.name} ({outcome.mode}, seed {scenario.seed})",
+             trace_t0_s=trace_t0_s, trace_speed=trace_speed)
     meta = {
         "scenario": scenario.model_dump(mode="json"),
         "mode": outcome.mode,
