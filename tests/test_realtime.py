@@ -190,6 +190,8 @@ def test_a_killed_becu_is_named_and_the_bcu_reports_it_silent_within_3_cycles(tm
                 if m.arbitration_id == status.frame_id]
     flagged = [t for t, sig in rows if sig["Degraded"] == 1 and sig["CarsSilent"] == 1 << 1]
     assert flagged, rows[-5:]
+    print(f"\nBECU2 killed at {kill_s:.3f} s; BCU_STATUS reports it silent at {flagged[0]:.3f} s "
+          f"(+{1e3 * (flagged[0] - kill_s):.0f} ms)")
     # BECU2_STATUS every 50 ms: silent after 3 of them (150 ms), seen on the next BCU_STATUS (100 ms)
     assert flagged[0] - kill_s <= 0.150 + 0.100 + 0.05, (kill_s, flagged[0])
     # not degraded between start-up (no car heard yet) and the kill
@@ -208,9 +210,13 @@ def test_a_killed_bcu_makes_every_becu_brake_within_100_ms(tmp_path):
     assert t[-1] > kill_s + 0.5                                   # the plant recorded the aftermath
     before = np.searchsorted(t, kill_s - 0.02)
     after = np.searchsorted(t, kill_s + 0.100)
+    rise_ms = []
     for i in range(1, 7):
         p = cols[f"p_Pa_{i}"]
         assert p[after] > p[before] + 20e3, (i, p[before], p[after])   # every cylinder filling
+        k = before + int(np.argmax(p[before:] > p[before] + 20e3))
+        rise_ms.append(round(1e3 * (t[k] - kill_s)))
+    print(f"\nBCU killed at {kill_s:.3f} s; each car's cylinder +20 kPa after (ms): {rise_ms}")
 
 
 def test_unopenable_bus_is_one_line_and_falls_back_on_request(tmp_path):
