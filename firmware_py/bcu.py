@@ -1,8 +1,11 @@
 """Train brake control unit (BCU), v1.
 
 DESK brake step (0..7) -> target deceleration for every car; an emergency request (desk or ACD) ->
-full braking, latched until standstill and released request.  Later issues add deceleration feedback
-(seed 004), precise stopping (seed 002) and the consensus reference (seed 003).
+full braking, latched until standstill and released request.  Deceleration feedback (seed 004 §5,
+`firmware_py.decel_feedback`) when `BcuParams.feedback` is given: it reads the front and rear cars'
+accelerometers (PLANT_CAR1/n_SENSORS.AccelLong) and every car's WspActive, and sends its state, the
+pressure correction φ and the slope estimate in BCU_STATUS (FbState, FrictionPhi, SlopeEst); the BECUs
+apply φ.  Later issues add precise stopping (seed 002) and the consensus reference (seed 003).
 
 Train speed: the highest speed estimate (BECUn_STATUS.SpeedEst) of the cars that are heard from and
 plausible.  A car whose estimate disagrees with the median of the train for longer than 3 of its
@@ -19,7 +22,8 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 from firmware_py.cycle import CycleTimer
-from firmware_py.limits import finite_or, rate_limit
+from firmware_py.decel_feedback import DecelFeedback, FbState, FeedbackParams
+from firmware_py.limits import clip, finite_or, rate_limit
 
 
 class BcuMode(IntEnum):
@@ -69,13 +73,14 @@ class BcuParams:
     # slides: < 0.3 m/s in the default and stop_30kmh runs) (chosen)
     implausible_mps: float = 2.0
     implausible_after_us: int = 150_000
+    feedback: FeedbackParams | None = None   # deceleration feedback, seed 004 §5; None: not fitted
 
 
 class Bcu:
     """step(now_us, rx) -> BCU_DEMAND / BCU_EMERGENCY / BCU_STATUS signals."""
 
     OUTPUTS = ("Mode", "BrakeStep", "TargetDecel", "EmergencyActive", "Source", "CarsSilent", "Degraded",
-               "TrainSpeedEst", "CarsImplausible")
+               "TrainSpeedEst", "CarsImplausible", "FbState", "FrictionPhi", "SlopeEst")
 
     def __init__(self, n_cars: int, params: BcuParams | None = None) -> None:
         self.p = params or BcuParams()
@@ -87,6 +92,15 @@ class Bcu:
         self.fault_keys = tuple(f"BECU{i}_DIAG.{sig}" for i in range(1, n_cars + 1)
                                 for sig in ("SpeedSensorFault", "AccelSensorFault"))
         self.inputs = ("BrakeStep", "EmergencyReq") + self.speed_keys + self.fault_keys
+        self.feedback: DecelFeedback | None = None
+        if self.p.feedback is not None:
+            self.feedback = DecelFeedback(self.p.feedback)
+            # the front and rear cars' accelerometers (seed 004 §6.1) and every car's WSP flag
+            self.accel_keys = ("PLANT_CAR1_SENSORS.AccelLong", f"PLANT_CAR{n_cars}_SENSORS.AccelLong")
+            self.wsp_keys = tuple(f"BECU{i}_STATUS.WspActive" for i in range(1, n_cars + 1))
+            self.inputs += self.accel_keys + self.wsp_keys
+            self._speed_rx_us: int | None = None
+            self.fb_out = None                     # last FeedbackOutput (diagnostic)
         self.implausible = [False] * n_cars           # latched per car
         self._disagree_since: list[int | None] = [None] * n_cars
 
@@ -117,6 +131,11 @@ class Bcu:
             jerk = p.jerk_limit_mps3 * dt_s
             self.target = rate_limit(wanted, self.target, jerk, jerk)
         emergency = self.mode == BcuMode.EMERGENCY
+        fb_state, phi, slope = FbState.OFF, 1.0, 0.0
+        if self.feedback is not None:
+            fb = self.fb_out = self._feedback_step(now_us, rx, dt_s, brake_step, emergency,
+                                                   train_speed if known else 0.0)
+            fb_state, phi, slope = fb.state, fb.phi, fb.slope
         return {
             "Mode": int(self.mode),
             "BrakeStep": brake_step,
@@ -127,7 +146,33 @@ class Bcu:
             "Degraded": int(silent != 0 or implausible != 0 or sensor_fault),
             "TrainSpeedEst": train_speed if known else 0.0,
             "CarsImplausible": implausible,
+            "FbState": int(fb_state),
+            "FrictionPhi": phi,
+            "SlopeEst": clip(slope, -0.064, 0.06375),            # the DBC signal's range
         }
+
+    def _feedback_step(self, now_us: int, rx: Mapping[str, float], dt_s: float, brake_step: int,
+                       emergency: bool, train_speed: float):
+        """The deceleration feedback's cycle: inputs from rx, the demand this BCU just computed."""
+        accel = [finite_or(rx[key], float("nan"))[0] for key in self.accel_keys]
+        if not all(a == a for a in accel):             # an accelerometer not heard from: use the other
+            good = [a for a in accel if a == a]
+            accel = [good[0]] * 2 if good else [0.0, 0.0]
+        wsp = any(finite_or(rx[key], 0.0)[0] >= 0.5 for key in self.wsp_keys)
+        # a fresh speed estimate for the EKF: when a new BECU1_STATUS arrived (every cycle for a plain
+        # mapping, which has no reception times)
+        speed: float | None = train_speed if train_speed > 0.0 else None
+        age_us = getattr(rx, "age_us", None)
+        if age_us is not None and speed is not None:
+            age = age_us(self.speed_keys[0], now_us)
+            t_rx = None if age is None else now_us - age
+            if t_rx == self._speed_rx_us:
+                speed = None
+            self._speed_rx_us = t_rx
+        wanted = self.p.step_decel_mps2[brake_step]
+        service = self.mode == BcuMode.SERVICE and wanted > 0.0
+        return self.feedback.step(dt_s, self.target, self.target == wanted, service, emergency, wsp,
+                                  accel[0], accel[1], speed, train_speed)
 
     def _vote(self, now_us: int, speeds: list[float]) -> None:
         """Latch the cars that disagree with the train's median for longer than implausible_after_us."""

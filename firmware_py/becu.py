@@ -14,6 +14,11 @@ diagnostics frame (governor; SpeedSensorFault, AccelSensorFault, AccelBiasEst).
 With BecuParams.control = "decel" the set-point comes from seed 001's deceleration PI (eq. 16) instead,
 optionally behind the reference governor (eq. 9, firmware_py.governor), which sets GovernorActive.
 
+Deceleration feedback (seed 004 §5, firmware_py.decel_feedback): in "pressure" control the BCU's
+pressure correction φ (BCU_STATUS.FrictionPhi, eq. (34)) divides the force part of the set-point,
+P_c = preload + (P_c0 − preload)/φ, gated to `phi_limits`; not received, not finite, emergency or loss of
+command: φ = 1 (`apply_phi`).
+
 Sensor plausibility (issue #9): the wheel-speed sensor is declared failed (SpeedSensorFault, latched)
 when its reading says the wheel stands while the accelerometer says the car moves for longer than a
 real slide lasts, or when its reading is frozen while the accelerometer says the speed changed; the
@@ -236,6 +241,9 @@ class BecuParams:
     wsp_resume: str = "freeze"
     pressure_observer_gain: float = 0.1     # governor's cylinder observer: correction per cycle (chosen)
     sensors: SensorCheckParams = field(default_factory=SensorCheckParams)   # plausibility, issue #9
+    # output gate on the BCU's pressure correction φ (seed 004 eq. (34)): the authority the BCU has over
+    # this car's service-brake pressure, -38 %/+67 % (chosen; the BCU's own limits are the same)
+    phi_limits: tuple[float, float] = (0.6, 1.6)
 
     def __post_init__(self) -> None:
         if self.control not in ("pressure", "decel"):
@@ -250,7 +258,8 @@ class BecuParams:
 class Becu:
     """One car's brake ECU: step(now_us, rx) -> dict of output signals."""
 
-    INPUTS = ("AxleSpeed", "CylPressure", "AccelLong", "TargetDecel", "Mode", "EmergencyActive")
+    INPUTS = ("AxleSpeed", "CylPressure", "AccelLong", "TargetDecel", "BCU_DEMAND.Mode", "EmergencyActive",
+              "FrictionPhi")
     OUTPUTS = ("CylPressureSet", "ValveCmd", "WspValve", "SpeedEst", "SlipSpeedEst", "WspActive",
                "GovernorActive", "IntegratorSat", "InputMissing", "OptSlipEst", "OptSlipPos",
                "GovernedDecel", "GovernorMargin", "GovernorFeasible", "SpeedSensorFault", "AccelSensorFault",
@@ -292,6 +301,15 @@ class Becu:
             return 0.0
         torque = self.p.car_mass_kg * decel_mps2 * self.p.wheel_radius_m
         return clip(torque / self.p.brake_gain_Nm_per_Pa + self.p.brake_preload_Pa, 0.0, self.p.p_max_Pa)
+
+    def apply_phi(self, p_set_Pa: float, phi: float) -> float:
+        """Seed 004 eq. (34): P_c = P_c0/φ on the force part of the set-point (above the return-spring
+        preload, where the torque is proportional to the pressure, eq. (24)); φ gated to `phi_limits`."""
+        pre = self.p.brake_preload_Pa
+        if phi == 1.0 or p_set_Pa <= pre:
+            return p_set_Pa
+        lo, hi = self.p.phi_limits
+        return clip(pre + (p_set_Pa - pre) / clip(phi, lo, hi), 0.0, self.p.p_max_Pa)
 
     def estimate_speed(self, wheel_v: float, accel: float, dt_s: float) -> float:
         """Reference speed: integrate the accelerometer, pulled to the axle while it is not slipping."""
@@ -449,6 +467,9 @@ class Becu:
             p_set, governed = self.decel_control(decel, -accel_used, pressure, dt_s, overridden)
         else:
             p_set = self.pressure_for_decel(decel)
+            phi, phi_ok = finite_or(rx.get("FrictionPhi", 1.0), 1.0)
+            if phi_ok and emergency < 0.5 and not lost:                  # seed 004 §5: not for emergency
+                p_set = self.apply_phi(p_set, phi)
         valve = self.pressure_pi.update(p_set - pressure, dt_s, freeze=overridden)
         if overridden:
             valve = 0.0                                               # the dump valve acts, EP valve holds

@@ -8,22 +8,26 @@ process from the same function, so the node code is the same in both modes.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 
 from cantools.database.can import Database
 
 from firmware_py.bcu import Bcu, BcuMode, BcuParams
 from firmware_py.becu import Becu, BecuParams
+from firmware_py.decel_feedback import FeedbackParams, FrictionSet
 from firmware_py.governor import GovernorParams, governor_params
 from firmware_py.pi import PIParams
 from hil.codec import Codec
 from hil.desk import DeskScript
 from hil.errors import BindingError
 from hil.node import Binding, Node
-from hil.plant_node import PlantController, build_plant, plant_params
+from hil.plant_node import PlantController, build_track, plant_params
 from hil.scenario import Scenario
 from plant_sim.adhesion import mu_slip_speed_scalar, mu_slip_speed_slope_scalar
-from plant_sim.params import PlantParams
+from plant_sim.padbench import BenchParams, coefficient_set
+from plant_sim.params import PadParams, PlantParams
+from plant_sim.plant import Plant
 
 # Phase offsets inside the 10 ms cycle, so that ECUs are not artificially synchronous (chosen).
 PLANT_OFFSET_US = 0
@@ -45,20 +49,68 @@ def node_names(scenario: Scenario) -> list[str]:
 
 
 def becu_messages(i: int) -> tuple[list[str], list[str]]:
-    return ([f"PLANT_CAR{i}_SENSORS", "BCU_DEMAND", "BCU_EMERGENCY"],
+    return ([f"PLANT_CAR{i}_SENSORS", "BCU_DEMAND", "BCU_EMERGENCY", "BCU_STATUS"],
             [f"BECU{i}_PRESS_CMD", f"BECU{i}_STATUS", f"BECU{i}_DIAG"])
 
 
 G_MPS2 = 9.81          # bar/g -> Pa per m/s²: 1 bar = 1e5 Pa, g = 9.81 m/s²
 
 
+def pad_params(scenario: Scenario) -> PadParams | None:
+    """The plant's variable pad friction (seed 004 eqs. (24)-(25)) when [plant] pad_friction = true."""
+    ps = scenario.plant
+    if not ps.pad_friction:
+        return None
+    kw: dict = {"initial_temp_rise_K": ps.disc_temp_rise_K}
+    if ps.pad_speed_amplitude is not None:
+        kw["n_v"] = ps.pad_speed_amplitude
+    if ps.pad_cold_amplitude is not None:
+        kw["n_T"] = ps.pad_cold_amplitude
+    return PadParams(**kw)
+
+
+def scenario_plant_params(scenario: Scenario) -> PlantParams:
+    """hil.plant_node.plant_params plus the pad model of seed 004 where the scenario asks for it."""
+    pp = plant_params(scenario)
+    pad = pad_params(scenario)
+    return pp if pad is None else dataclasses.replace(pp, pad=pad)
+
+
+def build_plant(scenario: Scenario) -> Plant:
+    return Plant(scenario_plant_params(scenario), build_track(scenario),
+                 v0_mps=scenario.train.initial_speed_kmh / 3.6, x0_m=scenario.train.start_position_m,
+                 seed=scenario.seed)
+
+
+@functools.lru_cache(maxsize=8)
+def _bench_set(pad: PadParams, bench: BenchParams, method: str) -> FrictionSet:
+    cs = coefficient_set(pad, bench, method)
+    return FrictionSet(cs.speeds_kmh, cs.dt_s, cs.values)
+
+
+def friction_set(scenario: Scenario, step_decel_mps2: tuple[float, ...]) -> FrictionSet | None:
+    """The BCU's friction-coefficient set (seed 004 §4.2, §6.3): the plant's pad model on the brake-disc
+    bench at the tested speed classes, braked at the full service step, filled to 10 km/h × 100 ms."""
+    pad = pad_params(scenario)
+    if scenario.bcu.friction_set == "none" or pad is None:
+        return None
+    tp = plant_params(scenario).train
+    bench = BenchParams(decel_mps2=step_decel_mps2[7], wheel_radius_m=tp.wheel_radius_m,
+                        car_mass_kg=sum(tp.masses_kg) / len(tp.masses_kg))
+    return _bench_set(pad, bench, scenario.bcu.friction_set_fill)
+
+
 def bcu_params(scenario: Scenario) -> BcuParams:
-    """BcuParams with the scenario's [bcu] step table and jerk limit where given."""
+    """BcuParams with the scenario's [bcu] step table, jerk limit and deceleration feedback where given."""
     kw: dict = {}
     if scenario.bcu.step_decel_mps2 is not None:
         kw["step_decel_mps2"] = tuple(scenario.bcu.step_decel_mps2)
     if scenario.bcu.jerk_limit_mps3 is not None:
         kw["jerk_limit_mps3"] = scenario.bcu.jerk_limit_mps3
+    if scenario.bcu.decel_feedback is not None:
+        steps = kw.get("step_decel_mps2", BcuParams().step_decel_mps2)
+        kw["feedback"] = FeedbackParams(enabled=scenario.bcu.decel_feedback, tq_s=scenario.bcu.feedback_tq_s,
+                                        friction_set=friction_set(scenario, steps))
     return BcuParams(**kw)
 
 
@@ -122,6 +174,8 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_na
         ctrl = Bcu(n, bcu_params(scenario))
         rx_msgs = (["DESK_CMD"] + [f"BECU{i}_STATUS" for i in range(1, n + 1)]
                    + [f"BECU{i}_DIAG" for i in range(1, n + 1)])
+        if ctrl.feedback is not None:                  # the front and rear accelerometers, seed 004 §6.1
+            rx_msgs += list(dict.fromkeys(["PLANT_CAR1_SENSORS", f"PLANT_CAR{n}_SENSORS"]))
         tx_msgs = ["BCU_DEMAND", "BCU_EMERGENCY", "BCU_STATUS"]
         period, offset = ctrl.p.cycle_us, BCU_OFFSET_US
         inputs, outputs = ctrl.inputs, ctrl.OUTPUTS

@@ -6,6 +6,11 @@ controllers were given is read back from the trace, decoded with the DBC.
 Runs whose BECUs use seed 001's deceleration PI (`[becu] control = "decel"`) also get the seed-001 KPIs
 under kpis.json's key "seed001" (`seed001_kpis`, definitions there) and, as plot.png, a figure laid out
 like the paper's Figs. 8-9 (`plot_seed001`).
+
+Runs whose BCU has seed 004's deceleration feedback (`[bcu] decel_feedback = true` or `false`, the
+open-loop comparison) get the seed-004 KPIs under "seed004" (`seed004_kpis`) and a plot laid out like
+the paper's Figs. 19-20 (`plot_seed004`); `compare_seed004` draws an open-loop and a closed-loop run
+side by side.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from hil.errors import RailhilError
 from hil.plant_node import STANDSTILL_MPS
 from hil.scenario import Scenario
 from plant_sim.adhesion import mu_slip_speed_scalar
+from plant_sim.params import PadParams
 
 MOVING_MPS = 0.5        # a car below this speed is not judged for slip or deceleration tracking
 G_MPS2 = 9.81           # g, the unit of seed 001's decelerations (plant_sim.params.TrainParams.g_mps2)
@@ -33,6 +39,7 @@ SETTLE_BAND = 0.02      # settled: within ±2 % of the steady-state deceleration
 PAPER_FIG8_MEAN_ERROR_G = 0.0718      # Fig. 8a, no governor: lim 1/T ∫ r⁰ − v̇ dt (WSP limit cycle)
 PAPER_FIG8_SS_ERROR_G = 0.0682        # Fig. 8b, governor: lim r⁰ − v̇, reference cut to r ≈ 0.2 g
 PAPER_FIG8_STOPPING_GAIN_M = 1.62     # §IV-A: the governor improves stopping accuracy over 30 s by this
+PAD_MU_NOMINAL = PadParams().mu_nominal   # μ_d0 of seed 004 eq. (32), the plant's pad model
 
 
 def write_truth_csv(columns: dict[str, np.ndarray], path: Path) -> None:
@@ -120,6 +127,8 @@ def compute_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[
         kpis["max_abs_coupler_dl_m"] = round(float(np.max(np.abs(dl))), 4)
     if scenario.becu.control == "decel":
         kpis["seed001"] = seed001_kpis(scenario, cols, target, t_brake, i_stop)
+    if scenario.bcu.decel_feedback is not None:
+        kpis["seed004"] = seed004_kpis(scenario, cols, target)
     return kpis
 
 
@@ -215,6 +224,124 @@ def seed001_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[
     return out
 
 
+# seed 004 §5.2: the band and the time outside it that engages the loop (firmware_py.decel_feedback)
+SEED004_BAND = (0.9, 1.1)
+SEED004_ENGAGE_AFTER_S = 0.5
+SEED004_MIN_SPEED_MPS = 1.0      # judged while the train is faster than this (the BCU's min_speed_mps)
+SEED004_MIN_TARGET_MPS2 = 0.2    # ... and the target above this (the BCU's min_target_mps2) ...
+SEED004_STEADY_TOL = 0.02        # ... and steady: the target through T_q within 2 % of it (steady_tol)
+SEED004_RATIO_TAU_S = 0.2        # the truth's deceleration is filtered like the BCU's ratio (τ, s)
+
+
+def _lag(t: np.ndarray, x: np.ndarray, tau_s: float) -> np.ndarray:
+    """First-order lag of a sampled signal (exact for x held between samples)."""
+    out = np.empty_like(x, dtype=float)
+    acc = float(x[0]) if x.size else 0.0
+    for k in range(x.size):
+        if k:
+            acc += (1.0 - np.exp(-(t[k] - t[k - 1]) / tau_s)) * (x[k] - acc)
+        out[k] = acc
+    return out
+
+
+def seed004_ratio(scenario: Scenario, cols: dict[str, np.ndarray],
+                  target: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(times [s], actual/target deceleration, judged) from the plant's truth.
+
+    actual: the mass-weighted train deceleration −v̇ through a first-order lag of SEED004_RATIO_TAU_S
+    (the car accelerations of one 1 ms step carry the couplers' oscillation); target: BCU_DEMAND.TargetDecel
+    from the trace through the cylinder lag T_q (eq. (33), bcu.feedback_tq_s) and the same filter.
+    Judged, as the BCU judges: the demand is steady (the target through T_q within SEED004_STEADY_TOL of
+    the target) and above SEED004_MIN_TARGET_MPS2, and the train is faster than SEED004_MIN_SPEED_MPS."""
+    n = scenario.train.cars
+    t = cols["t_s"]
+    masses = np.asarray(scenario.train.masses())
+    decel = _lag(t, -(_per_car(cols, "a_mps2", n) @ masses) / masses.sum(), SEED004_RATIO_TAU_S)
+    tt, tv = target
+    r0 = np.interp(t, tt, tv, left=0.0) if tt.size else np.zeros_like(t)
+    expected = _lag(t, _lag(t, r0, scenario.bcu.feedback_tq_s), SEED004_RATIO_TAU_S)   # the same filter
+    v = (_per_car(cols, "v_mps", n) @ masses) / masses.sum()
+    steady = np.abs(_lag(t, r0, scenario.bcu.feedback_tq_s) - r0) <= SEED004_STEADY_TOL * r0
+    judged = steady & (r0 >= SEED004_MIN_TARGET_MPS2) & (v >= SEED004_MIN_SPEED_MPS)
+    ratio = np.where(judged, decel / np.maximum(expected, 1e-9), np.nan)
+    return t, ratio, judged
+
+
+def seed004_engagement_s(t: np.ndarray, ratio: np.ndarray, judged: np.ndarray) -> float | None:
+    """First time [s] at which the ratio has been outside SEED004_BAND for more than
+    SEED004_ENGAGE_AFTER_S while judged (seed 004 §5.2's rule, on whatever ratio is given)."""
+    lo, hi = SEED004_BAND
+    since = None
+    for k in range(t.size):
+        out = bool(judged[k]) and not (lo <= ratio[k] <= hi)
+        if not out:
+            since = None
+        elif since is None:
+            since = float(t[k])
+        elif t[k] - since > SEED004_ENGAGE_AFTER_S:
+            return float(t[k])
+    return None
+
+
+def seed004_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[np.ndarray, np.ndarray],
+                 engaged_at_s: float | None = None) -> dict:
+    """Seed 004's figures of merit (§5.2, §6.4), from the plant's truth (`seed004_ratio` defines the ratio).
+
+    * `engaged_at_s`: when the loop engaged: the BCU's own engagement (BCU_STATUS.FbState = ENGAGED in
+      the trace) when given, else (`engage_source` "truth rule") the time at which §5.2's rule fires on the
+      true ratio — the same instant for an open-loop run, which never engages;
+    * `within_band_after_engagement`: the fraction of judged samples (10 ms) from then to the stop with the
+      ratio within 90–110 %; `within_band_judged`: the same over every judged sample of the stop;
+    * `ratio_min`, `ratio_max`, `ratio_rms_error`: over the judged samples after engagement;
+    * `wsp_activations`: FILL→VENT transitions per car (seed 004: the loop must not cause WSP on dry rail);
+    * `pad_mu_ratio_range`: the pad friction μ_d/μ_nominal of car 1 over the judged samples (eq. (25)).
+    """
+    t, ratio, judged = seed004_ratio(scenario, cols, target)
+    source = "BCU"
+    if engaged_at_s is None:
+        engaged_at_s, source = seed004_engagement_s(t, ratio, judged), "truth rule"
+    lo, hi = SEED004_BAND
+    inside = judged & (ratio >= lo) & (ratio <= hi)
+    out: dict = {"closed_loop": bool(scenario.bcu.decel_feedback), "engaged_at_s": _r(engaged_at_s, 3),
+                 "engage_source": source, "band": list(SEED004_BAND),
+                 "within_band_judged": _r(inside.sum() / max(int(judged.sum()), 1))}
+    after = judged & (t >= engaged_at_s) if engaged_at_s is not None else np.zeros_like(judged)
+    if after.any():
+        r = ratio[after]
+        out["within_band_after_engagement"] = _r(inside[after].sum() / after.sum())
+        out["window_s"] = [round(float(t[after][0]), 3), round(float(t[after][-1]), 3)]
+        out["ratio_min"], out["ratio_max"] = _r(float(r.min())), _r(float(r.max()))
+        out["ratio_rms_error"] = _r(float(np.sqrt(np.mean((r - 1.0) ** 2))))
+    else:
+        out["within_band_after_engagement"] = None
+    n = scenario.train.cars
+    vent = _per_car(cols, "wsp_valve", n) == 2
+    out["wsp_activations"] = [int(k) for k in np.sum(vent[1:] & ~vent[:-1], axis=0) + vent[0]]
+    if "mu_pad_1" in cols and judged.any():
+        mu = cols["mu_pad_1"][judged] / PAD_MU_NOMINAL
+        out["pad_mu_ratio_range"] = [_r(float(mu.min())), _r(float(mu.max()))]
+    return out
+
+
+def seed004_summary_lines(k: dict | None) -> list[str]:
+    """The seed-004 KPIs as summary lines."""
+    if not k:
+        return []
+    loop = "closed loop" if k["closed_loop"] else "open loop (monitor only)"
+    eng = k["engaged_at_s"]
+    lines = [f"decel feedback          {loop}; engagement "
+             + (f"at {eng:.2f} s ({k['engage_source']})" if eng is not None else "condition never met")]
+    if k.get("within_band_after_engagement") is not None:
+        lines.append(f"actual/target in 90-110% {100 * k['within_band_after_engagement']:.1f} % of the time "
+                     f"after engagement ({k['window_s'][0]:.1f}-{k['window_s'][1]:.1f} s; ratio "
+                     f"{k['ratio_min']:.3f}-{k['ratio_max']:.3f}, rms error {k['ratio_rms_error']:.3f})")
+    lines.append(f"  ... over the whole stop {100 * k['within_band_judged']:.1f} %"
+                 + ("; pad friction μ_d/μ_d0 {:.3f}-{:.3f}".format(*k["pad_mu_ratio_range"])
+                    if k.get("pad_mu_ratio_range") else "")
+                 + "   (paper, Figs. 19-20: closed loop smoother and closer to 1.32 m/s², no figure given)")
+    return lines
+
+
 def read_signals(trace: Path, db: Database, codec: Codec, wanted: dict[str, tuple[str, str]],
                  t0_s: float = 0.0, speed: float = 1.0) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Several signals of a trace in one pass: name -> (message, signal) in, name -> (simulated times
@@ -251,6 +378,9 @@ def plot_run(scenario: Scenario, cols: dict[str, np.ndarray], path: Path, title:
 
     if scenario.becu.control == "decel":
         plot_seed001(scenario, cols, path, title, trace_t0_s, trace_speed)
+        return
+    if scenario.bcu.decel_feedback is not None:
+        plot_seed004(scenario, cols, path, title, trace_t0_s, trace_speed)
         return
     n = scenario.train.cars
     t = cols["t_s"]
@@ -338,6 +468,135 @@ def plot_seed001(scenario: Scenario, cols: dict[str, np.ndarray], path: Path, ti
     plt.close(fig)
 
 
+def _feedback_signals(scenario: Scenario, trace: Path, t_end: float, trace_t0_s: float | None,
+                      trace_speed: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """TargetDecel and BCU_STATUS's FbState, FrictionPhi, SlopeEst from a run's trace ({} when there is
+    none, or it is a real-time trace given without its t0)."""
+    from hil.dbc import DEFAULT_DBC, load_dbc
+
+    if not trace.exists():
+        return {}
+    db = load_dbc(Path(scenario.dbc) if scenario.dbc else DEFAULT_DBC)
+    sig = read_signals(trace, db, Codec(db), {"target": ("BCU_DEMAND", "TargetDecel"),
+                                              "state": ("BCU_STATUS", "FbState"),
+                                              "phi": ("BCU_STATUS", "FrictionPhi"),
+                                              "slope": ("BCU_STATUS", "SlopeEst")},
+                       0.0 if trace_t0_s is None else trace_t0_s, trace_speed)
+    if trace_t0_s is None and any(ts.size and ts[0] > t_end + 1.0 for ts, _ in sig.values()):
+        return {}
+    return sig
+
+
+def bcu_engagement_s(sig: dict[str, tuple[np.ndarray, np.ndarray]]) -> float | None:
+    """First time [s] the trace's BCU_STATUS.FbState says ENGAGED (2), or None."""
+    ts, vs = sig.get("state", (np.array([]), np.array([])))
+    hit = np.flatnonzero(vs == 2)
+    return float(ts[hit[0]]) if hit.size else None
+
+
+def plot_seed004(scenario: Scenario, cols: dict[str, np.ndarray], path: Path, title: str,
+                 trace_t0_s: float | None = None, trace_speed: float = 1.0) -> None:
+    """Seed 004's Figs. 19-20 for one run: deceleration (truth, filtered as in `seed004_ratio`) with the
+    target and the 90-110 % band; cylinder pressure per car; the BCU's φ and the pad friction μ_d/μ_d0;
+    the BCU's slope estimate.  The BCU's engagement (trace) is a vertical line on every panel."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = scenario.train.cars
+    t = cols["t_s"]
+    sig = _feedback_signals(scenario, path.parent / "trace.blf", float(t[-1]) if len(t) else 0.0,
+                            trace_t0_s, trace_speed)
+    target = sig.get("target", (np.array([]), np.array([])))
+    masses = np.asarray(scenario.train.masses())
+    decel = _lag(t, -(_per_car(cols, "a_mps2", n) @ masses) / masses.sum(), SEED004_RATIO_TAU_S)
+    fig, axes = plt.subplots(3, 1, figsize=(10, 10), sharex=True)
+    ax_d, ax_p, ax_f = axes
+    ax_d.plot(t, decel, lw=1.0, label="train deceleration (plant, mass-weighted)")
+    if target[0].size:
+        ax_d.step(target[0], target[1], where="post", color="k", lw=1.0, label="target (BCU_DEMAND)")
+        for f in SEED004_BAND:
+            ax_d.step(target[0], f * target[1], where="post", color="k", lw=0.6, ls=":")
+    for i in range(1, n + 1):
+        ax_p.plot(t, cols[f"p_Pa_{i}"] / 1e3, lw=0.8, label=f"car {i}")
+    if "phi" in sig and sig["phi"][0].size:
+        ax_f.step(sig["phi"][0], sig["phi"][1], where="post", color="tab:red", lw=1.0, label="φ (BCU_STATUS)")
+    if "mu_pad_1" in cols:
+        ax_f.plot(t, cols["mu_pad_1"] / PAD_MU_NOMINAL, lw=0.8, color="tab:green",
+                  label="μ_d/μ_d0 car 1 (plant)")
+    if "slope" in sig and sig["slope"][0].size:
+        ax_s = ax_f.twinx()
+        ax_s.step(sig["slope"][0], sig["slope"][1] * 1e3, where="post", color="tab:gray", lw=0.8,
+                  label="slope estimate [‰]")
+        ax_s.set_ylabel("slope estimate [‰]")
+        ax_s.legend(fontsize=8, loc="lower right")
+    eng = bcu_engagement_s(sig)
+    for ax in axes:
+        if eng is not None:
+            ax.axvline(eng, color="tab:purple", lw=1.0, ls="--")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8, loc="upper left")
+    ax_d.set_ylabel("deceleration [m/s²]")
+    ax_p.set_ylabel("cylinder pressure [kPa]")
+    ax_f.set_ylabel("φ, μ_d/μ_d0 [-]")
+    ax_f.set_xlabel("time [s]" + ("   (dashed: the BCU's feedback engaged)" if eng is not None else ""))
+    loop = "closed loop" if scenario.bcu.decel_feedback else "open loop"
+    fig.suptitle(f"{title}, deceleration feedback: {loop}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def compare_seed004(open_dir: Path, closed_dir: Path, out: Path) -> Path:
+    """Seed 004's Figs. 19-20 as the paper shows them: cylinder pressure (car 1) and train deceleration of
+    an open-loop and a closed-loop run of the same scenario, side by side in one figure, from the two run
+    folders (truth.csv, run.json, trace.blf).  Returns `out`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_p, ax_d) = plt.subplots(2, 1, figsize=(10, 8), sharex=True)
+    for label, folder, color in (("before (open loop)", Path(open_dir), "tab:blue"),
+                                 ("after (closed loop)", Path(closed_dir), "tab:red")):
+        meta = json.loads((folder / "run.json").read_text())
+        scenario = Scenario.model_validate(meta["scenario"])
+        cols = read_truth_csv(folder / "truth.csv")
+        t = cols["t_s"]
+        n = scenario.train.cars
+        masses = np.asarray(scenario.train.masses())
+        decel = _lag(t, -(_per_car(cols, "a_mps2", n) @ masses) / masses.sum(), SEED004_RATIO_TAU_S)
+        sig = _feedback_signals(scenario, folder / "trace.blf", float(t[-1]), meta.get("trace_t0_s"), 1.0)
+        ax_p.plot(t, cols["p_Pa_1"] / 1e3, color=color, lw=1.0, label=f"{label}, car 1")
+        ax_d.plot(t, decel, color=color, lw=1.0, label=label)
+        target = sig.get("target")
+        if target is not None and target[0].size and "closed" in label:
+            ax_d.step(target[0], target[1], where="post", color="k", lw=1.0, label="target")
+            for f in SEED004_BAND:
+                ax_d.step(target[0], f * target[1], where="post", color="k", lw=0.6, ls=":")
+    ax_p.set_ylabel("cylinder pressure [kPa]   (Fig. 19)")
+    ax_d.set_ylabel("deceleration [m/s²]   (Fig. 20)")
+    ax_d.set_xlabel("time [s]")
+    for ax in (ax_p, ax_d):
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("seed 004 line test: before / after the deceleration feedback")
+    fig.tight_layout()
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
+
+
+def read_truth_csv(path: Path) -> dict[str, np.ndarray]:
+    """truth.csv (written by `write_truth_csv`) back as columns."""
+    try:
+        data = np.genfromtxt(path, delimiter=",", names=True)
+    except OSError as exc:
+        raise RailhilError(f"{path}: cannot read the truth of a run: {exc}") from None
+    return {name: np.asarray(data[name], dtype=float) for name in data.dtype.names}
+
+
 def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
     def per_car(values, fmt):
         return " ".join(fmt.format(v) for v in values)
@@ -362,6 +621,7 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
         seen = ", ".join(f"{k} {v}" for k, v in kpis.get("protection_events", {}).items()) or "nothing"
         lines.append(f"faults injected         {injected}; receivers reported {seen}")
     lines += seed001_summary_lines(kpis.get("seed001"))
+    lines += seed004_summary_lines(kpis.get("seed004"))
     bus = kpis.get("bus")
     if bus:
         lines.append(f"bus ({bus['bitrate_bps'] // 1000} kbit/s)       load {100 * bus['load']:.1f} %, "

@@ -183,6 +183,12 @@ class PlantSpec(_Strict):
     brake_gain_Nm_per_Pa: Annotated[float, Field(gt=0, le=10)] | None = None
     brake_preload_Pa: Annotated[float, Field(ge=0, le=400e3)] | None = None
     hysteresis_Pa: Annotated[float, Field(ge=0, le=400e3)] | None = None
+    # seed 004 eqs. (24)-(25): pad friction that varies with sliding speed and disc temperature (plant_sim
+    # PadParams); the amplitudes and the disc's initial temperature rise may be changed
+    pad_friction: bool = False
+    pad_speed_amplitude: Annotated[float, Field(gt=-1, le=2)] | None = None     # n_v of eq. (25)
+    pad_cold_amplitude: Annotated[float, Field(gt=-1, le=2)] | None = None      # n_T of eq. (25)
+    disc_temp_rise_K: Annotated[float, Field(ge=0, le=600)] = 0.0              # T_d at the start [K]
 
 
 class SensorSpec(_Strict):
@@ -194,10 +200,19 @@ class SensorSpec(_Strict):
 
 
 class BcuSpec(_Strict):
-    """BCU options: target deceleration of brake steps 0..7 [m/s²] and the jerk limit [m/s³]."""
+    """BCU options: target deceleration of brake steps 0..7 [m/s²], the jerk limit [m/s³], and the
+    deceleration feedback of seed 004 §5."""
 
     step_decel_mps2: list[Annotated[float, Field(ge=0, le=20)]] | None = None
     jerk_limit_mps3: Annotated[float, Field(gt=0, le=1000)] | None = None
+    # seed 004 §5: true = closed loop, false = the function monitors only (the open-loop BCU, for
+    # comparison; KPIs and plot as for true), absent = not fitted
+    decel_feedback: bool | None = None
+    # the friction-coefficient set μ(v, t): built from the plant's pad model on the brake-disc bench
+    # ("bench", needs plant.pad_friction) or none (the loop's trim alone)
+    friction_set: Literal["bench", "none"] = "bench"
+    friction_set_fill: Literal["fraction", "time"] = "fraction"   # how untested speed classes are filled
+    feedback_tq_s: Annotated[float, Field(gt=0, le=5)] = 0.1     # T_q of eq. (33) [s]
 
     @field_validator("step_decel_mps2")
     @classmethod
@@ -302,6 +317,10 @@ class Scenario(_Strict):
 
     @model_validator(mode="after")
     def _governor_needs_curve(self) -> Scenario:
+        if (self.bcu.decel_feedback is not None and self.bcu.friction_set == "bench"
+                and not self.plant.pad_friction):
+            raise ValueError("bcu.friction_set = 'bench' builds the set from the plant's pad model: it needs "
+                             "plant.pad_friction = true (or bcu.friction_set = 'none')")
         if self.becu.governor and self.plant.adhesion != "slip_speed":
             raise ValueError("becu.governor = true needs plant.adhesion = 'slip_speed' (the governor's "
                              "slip inclusion is built from that curve family)")

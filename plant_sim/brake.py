@@ -14,7 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 from plant_sim.elementwise import elementwise
-from plant_sim.params import BrakeParams
+from plant_sim.params import BrakeParams, PadParams
 
 # WSP dump-valve states (the DBC's WspValve signal)
 WSP_FILL = 0   # normal: the EP valve acts on the cylinder
@@ -131,6 +131,22 @@ def hysteresis_torque_scalar(tau_prev_Nm: float, p_Pa: float, bp: BrakeParams) -
     tau = squeeze if squeeze > tau_prev_Nm else tau_prev_Nm   # squeeze case of (10a): lifted onto the line
     tau = release if release < tau else tau                    # release case of (10a): pushed down onto it
     return 0.0 if 0.0 > tau else tau                           # hold case leaves τ⁻; torque never negative
+
+
+def pad_friction_scalar(omega_rad_s: float, temp_rise_K: float, pp: PadParams) -> float:
+    """μ_d [-] of the pad on the disc, eq. (25) seed 004: μ_d0 (n_v e^{m_v v_d} + 1)(n_T e^{m_T T_d} + 1),
+    v_d = |ω| r_f the sliding speed [m/s], T_d the disc's temperature rise [K]."""
+    v_d = abs(omega_rad_s) * pp.friction_radius_m
+    return (pp.mu_steady * (pp.n_v * math.exp(pp.m_v_s_per_m * v_d) + 1.0)        # eq. (25), seed 004
+            * (pp.n_T * math.exp(pp.m_T_per_K * temp_rise_K) + 1.0))
+
+
+def disc_temperature_scalar(temp_rise_K: float, tau_Nm: float, omega_rad_s: float, dt_s: float,
+                            pp: PadParams) -> float:
+    """Disc temperature rise [K] after dt_s: C dT/dt = η τ |ω| − G T (braking power in, conduction and
+    convection out); explicit Euler (C/G = 30 s ≫ dt)."""
+    power_W = pp.heat_fraction * tau_Nm * abs(omega_rad_s)                        # F_b v = τ ω
+    return temp_rise_K + dt_s * (power_W - pp.cooling_W_per_K * temp_rise_K) / pp.heat_capacity_J_per_K
 
 
 # ------------------------------------------------------------------------------ array wrappers, n cars

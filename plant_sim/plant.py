@@ -51,8 +51,10 @@ from plant_sim.brake import (
     WSP_STATES,
     cylinder_lag_scalar,
     cylinder_pressure_scalar,
+    disc_temperature_scalar,
     hysteresis_torque_scalar,
     lag_factor,
+    pad_friction_scalar,
     sanitize_valve_cmd,
     sanitize_wsp_valve,
     valve_table,
@@ -122,6 +124,10 @@ class TruthSnapshot(NamedTuple):
     theta: list      # adhesion curve parameters (θ1, θ2, θ3) at the car
     s_max: list      # largest slip speed v − rω over EVERY integration step since the start [m/s]
     p_set: list      # cylinder pressure set-point applied over the last step [Pa] ("lag" model; else 0)
+    tau_brake: list  # brake torque acting on the wheel over the last step [N m]: tau, times μ_d/μ_nominal
+    #                  with a variable pad friction (eq. (24) seed 004)
+    mu_pad: list     # pad/disc friction coefficient μ_d over the last step (eq. (25) seed 004); [] without
+    temp_rise: list  # disc temperature rise T_d [K] at the end of the last step; [] without a pad model
 
 
 class Plant:
@@ -169,6 +175,11 @@ class Plant:
         self._w_list: list = [0] * n
         self._shape = (n,)
         self._f_other = [0.0] * n               # every force but adhesion over the last step
+        # variable pad friction (seed 004 eqs. (24)-(25)): friction coefficient and disc temperature rise
+        self._pad = params.pad
+        self._mu_pad: list = [params.pad.mu_nominal] * n if params.pad else []
+        self._temp: list = [params.pad.initial_temp_rise_K] * n if params.pad else []
+        self._tau_brake: list = self._tau
         self._sensors = SensorModel(params.sensors, int(seed))
         self._refresh_track()
 
@@ -249,8 +260,11 @@ class Plant:
         else:
             p, tau = self._p, self._tau
 
-        # forces at the start of the step: couplers (Φ = 0 ahead of the first and behind the last car) ...
         x, v, s = self._x, self._v, self._s
+        tau_line = tau                         # the hysteresis state: torque at the nominal pad friction
+        if self._pad is not None:
+            tau = self._pad_step(tau, v, s)
+        # forces at the start of the step: couplers (Φ = 0 ahead of the first and behind the last car) ...
         cc = self._cc
         pitch = cc.car_pitch_m
         phi = [0.0]
@@ -276,7 +290,7 @@ class Plant:
 
         self._x, self._v_prev, self._v, self._s = x_new, v, v_new, s_new
         self._s_max = list(map(max, self._s_max, s_new))
-        self._p, self._tau, self._f_other = p, tau, f_others
+        self._p, self._tau, self._tau_brake, self._f_other = p, tau_line, tau, f_others
         self._u_list, self._w_list = u_list, w_list
         self._n_steps += 1
         self._budget_m -= dt * max(v_new)                               # the farthest any car moved
@@ -287,6 +301,22 @@ class Plant:
             for i, xa, a1, a2, a3, d1, d2, d3 in self._theta_live:
                 dx = x_new[i] - xa
                 theta[i] = (a1 + d1 * dx, a2 + d2 * dx, a3 + d3 * dx)
+
+    def _pad_step(self, tau_line: list, v: list, s: list) -> list:
+        """Brake torques [N m] with the pad's friction now (eq. (24) seed 004: τ = τ_line μ_d/μ_nominal,
+        μ_d from eq. (25) at the wheel's speed and the disc's temperature); advances the temperatures."""
+        pp, dt, inv_r = self._pad, self._dt, 1.0 / self._cc.r_m
+        ratio = 1.0 / pp.mu_nominal
+        mus, temps, taus = [], [], []
+        for tau_i, v_i, s_i, temp_i in zip(tau_line, v, s, self._temp, strict=True):
+            omega = (v_i - s_i) * inv_r
+            mu_d = pad_friction_scalar(omega, temp_i, pp)                    # eq. (25), seed 004
+            tau_i = tau_i * mu_d * ratio                                     # eq. (24), seed 004
+            mus.append(mu_d)
+            taus.append(tau_i)
+            temps.append(disc_temperature_scalar(temp_i, tau_i, omega, dt, pp))
+        self._mu_pad, self._temp = mus, temps
+        return taus
 
     # ----------------------------------------------------------------------------------------------- outputs
     @property
@@ -311,14 +341,20 @@ class Plant:
         θ is copied because a blend updates it in place. `truth_series` turns snapshots into truth.
         """
         return TruthSnapshot(self._x, self._v_prev, self._v, self._s, self._p, self._tau, self._f_other,
-                             self._u_list, self._w_list, list(self._theta), self._s_max, self._ps_list)
+                             self._u_list, self._w_list, list(self._theta), self._s_max, self._ps_list,
+                             self._tau_brake, self._mu_pad, self._temp)
 
     def truth_series(self, snaps: Sequence[TruthSnapshot]) -> dict[str, np.ndarray]:
         """Ground truth for a sequence of snapshots: the keys of `truth()`, arrays (k, n) per car and
         (k, n − 1) per coupler, derived in one pass at the end of a run rather than every sample."""
         ap, cc = self._ap, self._cc
-        x, v_prev, v, s, p, tau, f_other, u, w, theta, s_max, p_set = (np.array(col)
-                                                                      for col in zip(*snaps, strict=True))
+        cols = list(zip(*snaps, strict=True))
+        x, v_prev, v, s, p, _, f_other, u, w, theta, s_max, p_set = (np.array(col) for col in cols[:12])
+        tau = np.array(cols[12])                                # the torque acting on the wheel
+        pad = {}
+        if self._pad is not None:
+            pad = {"mu_pad": np.array(cols[13], dtype=float),       # μ_d, eq. (25) seed 004
+                   "disc_temp_rise_K": np.array(cols[14], dtype=float)}
         sigma = slip_ratio(s, v)
         dl = coupler_extension(x, cc)
         accel = (v - v_prev) * (1.0 / self._dt)
@@ -344,6 +380,7 @@ class Plant:
             "brake_force_N": f_other - np.array(cc.mass_kg) * accel,
             "coupler_dl_m": dl,
             "coupler_force_N": coupler_force(dl, coupler_rate(v, cc), cc),
+            **pad,
         }
 
     def truth(self) -> dict[str, np.ndarray]:

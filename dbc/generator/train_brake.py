@@ -209,6 +209,19 @@ def messages() -> list[Msg]:
                     comment="train speed estimate (max of the plausible cars' estimates)"),
                 Sig("CarsImplausible", 32, 8, maximum=255,
                     comment="bit i-1 set = car i's speed estimate disagrees with the train's: excluded"),
+                # deceleration feedback, seed 004 sec. 5: every 100 ms, the grid of the friction set
+                Sig("FbState", 6, 2, maximum=3,
+                    comment="deceleration feedback (seed 004 sec. 5): OFF no service braking, emergency or "
+                            "not fitted; MONITOR watching actual/target; ENGAGED correcting; HELD released "
+                            "(WSP or band not met), correction kept",
+                    choices={0: "OFF", 1: "MONITOR", 2: "ENGAGED", 3: "HELD"}),
+                # offset 1: raw 0 is phi = 1 (no correction), the value of a BCU without the function
+                Sig("FrictionPhi", 40, 10, scale=0.002, offset=1.0, minimum=0.0, maximum=2.022, signed=True,
+                    comment="pressure correction phi (seed 004 eq. 34, = mu_d/mu_d0): each BECU applies "
+                            "P_c = P_c0/phi above the preload; 1 = no correction"),
+                Sig("SlopeEst", 50, 9, scale=0.00025, minimum=-0.064, maximum=0.06375, signed=True,
+                    comment="track slope tan(theta) under the train (+ uphill) estimated from the front and "
+                            "rear accelerometers and the speed; 0.001 = 1 permille"),
             ]),
         Msg(0x180, "RADIO_LEADER_POS", "PLANT", ["ACD"], 1000,
             "Radio link: position of the leading train (relayed by the control centre).",
