@@ -620,6 +620,11 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
         injected = ", ".join(f"{k} {v}" for k, v in (kpis.get("faults_injected") or {}).items()) or "none"
         seen = ", ".join(f"{k} {v}" for k, v in kpis.get("protection_events", {}).items()) or "nothing"
         lines.append(f"faults injected         {injected}; receivers reported {seen}")
+    flags = kpis.get("plausibility_flags")
+    if flags:                         # first time [s] each sensor fault / implausible car was flagged
+        shown = "; ".join(f"{flag} " + ", ".join(f"{car} {t:.2f} s" for car, t in cars.items())
+                          for flag, cars in sorted(flags.items()))
+        lines.append(f"sensor flags            {shown}")
     lines += seed001_summary_lines(kpis.get("seed001"))
     lines += seed004_summary_lines(kpis.get("seed004"))
     bus = kpis.get("bus")

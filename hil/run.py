@@ -93,6 +93,12 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     kpis = compute_kpis(scenario, cols, target, None if brake_us is None else brake_us / 1e6,
                         outcome.frames_by_node, recorded, outcome.frames_in_flight,
                         outcome.frames_overwritten, outcome.frames_faulted)
+    if "seed004" in kpis:            # seed 004: judged from the BCU's own engagement, read from the trace
+        from hil.results import _feedback_signals, bcu_engagement_s, seed004_kpis
+        signals = _feedback_signals(scenario, trace, outcome.end_us / 1e6, trace_t0_s, trace_speed)
+        engaged_s = bcu_engagement_s(signals)
+        if engaged_s is not None:
+            kpis["seed004"] = seed004_kpis(scenario, cols, tuple(target), engaged_at_s=engaged_s)
     if outcome.bus is not None:
         worst = max(outcome.bus["messages"].items(), key=lambda kv: kv[1]["response_max_us"],
                     default=(None, {"response_max_us": 0.0}))
