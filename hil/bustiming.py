@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 
 from hil.busload import frame_bits
 
-__all__ = ["STUFFING_MODES", "BitTimedBus", "Pending", "arbitration_key", "crc15", "exact_frame_bits",
-           "frame_duration_bits", "stuff_bits"]
+__all__ = ["STUFFING_MODES", "BitTimedBus", "FrameBits", "Pending", "arbitration_key", "crc15",
+           "exact_frame_bits", "frame_duration_bits", "stuff_bits"]
 
 STUFFING_MODES = ("exact", "worst", "none")
 CRC15_POLY = 0x4599          # x^15 + x^14 + x^10 + x^8 + x^7 + x^4 + x^3 + 1 (CAN 2.0 spec, §3.1.1)
@@ -99,9 +99,10 @@ def _stuff_tables() -> list[list[tuple[int, int]]]:
 _STUFF = _stuff_tables()
 
 
-def stuff_bits(value: int, nbits: int) -> int:
-    """Number of stuff bits a transmitter inserts into the `nbits`-bit stream `value` (MSB first)."""
-    state, total = 0, 0
+def _stuff_run(state: int, value: int, nbits: int) -> tuple[int, int]:
+    """Run the stuffing state machine from `state` over the `nbits`-bit stream `value` (MSB first):
+    (state after it, stuff bits inserted)."""
+    total = 0
     lead = nbits % 8
     if lead:
         state, total = _STUFF[lead][(state << lead) | (value >> (nbits - lead))]
@@ -109,7 +110,56 @@ def stuff_bits(value: int, nbits: int) -> int:
     for shift in range(nbits - lead - 8, -1, -8):
         state, n = table[(state << 8) | ((value >> shift) & 0xFF)]
         total += n
-    return total
+    return state, total
+
+
+def stuff_bits(value: int, nbits: int) -> int:
+    """Number of stuff bits a transmitter inserts into the `nbits`-bit stream `value` (MSB first)."""
+    return _stuff_run(0, value, nbits)[1]
+
+
+class FrameBits:
+    """Exact bit times of the data frames of one (identifier, format, DLC, payload length).
+
+    The head of such a frame (SOF, arbitration and control fields) never changes, so its CRC register
+    and stuffing state are computed once; `bits(payload)` then runs the CRC-15 and the stuffing state
+    machine over the payload a byte at a time, and over the 15 CRC bits.  The same bits as stuffing the
+    whole frame at once (`exact_frame_bits`, which is built on this), in about a fifth of the time: the
+    lockstep bus sizes every frame this way (payloads rarely repeat: alive counters and MACs).
+    """
+
+    __slots__ = ("payload_bytes", "_crc", "_state", "_stuffs", "_fixed")
+
+    def __init__(self, frame_id: int, extended: bool, dlc: int, payload_bytes: int,
+                 remote: bool = False) -> None:
+        rtr = 1 if remote else 0
+        if extended:
+            base, ext = frame_id >> 18, frame_id & 0x3FFFF
+            # SOF, 11 base bits, SRR=1, IDE=1, 18 extension bits, RTR, r1=0, r0=0, DLC
+            head = (((((base << 2) | 0b11) << 18 | ext) << 3 | rtr << 2) << 4) | (dlc & 0xF)
+            head_bits = 1 + 11 + 2 + 18 + 3 + 4
+        else:
+            # SOF, 11 id bits, RTR, IDE=0, r0=0, DLC
+            head = ((frame_id << 3 | rtr << 2) << 4) | (dlc & 0xF)
+            head_bits = 1 + 11 + 3 + 4
+        self.payload_bytes = payload_bytes
+        self._crc = crc15(head, head_bits)                      # the CRC register after the head
+        self._state, self._stuffs = _stuff_run(0, head, head_bits)
+        self._fixed = head_bits + 8 * payload_bytes + 15 + UNSTUFFED_TAIL_BITS
+
+    def bits(self, payload: bytes) -> int:
+        """Bit times of the frame with this payload (`payload_bytes` long), interframe space included."""
+        crc, state, total = self._crc, self._state, self._stuffs
+        crc_table, stuff8 = _CRC_TABLE, _STUFF8
+        for byte in payload:
+            crc = ((crc << 8) & 0x7FFF) ^ crc_table[((crc >> 7) ^ byte) & 0xFF]
+            state, n = stuff8[(state << 8) | byte]
+            total += n
+        state, n = _STUFF[7][(state << 7) | (crc >> 8)]         # the 15 CRC bits: 7, then 8
+        return self._fixed + total + n + stuff8[(state << 8) | (crc & 0xFF)][1]
+
+
+_STUFF8 = _STUFF[8]
 
 
 def exact_frame_bits(frame_id: int, extended: bool, data: bytes, remote: bool = False,
@@ -117,20 +167,7 @@ def exact_frame_bits(frame_id: int, extended: bool, data: bytes, remote: bool = 
     """Bit times of one classic CAN frame with its real stuff bits, interframe space included."""
     dlc = len(data) if dlc is None else dlc
     payload = b"" if remote else bytes(data[:8])
-    rtr = 1 if remote else 0
-    if extended:
-        base, ext = frame_id >> 18, frame_id & 0x3FFFF
-        # SOF, 11 base bits, SRR=1, IDE=1, 18 extension bits, RTR, r1=0, r0=0, DLC
-        head = (((((base << 2) | 0b11) << 18 | ext) << 3 | rtr << 2) << 4) | (dlc & 0xF)
-        head_bits = 1 + 11 + 2 + 18 + 3 + 4
-    else:
-        # SOF, 11 id bits, RTR, IDE=0, r0=0, DLC
-        head = ((frame_id << 3 | rtr << 2) << 4) | (dlc & 0xF)
-        head_bits = 1 + 11 + 3 + 4
-    nbits = head_bits + 8 * len(payload)
-    value = (head << (8 * len(payload))) | int.from_bytes(payload, "big")
-    stuffed = (value << 15) | crc15(value, nbits)
-    return nbits + 15 + stuff_bits(stuffed, nbits + 15) + UNSTUFFED_TAIL_BITS
+    return FrameBits(frame_id, extended, dlc, len(payload), remote).bits(payload)
 
 
 def frame_duration_bits(frame_id: int, extended: bool, data: bytes, stuffing: str = "exact") -> int:
@@ -202,24 +239,27 @@ class BitTimedBus:
         self._waiting: dict[tuple[int, int, bool], Pending] = {}
         self._seq = 0
         self._worst = {}          # (dlc, extended) -> bits, for the "worst"/"none" models
-        self._exact: dict[tuple[int, bool, bytes], int] = {}
+        self._exact: dict[int, FrameBits] = {}   # (id, extended, length) -> its FrameBits
+        self._spans: dict[int, tuple[int, int]] = {}   # bits -> (until delivery, until idle) [ns]
 
     def duration_ns(self, bits: int) -> int:
+        """Bit times -> ns at the bitrate, rounded to the nearest ns."""
         return (bits * 1_000_000_000 + self.bitrate_bps // 2) // self.bitrate_bps
 
     def frame_bits(self, p: Pending) -> int:
+        data = p.data
+        if self.stuffing == "exact" and len(data) <= 8:
+            key = (p.frame_id << 5) | (p.extended << 4) | len(data)
+            plan = self._exact.get(key)
+            if plan is None:
+                plan = self._exact[key] = FrameBits(p.frame_id, p.extended, len(data), len(data))
+            return plan.bits(data)
         if self.stuffing == "exact":
-            key = (p.frame_id, p.extended, p.data)
-            bits = self._exact.get(key)
-            if bits is None:
-                if len(self._exact) > 65_536:    # a cache of recent payloads, not of the whole run
-                    self._exact.clear()
-                bits = self._exact[key] = exact_frame_bits(p.frame_id, p.extended, p.data)
-            return bits
-        key = (len(p.data), p.extended)
+            return exact_frame_bits(p.frame_id, p.extended, data)
+        key = (len(data), p.extended)
         bits = self._worst.get(key)
         if bits is None:
-            bits = self._worst[key] = frame_duration_bits(p.frame_id, p.extended, p.data, self.stuffing)
+            bits = self._worst[key] = frame_duration_bits(p.frame_id, p.extended, data, self.stuffing)
         return bits
 
     def _stats(self, frame_id: int) -> MessageBusStats:
@@ -230,15 +270,18 @@ class BitTimedBus:
 
     def enqueue(self, p: Pending) -> None:
         """Put a released frame into its node's transmit queue (replacing a waiting older instance)."""
-        p.key = arbitration_key(p.frame_id, p.extended)
-        slot = (p.node, p.frame_id, p.extended)
-        old = self._waiting.get(slot)
+        fid = p.frame_id
+        # arbitration_key(fid, p.extended), inlined: the lockstep bus enqueues every frame of a run
+        p.key = ((fid >> 18) << 19) | (1 << 18) | (fid & 0x3FFFF) if p.extended else fid << 19
+        slot = (p.node, fid, p.extended)
+        waiting = self._waiting
+        old = waiting.get(slot)
         if old is not None:
             old.overwritten = True          # lazily dropped from the queue heap
-            s = self._stats(p.frame_id)
+            s = self._stats(fid)
             s.overwritten += 1
             s.deadline_misses += 1
-        self._waiting[slot] = p
+        waiting[slot] = p
         self._seq += 1
         heapq.heappush(self._heap, (p.key, self._seq, p))
 
@@ -265,17 +308,25 @@ class BitTimedBus:
         best = heapq.heappop(heap)[2]
         del self._waiting[(best.node, best.frame_id, best.extended)]
         bits = self.frame_bits(best)
-        end = now_ns + self.duration_ns(bits)
-        deliver = now_ns + self.duration_ns(bits - IFS_BITS)
+        spans = self._spans.get(bits)
+        if spans is None:
+            spans = self._spans[bits] = (self.duration_ns(bits - IFS_BITS), self.duration_ns(bits))
+        deliver = now_ns + spans[0]
+        end = now_ns + spans[1]
         self.idle_at_ns = end
-        self.busy_ns += end - now_ns
-        s = self._stats(best.frame_id)
+        self.busy_ns += spans[1]
+        s = self.stats.get(best.frame_id)
+        if s is None:
+            s = self._stats(best.frame_id)
         s.frames += 1
         s.bits += bits
         response = end - best.window_ns
-        s.response_max_ns = max(s.response_max_ns, response)
+        if response > s.response_max_ns:
+            s.response_max_ns = response
         s.response_sum_ns += response
-        s.queued_max_ns = max(s.queued_max_ns, now_ns - best.released_ns)
+        queued = now_ns - best.released_ns
+        if queued > s.queued_max_ns:
+            s.queued_max_ns = queued
         deadline = self.deadlines_ns.get(best.frame_id)
         if deadline is not None and response > deadline:
             s.deadline_misses += 1

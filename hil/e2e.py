@@ -56,6 +56,7 @@ a status.  Configurations are validated when built and raise ``E2EConfigError`` 
 from __future__ import annotations
 
 import enum
+import functools
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -117,10 +118,10 @@ class Status(enum.Enum):
     OKSOMELOST = "OKSOMELOST"        # valid, 1..MaxDeltaCounter-1 frames lost before it
     WRONGSEQUENCE = "WRONGSEQUENCE"  # valid CRC, but more frames lost than MaxDeltaCounter allows
 
-    @property
-    def usable(self) -> bool:
-        """True if the payload may be used: E2E_P0xMapStatusToSM (profileBehavior TRUE) gives E2E_P_OK."""
-        return map_status_to_sm(self) is PCheckStatus.OK
+    # usable: bool -- True if the payload may be used: E2E_P0xMapStatusToSM (profileBehavior TRUE) gives
+    # E2E_P_OK.  A plain attribute of each member, set below once the mapping exists (every receiver
+    # asks it for every frame: an attribute is read 6x faster than a property that maps the status).
+    usable: bool
 
 
 class PCheckStatus(enum.Enum):
@@ -144,6 +145,11 @@ def map_status_to_sm(status: Status, profile_behavior: bool = True) -> PCheckSta
     """E2E_P01MapStatusToSM / E2E_P02MapStatusToSM: ``profile_behavior`` True is the R4.2.2+ mapping
     (INITIAL -> WRONGSEQUENCE, SYNC -> OK), False the legacy one (INITIAL -> OK, SYNC -> WRONGSEQUENCE)."""
     return (_SM_NEW if profile_behavior else _SM_LEGACY)[status]
+
+
+for _status in Status:
+    _status.usable = map_status_to_sm(_status) is PCheckStatus.OK
+del _status
 
 
 def crc8_sae_j1850(data: bytes, start: int = 0xFF, first_call: bool = True) -> int:
@@ -187,6 +193,8 @@ class P01Config:
     name: str = "E2E profile 1"                    # frame name, used in error messages only
     _id_even: bytes = field(init=False, repr=False, compare=False)
     _id_odd: bytes = field(init=False, repr=False, compare=False)
+    _crc_even: int = field(init=False, repr=False, compare=False)   # the CRC after the data id, by
+    _crc_odd: int = field(init=False, repr=False, compare=False)    # the counter's parity
 
     def __post_init__(self) -> None:
         w = self.name
@@ -226,6 +234,8 @@ class P01Config:
         odd = (high,) if self.data_id_mode is DataIdMode.ALT else even
         object.__setattr__(self, "_id_even", bytes(even))
         object.__setattr__(self, "_id_odd", bytes(odd))
+        object.__setattr__(self, "_crc_even", _J1850(bytes(even), initial=0xFF))
+        object.__setattr__(self, "_crc_odd", _J1850(bytes(odd), initial=0xFF))
 
 
 @dataclass(frozen=True, slots=True)
@@ -289,8 +299,9 @@ class CheckState(NamedTuple):
 def _p01_crc(cfg: P01Config, data: bytes, counter: int) -> int:
     """E2E_P01Protect's CRC (PRS §6.3): over the data id (per mode), then the payload bytes before and
     after the CRC byte, each Crc_CalculateCRC8 call continuing the last (start 0xFF, not first call),
-    and the result XORed with 0xFF."""
-    crc = _J1850(cfg._id_odd if counter & 1 else cfg._id_even, initial=0xFF)
+    and the result XORed with 0xFF.  The data id part depends only on the counter's parity: it is
+    computed once, when the configuration is built."""
+    crc = cfg._crc_odd if counter & 1 else cfg._crc_even
     i = cfg.crc_offset >> 3
     if i:
         crc = _J1850(data[:i], initial=crc)
@@ -355,14 +366,14 @@ def check(config: Config, state: CheckState, payload: bytes | None) -> tuple[Che
     (the spec's NewDataAvailable = FALSE).  Never raises on the payload's length or contents.
     """
     p01 = isinstance(config, P01Config)
-    max_delta = min(state.max_delta_counter + 1, P01_MAX_DELTA_CAP if p01 else P02_MAX_DELTA_CAP)
+    last, max_delta, wait, lost, no_new, sync = state
+    max_delta = min(max_delta + 1, P01_MAX_DELTA_CAP if p01 else P02_MAX_DELTA_CAP)
     if payload is None:
-        return CheckState(state.last_valid_counter, max_delta, state.wait_for_first_data, state.lost_data,
-                          min(state.no_new_or_repeated_data_counter + 1, NO_NEW_COUNTER_CAP),
-                          state.sync_counter), Status.NONEWDATA
+        return _state((last, max_delta, wait, lost, min(no_new + 1, NO_NEW_COUNTER_CAP), sync)), _NONEWDATA
     if len(payload) == config.length:
         if p01:
-            received = _nibble(payload, config.counter_offset)
+            offset = config.counter_offset
+            received = (payload[offset >> 3] >> (offset & 4)) & 0x0F          # _nibble, inlined
             if received != 0x0F \
                     and (config.data_id_mode is not DataIdMode.NIBBLE
                          or _nibble(payload, config.data_id_nibble_offset) == config.data_id >> 8) \
@@ -372,33 +383,39 @@ def check(config: Config, state: CheckState, payload: bytes | None) -> tuple[Che
             received = payload[1] & 0x0F
             if payload[0] == _p02_crc(config, payload, received):
                 return _sequence(config, state, max_delta, received, P02_COUNTER_MODULO)
-    return state._replace(max_delta_counter=max_delta), Status.ERROR
+    return _state((last, max_delta, wait, lost, no_new, sync)), _ERROR
+
+
+# A CheckState from a tuple of its six fields: what CheckState(...) builds, without the NamedTuple's
+# Python-level __new__ (the receivers build one per frame).
+_state = functools.partial(tuple.__new__, CheckState)
+_NONEWDATA, _ERROR, _INITIAL, _REPEATED = Status.NONEWDATA, Status.ERROR, Status.INITIAL, Status.REPEATED
+_WRONGSEQUENCE, _SYNC, _OK, _OKSOMELOST = Status.WRONGSEQUENCE, Status.SYNC, Status.OK, Status.OKSOMELOST
 
 
 def _sequence(config: Config, state: CheckState, max_delta: int, received: int,
               modulo: int) -> tuple[CheckState, Status]:
     """The counter part of the check, for a frame whose CRC (and data-id nibble) is right."""
-    if state.wait_for_first_data:
-        return CheckState(received, config.max_delta_counter_init, False, state.lost_data,
-                          state.no_new_or_repeated_data_counter, state.sync_counter), Status.INITIAL
-    delta = (received - state.last_valid_counter) % modulo
-    no_new = state.no_new_or_repeated_data_counter
+    last, _, wait, lost_before, no_new, sync_counter = state
+    if wait:
+        return _state((received, config.max_delta_counter_init, False, lost_before, no_new, sync_counter)), \
+            _INITIAL
+    delta = (received - last) % modulo
     if delta == 0:
-        return CheckState(state.last_valid_counter, max_delta, False, state.lost_data,
-                          min(no_new + 1, NO_NEW_COUNTER_CAP), state.sync_counter), Status.REPEATED
+        return _state((last, max_delta, False, lost_before, min(no_new + 1, NO_NEW_COUNTER_CAP),
+                       sync_counter)), _REPEATED
     if delta > max_delta:
         sync = config.sync_counter_init
         if sync > 0:
-            return CheckState(received, config.max_delta_counter_init, False, state.lost_data, 0,
-                              sync), Status.WRONGSEQUENCE
-        return CheckState(state.last_valid_counter, max_delta, False, state.lost_data, 0,
-                          sync), Status.WRONGSEQUENCE
+            return _state((received, config.max_delta_counter_init, False, lost_before, 0, sync)), \
+                _WRONGSEQUENCE
+        return _state((last, max_delta, False, lost_before, 0, sync)), _WRONGSEQUENCE
     init, lost = config.max_delta_counter_init, delta - 1
     if no_new > config.max_no_new_or_repeated_data:
-        return CheckState(received, init, False, lost, 0, config.sync_counter_init), Status.SYNC
-    if state.sync_counter > 0:
-        return CheckState(received, init, False, lost, 0, state.sync_counter - 1), Status.SYNC
-    return CheckState(received, init, False, lost, 0, 0), Status.OK if delta == 1 else Status.OKSOMELOST
+        return _state((received, init, False, lost, 0, config.sync_counter_init)), _SYNC
+    if sync_counter > 0:
+        return _state((received, init, False, lost, 0, sync_counter - 1)), _SYNC
+    return _state((received, init, False, lost, 0, 0)), _OK if delta == 1 else _OKSOMELOST
 
 
 def counter_flip_collisions(config: P02Config) -> tuple[tuple[int, int], ...]:

@@ -39,8 +39,10 @@ from hil.plant_node import PlantController, TruthLog
 from hil.release import message_delays, node_releases
 from hil.scenario import Scenario, secoc_keys
 
+Message = can.Message
 DEFAULT_BITRATE = 500_000   # bit/s, when neither the scenario nor the DBC gives one
 DELIVER, CYCLE, RELEASE, ARBITRATE, BABBLE = 0, 1, 2, 3, 4   # event phases: their order at equal times
+NEVER = 1 << 63             # ns: no such event scheduled
 
 
 @dataclass
@@ -83,7 +85,7 @@ class LockstepBus:
     def send(self, t_ns: int, fc: FrameCodec, data: bytes) -> None:
         self.frames += 1
         if self.writer is not None:
-            self.writer.on_message_received(can.Message(
+            self.writer.on_message_received(Message(
                 timestamp=t_ns / 1e9, arbitration_id=fc.frame_id, is_extended_id=fc.is_extended_id,
                 data=data, dlc=len(data), channel=0, check=False))
         subs = self.subscribers.get(fc.frame_id)
@@ -148,8 +150,13 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
         t_ns, nominal[k], window[k] = rel.next()
         heap.append((t_ns, CYCLE, k, None))
     heapq.heapify(heap)
-    seq = len(nodes)                     # tie-breaker of bus events, after every node index
-    arbitration_at: int | None = None    # time of the arbitration event in the heap, if any
+    seq = len(nodes)                     # tie-breaker of heap events after every node index
+    # The bus's own two events live outside the heap: at most one frame is on the wire (delivered at
+    # `deliver_at`) and at most one arbitration is scheduled (`arbitration_at`); NEVER: none.  The loop
+    # takes them in the heap's order (phases DELIVER < CYCLE < RELEASE < ARBITRATE < BABBLE at equal
+    # times), which saves two heap pushes and pops per frame.
+    deliver_at = arbitration_at = NEVER
+    on_wire: Pending | None = None
     stopped_since: int | None = None
     reason = "max_duration"
     next_progress = 0
@@ -183,32 +190,42 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
             delivery.send(t_ns, fc, data)
             return
         bus.enqueue(Pending(k, fc.frame_id, fc.is_extended_id, data, t_ns, window_ns, fc))
-        if arbitration_at is None:
+        if arbitration_at == NEVER:
             arbitration_at = max(t_ns, bus.idle_at_ns)
-            seq += 1
-            heapq.heappush(heap, (arbitration_at, ARBITRATE, seq, None))
 
+    fast_release = timed and injector is None      # a frame goes straight into its transmit queue
+    heappop, heappush = heapq.heappop, heapq.heappush
     with loop_gc():
-        while heap:
-            now, phase, k, item = heapq.heappop(heap)
-            if now > max_ns:
-                heapq.heappush(heap, (now, phase, k, item))     # not run: still in flight
+        while True:
+            if heap:
+                top = heap[0]
+                t_top = top[0]
+            elif deliver_at == NEVER and arbitration_at == NEVER:
                 break
-            if phase == DELIVER:
-                delivery.send(now, item.item, item.data)
+            else:
+                top, t_top = None, NEVER
+            if deliver_at <= t_top and deliver_at != NEVER:           # DELIVER: first at equal times
+                now = deliver_at
+                if now > max_ns:
+                    break                                              # not run: still in flight
+                frame, on_wire, deliver_at = on_wire, None, NEVER
+                delivery.send(now, frame.item, frame.data)
                 continue
-            if phase == ARBITRATE:
-                arbitration_at = None
+            if arbitration_at < t_top or (arbitration_at == t_top != NEVER and top[1] > ARBITRATE):
+                now = arbitration_at
+                if now > max_ns:
+                    break
+                arbitration_at = NEVER
                 started = bus.arbitrate(now)
                 if started is not None:
-                    frame, deliver_ns, idle_ns = started
-                    seq += 1
-                    heapq.heappush(heap, (deliver_ns, DELIVER, seq, frame))
+                    on_wire, deliver_at, idle_ns = started
                     if bus.pending():
                         arbitration_at = idle_ns
-                        seq += 1
-                        heapq.heappush(heap, (idle_ns, ARBITRATE, seq, None))
                 continue
+            now, phase, k, item = heappop(heap)
+            if now > max_ns:
+                heappush(heap, (now, phase, k, item))     # not run: still in flight
+                break
             if phase == RELEASE:
                 release(now, *item)
                 continue
@@ -221,20 +238,24 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                     faulted += 1
                 if now + babble_step_ns < end_ns:
                     seq += 1
-                    heapq.heappush(heap, (now + babble_step_ns, BABBLE, seq, item))
+                    heappush(heap, (now + babble_step_ns, BABBLE, seq, item))
                 continue
             node = nodes[k]
             frames = node.cycle(now // 1000, nominal[k])
             for fc, data in frames:
-                delay = delays.get(fc.frame_id)
-                if delay is None:
-                    release(now, k, fc, data, window[k])
-                else:
+                delay = delays.get(fc.frame_id) if delays else None
+                if delay is not None:
                     seq += 1
-                    heapq.heappush(heap, (now + delay.next_ns(), RELEASE, seq,
-                                          (k, fc, data, window[k] + delay.delay_min_us * 1000, True)))
+                    heappush(heap, (now + delay.next_ns(), RELEASE, seq,
+                                    (k, fc, data, window[k] + delay.delay_min_us * 1000, True)))
+                elif fast_release:
+                    bus.enqueue(Pending(k, fc.frame_id, fc.is_extended_id, data, now, window[k], fc))
+                    if arbitration_at == NEVER:
+                        arbitration_at = max(now, bus.idle_at_ns)
+                else:
+                    release(now, k, fc, data, window[k])
             t_next, nominal[k], window[k] = releases[k].next()
-            heapq.heappush(heap, (t_next, CYCLE, k, None))
+            heappush(heap, (t_next, CYCLE, k, None))
             if node is plant_node:
                 if plant.standstill:
                     stopped_since = now if stopped_since is None else stopped_since
@@ -246,7 +267,8 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                 if progress is not None and now >= next_progress:
                     progress(now // 1000, plant.glance())
                     next_progress += 500_000_000
-    in_flight = sum(1 for e in heap if e[1] in (DELIVER, RELEASE)) + (bus.waiting() if bus else 0)
+    in_flight = (sum(1 for e in heap if e[1] == RELEASE) + (on_wire is not None)
+                 + (bus.waiting() if bus else 0))
     overwritten = sum(s.overwritten for s in bus.stats.values()) if bus else 0
     return RunOutcome(mode="lockstep", end_us=now // 1000, reason=reason, truth=plant.truth,
                       frames_by_node={n.name: n.stats.frames_sent for n in nodes},

@@ -191,10 +191,15 @@ class PlantController:
         if self.lag:
             self.truth.max_slip_mps = np.zeros(n_cars)
         self._rx_version = -1
+        # _failsafe: until _quiet_until_us [µs] no command can be stale, if rx has not changed since
+        self._quiet_until_us, self._quiet_rx, self._quiet_version = -1, None, -1
         self._valve = np.zeros(n_cars)
         self._wsp = np.zeros(n_cars, dtype=np.int64)
         self.standstill = False     # every car below STANDSTILL_MPS at the last truth sample
         self.sensor_faults: list[SensorFault] = []
+        self._sensor_keys = [tuple(f"PLANT_CAR{i}_SENSORS.{sig}" for sig, _ in SENSOR_FIELDS)
+                             for i in range(1, n_cars + 1)]
+        self._counter_keys = [f"PLANT_CAR{i}_SENSORS.SensorCounter" for i in range(1, n_cars + 1)]
 
     def add_sensor_fault(self, fault: SensorFault) -> None:
         """A failed sensor (hil.faults `sensor`): applied to the readings this node sends."""
@@ -223,20 +228,25 @@ class PlantController:
         if rx.version == self._rx_version:
             return
         self._rx_version = rx.version
-        for k, (vk, wk) in enumerate(zip(self.valve_keys, self.wsp_keys, strict=True)):
-            v, w = rx[vk], rx[wk]
-            self._valve[k] = v if math.isfinite(v) else 0.0       # nothing received yet: valve closed
-            self._wsp[k] = int(w) if math.isfinite(w) else 0
-        for k, key in enumerate(self.set_keys):
-            ps = rx[key]
-            self._pset[k] = ps if math.isfinite(ps) else 0.0         # nothing received yet: no pressure
+        isfinite = math.isfinite
+        valve = [rx[vk] for vk in self.valve_keys]
+        wsp = [rx[wk] for wk in self.wsp_keys]
+        self._valve[:] = [v if isfinite(v) else 0.0 for v in valve]        # nothing received yet: closed
+        self._wsp[:] = [int(w) if isfinite(w) else 0 for w in wsp]
+        if self.set_keys:
+            self._pset[:] = [ps if isfinite(ps) else 0.0 for ps in (rx[key] for key in self.set_keys)]
 
     def _failsafe(self, now_us: int, rx) -> None:
         """Cars whose command went stale apply the brake (class docstring)."""
         dt = 0 if self._last_us is None else now_us - self._last_us
         self._last_us = now_us
+        if now_us <= self._quiet_until_us and rx is self._quiet_rx and rx.version == self._quiet_version:
+            return                            # no command received since, and none can be stale yet
+        quiet_until_us = 1 << 62
         for k, key in enumerate(self.valve_keys):
             age = rx.age_us(key, now_us)
+            if age is not None:               # stale once age > failsafe_after_us
+                quiet_until_us = min(quiet_until_us, now_us - age + self.failsafe_after_us)
             if age is not None and age > self.failsafe_after_us:
                 self._valve[k] = 1.0
                 self._wsp[k] = 0
@@ -244,17 +254,20 @@ class PlantController:
                     self._pset[k] = self._p_max
                 self.failsafe_us[k] += dt
                 self._rx_version = -1          # recompute from rx as soon as commands return
+        self._quiet_until_us, self._quiet_rx, self._quiet_version = quiet_until_us, rx, rx.version
 
     def step(self, now_us: int, rx) -> dict[str, float]:
         out: dict[str, float] = {}
         if now_us >= self.next_sense_us:
             s = self.plant.sense()
             counter = self.sense_count % 256
-            for i in range(self.n):
-                prefix = f"PLANT_CAR{i + 1}_SENSORS."
-                for sig, attr in SENSOR_FIELDS:
-                    out[prefix + sig] = float(getattr(s, attr)[i])
-                out[prefix + "SensorCounter"] = counter
+            # the same floats as float(array[i]) per car, read from each array once (tolist)
+            readings = [[float(v) for v in getattr(s, attr).tolist()] for _, attr in SENSOR_FIELDS]
+            for keys, counter_key, values in zip(self._sensor_keys, self._counter_keys,
+                                                 zip(*readings, strict=True), strict=True):
+                for key, value in zip(keys, values, strict=True):
+                    out[key] = value
+                out[counter_key] = counter
             if self.sensor_faults:
                 self._apply_sensor_faults(now_us, out)
             self.sense_count += 1
@@ -264,7 +277,8 @@ class PlantController:
             self.truth.record(now_us, snap)
             self.standstill = max(snap.v) < STANDSTILL_MPS
             self.next_truth_us += TRUTH_PERIOD_US
-        self._actuators(rx)
+        if rx.version != self._rx_version:
+            self._actuators(rx)
         self._failsafe(now_us, rx)
         if self.lag:
             self.plant.step(self._valve, self._wsp, self._pset)

@@ -81,6 +81,11 @@ class NodeRelease:
         self._scale = self.period_us * 1000 * (1.0 + self.drift_ppm * 1e-6)
         self._base_ns = (self.start_delay_us + self.offset_us) * 1000
         self.jittered = self.jitter_min_us != self.jitter_max_us or self.jitter_min_us != 0
+        # Without drift k·T·(1 + 0) in floats is the integer k·T while that stays below 2**53 ns (104 days):
+        # next() then computes it in integers, the same number without the float product and round().
+        self._period_ns = self.period_us * 1000
+        self._k_int = (1 << 53) // max(self._period_ns, 1) if self.drift_ppm == 0 else 0
+        self._window_ns = self.jitter_min_us * 1000
 
     @property
     def exact(self) -> bool:
@@ -91,12 +96,14 @@ class NodeRelease:
         k = self.k
         self.k += 1
         nominal_us = self.offset_us + k * self.period_us
-        clock_ns = self._base_ns + round(k * self._scale)
-        jitter_ns = 0
-        if self.jittered:
-            jitter_ns = round(self._rng.uniform(self.jitter_min_us, self.jitter_max_us) * 1000)
-        window_ns = max(0, clock_ns + self.jitter_min_us * 1000)
-        return max(0, clock_ns + jitter_ns), nominal_us, window_ns
+        if k < self._k_int:
+            clock_ns = self._base_ns + k * self._period_ns
+        else:
+            clock_ns = self._base_ns + round(k * self._scale)
+        if not self.jittered:
+            return max(0, clock_ns), nominal_us, max(0, clock_ns + self._window_ns)
+        jitter_ns = round(self._rng.uniform(self.jitter_min_us, self.jitter_max_us) * 1000)
+        return max(0, clock_ns + jitter_ns), nominal_us, max(0, clock_ns + self._window_ns)
 
 
 def node_release(scenario: Scenario, db: Database, node) -> NodeRelease:

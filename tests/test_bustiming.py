@@ -204,3 +204,15 @@ def test_above_full_load_low_priorities_miss_deadlines_and_the_emergency_frame_g
     starved = [m["frame_id"] for m in msgs.values() if m["overwritten"]]
     assert starved and min(starved) > max(served)      # priority order decides who loses frames
     assert {0x010, 0x018, 0x028} <= set(served)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.one_of(st.tuples(std_ids, st.just(False)), st.tuples(ext_ids, st.just(True))),
+       st.lists(payloads, min_size=1, max_size=6))
+def test_the_bus_sizes_every_frame_of_an_id_as_the_bit_by_bit_reference(idx, datas):
+    """The bus keeps one FrameBits per (id, format, length) and runs only the payload through it."""
+    frame_id, extended = idx
+    bus = BitTimedBus(500_000, 1, "exact")
+    for data in datas:
+        p = Pending(0, frame_id, extended, data, 0, 0)
+        assert bus.frame_bits(p) == reference_bits(frame_id, extended, data)

@@ -1,6 +1,8 @@
 """E2E protection in the node runtime: senders fill counter and CRC of the frames the DBC marks,
 receivers check them and keep unusable frames from the controllers."""
 
+import random
+
 import can
 import cantools
 import pytest
@@ -188,3 +190,32 @@ def test_a_bad_key_is_a_one_line_scenario_error():
 
     with pytest.raises(ScenarioError, match="secoc.keys.*BCU_DEMAND must be 16 bytes as 32 hex digits"):
         parse_scenario({"secoc": {"keys": {"BCU_DEMAND": "abc"}}})
+
+
+def test_cycles_check_missing_frames_by_the_one_and_a_half_cycle_rule(becu):
+    """Node.cycle skips its E2E checks until the earliest one is due; the statuses must be those of
+    looking at every check every cycle: NONEWDATA once now - last ≥ 1.5 message cycles."""
+    node, db = becu
+    msg, frames = demand_frames(db, 40)
+    rng = random.Random(5)
+    cycle_us = int(msg.cycle_time) * 1000
+    cfg = e2e_config(msg)
+    state, last_us, expected = e2e.CheckState(), 0, []
+    now, sent = 0, 0
+    while now < 400_000:
+        now += rng.choice((1_000, 7_000, 10_000, 16_000, 31_000))
+        if rng.random() < 0.6 and sent < len(frames):             # a frame, at an irregular time
+            t = now - rng.randrange(0, 1_000)
+            node.receive(msg.frame_id, frames[sent], t)
+            state, status = e2e.check(cfg, state, frames[sent][:4])
+            last_us = t
+            expected.append(status.value)
+            sent += 1
+        node.cycle(now)
+        if 2 * (now - last_us) >= 3 * cycle_us:                   # the rule, spelled out
+            state, status = e2e.check(cfg, state, None)
+            last_us += cycle_us
+            expected.append(status.value)
+    seen = [s for _, name, s in node.stats.e2e_events if name == "BCU_DEMAND"]
+    assert seen == [s for s in expected if s != "OK"] and "NONEWDATA" in seen
+    assert node.rx.e2e["BCU_DEMAND"].value == expected[-1]

@@ -255,3 +255,24 @@ def test_sender_counter_exhausted():
     sender = SecOcSender(KEY, DEMAND, freshness=2**64 - 1)
     with pytest.raises(SecOcError, match="exhausted"):
         sender.secure(b"")
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from([KEY, OTHER_KEY]), st.sampled_from([DEMAND, RELEASE]),
+                          st.binary(min_size=0, max_size=8), st.sampled_from([True, False])),
+                min_size=1, max_size=12))
+def test_the_shared_mac_of_senders_and_receivers_is_always_the_fresh_cmac(frames):
+    """Senders and receivers of one (key, data id) share the last MAC they computed (hil.secoc): whatever
+    the interleaving of keys, data ids and payloads, every trailer is the one a fresh CMAC gives, and a
+    receiver with another key never takes the memo of the sender's."""
+    senders: dict[tuple[bytes, int], SecOcSender] = {}
+    for key, data_id, payload, tamper in frames:
+        sender = senders.setdefault((key, data_id), SecOcSender(key, data_id))
+        frame = sender.secure(payload)
+        assert frame == payload + authenticate(key, data_id, sender.freshness, payload)
+        receiver = SecOcReceiver(key, data_id, last=sender.freshness - 1)
+        other = SecOcReceiver(OTHER_KEY if key == KEY else KEY, data_id, last=sender.freshness - 1)
+        assert other.verify(frame).reason is Reason.MAC_MISMATCH
+        if tamper:
+            frame = frame[:-1] + bytes((frame[-1] ^ 1,))
+        assert receiver.verify(frame).accepted is not tamper

@@ -1,0 +1,83 @@
+"""Golden reference of the default scenario in lockstep: the trace byte for byte, the KPIs field by field.
+
+A lockstep run is deterministic (same scenario, same seed -> the same trace.blf), so any change to what
+the run computes shows here: a faster codec, bus model or node runtime must leave both untouched.
+
+When a change is MEANT to change the run (physics, a controller, the DBC, the scenario, a python-can
+release whose BLF writer lays bytes out differently), refresh the references:
+
+    .venv/bin/python tests/test_golden.py
+
+runs the default scenario and prints the two constants below; paste them here, and say in the commit
+why the golden run changed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+
+#: sha256 of trace.blf of `railhil run scenarios/default.toml --lockstep`
+GOLDEN_TRACE_SHA256 = "8ca5af103c89ce81b6f3ff02c53907e0234c46240ee970a419c7c61312f83be1"
+
+#: KPIs of that run as kpis.json holds them (results.py rounds them when it writes them)
+GOLDEN_KPIS = {
+    "end_reason": "standstill",
+    "frames_in_flight": 6,
+    "frames_recorded": 47373,
+    "frames_sent": 47379,
+    "max_slip_speed_mps": [1.734, 1.8405, 1.7835, 2.2307, 1.55, 1.7753],
+    "mean_abs_decel_error_mps2": 0.0955,
+    "simulated_s": 29.24,
+    "stopping_distance_m": 355.968,
+    "time_to_stop_s": 27.74,
+    "wsp_activations": [7, 8, 8, 9, 9, 10],
+}
+KPI_TOLERANCE = 1e-9      # the run is deterministic: equal up to float formatting
+
+REFRESH = "if the change is intended, refresh the references: .venv/bin/python tests/test_golden.py"
+
+
+def test_default_trace_is_byte_for_byte_the_golden_one(default_lockstep):
+    trace = default_lockstep.out_dir / "trace.blf"
+    digest = hashlib.sha256(trace.read_bytes()).hexdigest()
+    assert digest == GOLDEN_TRACE_SHA256, f"the default lockstep trace changed (sha256 {digest}); {REFRESH}"
+
+
+@pytest.mark.parametrize("key", sorted(GOLDEN_KPIS))
+def test_default_kpis_are_the_golden_ones(default_lockstep, key):
+    kpis = json.loads((default_lockstep.out_dir / "kpis.json").read_text())
+    expected, got = GOLDEN_KPIS[key], kpis.get(key)
+    if isinstance(expected, float) or (isinstance(expected, list) and expected
+                                       and isinstance(expected[0], float)):
+        assert got == pytest.approx(expected, abs=KPI_TOLERANCE), f"KPI {key}: {got} != {expected}; {REFRESH}"
+    else:
+        assert got == expected, f"KPI {key}: {got!r} != {expected!r}; {REFRESH}"
+
+
+def _current() -> tuple[str, dict]:
+    """Run the default scenario now: (trace sha256, the golden subset of its KPIs)."""
+    root = Path(__file__).resolve().parents[1]
+    sys.path.insert(0, str(root))
+    from hil.run import run_scenario_lockstep
+    from hil.scenario import load_scenario
+
+    with tempfile.TemporaryDirectory() as tmp:
+        report = run_scenario_lockstep(load_scenario(root / "scenarios" / "default.toml"), Path(tmp) / "run")
+        digest = hashlib.sha256((report.out_dir / "trace.blf").read_bytes()).hexdigest()
+        kpis = json.loads((report.out_dir / "kpis.json").read_text())
+    return digest, {key: kpis.get(key) for key in GOLDEN_KPIS}
+
+
+if __name__ == "__main__":
+    sha, values = _current()
+    print(f'GOLDEN_TRACE_SHA256 = "{sha}"\n')
+    print("GOLDEN_KPIS = {")
+    for name, value in values.items():
+        print(f"    {name!r}: {value!r},")
+    print("}")
