@@ -132,6 +132,16 @@ def _wait_and_receive(bus: can.BusABC, node, deadline_ns: int, t0_ns: int, speed
             continue          # drain what is already queued, then return on the next empty recv
 
 
+PARENT_CHECK_S = 0.5     # how often a node or recorder process checks that its runner is alive [s]
+
+
+def _orphaned() -> bool:
+    """True when the runner process that started this one has died (e.g. kill -9): its children stop
+    instead of running on with nobody to tell them to."""
+    parent = mp.parent_process()
+    return parent is not None and not parent.is_alive()
+
+
 def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns, go, stop, results,
                   progress) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)         # the parent coordinates shutdown
@@ -153,7 +163,9 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         bus = open_bus(cfg)
         _raise_priority(REALTIME_NICE)
         results.put(("ready", name, None))
-        go.wait()
+        while not go.wait(PARENT_CHECK_S):
+            if _orphaned():
+                return
         gc.collect()
         gc.freeze()                                      # setup objects leave the collector's scans
         gc.set_threshold(*LOOP_THRESHOLDS)
@@ -167,8 +179,13 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         release_ns, nominal_us, _ = release.next()
         next_us = release_ns // 1000
         next_progress = 0
+        next_parent_check_us = 0
         late = missed = 0
         while not stop.is_set():
+            if next_us >= next_parent_check_us:          # a runner killed (-9) must not leave us running
+                next_parent_check_us = next_us + round(PARENT_CHECK_S * 1e6)
+                if _orphaned():
+                    return
             _wait_and_receive(bus, node, t0 + round(release_ns / speed), t0, speed)
             frames = node.cycle(release_ns // 1000, nominal_us)
             for fc, data in frames:
@@ -227,7 +244,9 @@ def _recorder_process(trace_path: str, cfg: dict, go, stop, results) -> None:
         writer = can.Logger(trace_path)
         results.put(("ready", "RECORDER", None))
         notifier = can.Notifier(bus, [writer], timeout=0.05)
-        stop.wait()
+        while not stop.wait(PARENT_CHECK_S):
+            if _orphaned():                              # runner gone: close the trace, keep what it has
+                break
         time.sleep(0.2)             # let in-flight frames of the last cycle arrive before closing
         notifier.stop()             # stops its listeners too: the trace is flushed and closed
         results.put(("result", "RECORDER", {"stats": {}}))

@@ -7,6 +7,7 @@ trace, and a node that dies is named.
 """
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -24,7 +25,16 @@ pytestmark = pytest.mark.realtime
 
 def railhil_popen(*args):
     return subprocess.Popen([sys.executable, "-m", "hil", *args], cwd=ROOT, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+
+
+def kill_all(proc) -> None:
+    """The runner and every node process it started (its own session): a failed test leaves none."""
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.wait(timeout=30)
 
 
 def wait_for_start(proc, timeout_s=90.0) -> tuple[dict[str, int], str]:
@@ -149,7 +159,7 @@ def test_interrupt_closes_the_trace_and_writes_the_run_folder(tmp_path):
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=90)
     finally:
-        proc.kill()
+        kill_all(proc)
     assert proc.returncode == 130, err
     with can.LogReader(str(tmp_path / "trace.blf")) as reader:
         n = sum(1 for _ in reader)
@@ -161,7 +171,6 @@ def test_interrupt_closes_the_trace_and_writes_the_run_folder(tmp_path):
 def kill_during_braking(tmp_path, node: str) -> tuple[float, str]:
     """Start the default scenario, kill -9 `node` once braking is established (~2 s in), let the run
     end; return the kill time on the run's own clock [s] and stderr."""
-    import os
     import time
 
     proc = railhil_popen("run", str(DEFAULT), "--realtime", "--out", str(tmp_path), "-q")
@@ -172,7 +181,7 @@ def kill_during_braking(tmp_path, node: str) -> tuple[float, str]:
         os.kill(pids[node], signal.SIGKILL)
         _, err = proc.communicate(timeout=90)
     finally:
-        proc.kill()
+        kill_all(proc)
     assert proc.returncode == 4, err
     last = err.strip().splitlines()[-1]
     assert last.startswith("error: ") and node in last and "died" in last, err
@@ -251,3 +260,33 @@ def test_socketcan_vcan0_when_the_kernel_has_it(tmp_path):
     with can.LogReader(str(tmp_path / "o" / "trace.blf")) as reader:
         assert len({m.arbitration_id for m in reader}) > 10
     assert np.isfinite(json.loads((tmp_path / "o" / "kpis.json").read_text())["stopping_distance_m"])
+
+
+def test_node_processes_stop_when_the_runner_is_killed(tmp_path):
+    """kill -9 of the runner itself: its node and recorder processes notice within PARENT_CHECK_S and
+    end (none is left running), and the recorder closes the trace with what it had."""
+    import select
+
+    proc = railhil_popen("run", str(DEFAULT), "--realtime", "--out", str(tmp_path), "-q")
+    try:
+        pids, line = wait_for_start(proc)
+        assert wait_for_frames(line, 300) == 300
+        fds = {os.pidfd_open(pid): name for name, pid in pids.items()}   # readable when the process ends
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+        poller = select.poll()
+        for fd in fds:
+            poller.register(fd, select.POLLIN)
+        alive = dict(fds)
+        while alive:
+            ready = poller.poll(30_000)
+            assert ready, f"still running 30 s after the runner was killed: {sorted(alive.values())}"
+            for fd, _ in ready:
+                poller.unregister(fd)
+                os.close(fd)
+                alive.pop(fd)
+    finally:
+        kill_all(proc)
+    assert "RECORDER" in pids
+    with can.LogReader(str(tmp_path / "trace.blf")) as reader:   # the recorder closed it: readable
+        assert sum(1 for _ in reader) >= 300
