@@ -10,7 +10,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-BENCHES = ("bench_codec", "bench_lockstep", "bench_trace", "bench_governor", "bench_gps")
+BENCHES = ("bench_codec", "bench_lockstep", "bench_trace", "bench_governor", "bench_gps", "bench_campaign")
 
 
 def main() -> int:

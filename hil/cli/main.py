@@ -29,6 +29,8 @@ COMMANDS = {
                "cycle-time conformance of a trace against the DBC, bus load, response-time analysis, "
                "latency chains"),
     "faults": ("hil.cli.faults", "fault injection campaigns: the EN 50159 threat matrix"),
+    "campaign": ("hil.cli.campaign", "parameter sweeps of a scenario (grid and seeded random), in parallel "
+                 "or on a Dask cluster; resumable"),
     "control-centre": ("hil.cli.control_centre", "the seed-002 control centre: pairs follower and leader "
                        "trains over TCP, reports kept in SQLite"),
 }

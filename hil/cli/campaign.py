@@ -1,0 +1,120 @@
+"""`railhil campaign FILE.toml` — a base scenario swept over a grid and a seeded random sample, run in
+lockstep through local worker processes (`--jobs N`) or a Dask distributed cluster (`--dask ADDRESS`);
+resumable.  File format and definitions in hil.campaign.
+
+Writes results.csv (results.parquet with pyarrow), plot_<key>.png and one run folder per point under
+the output folder, prints a short table.  Exit 0 when every point ran, 1 when some failed (each is
+recorded with its error; the others finish), 2 for bad input, 130 when interrupted (finished points
+stay cached: run the same command again to resume).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+HELP = "parameter sweeps of a scenario (grid and seeded random), in parallel or on a Dask cluster; resumable"
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "campaign",
+        help=HELP,
+        description="Run a campaign: the base scenario of FILE.toml at every point of its [grid] "
+                    "(cartesian product) times its [random] draws (seeded), each point a lockstep run "
+                    "with its own run folder. A point's result is cached by the SHA-256 of its "
+                    "resolved scenario, DBC and railhil version, so a rerun (after Ctrl-C, or with "
+                    "more points) runs only what is not finished. A failing point is recorded with "
+                    "its error and the others go on. Writes results.csv (and results.parquet when "
+                    "pyarrow is installed) and plot_<key>.png. Exit 0 when every point ran, 1 when "
+                    "some failed, 2 for bad input, 130 when interrupted.",
+    )
+    p.add_argument("campaign", type=Path, help="campaign TOML file, e.g. campaigns/mass_sweep.toml")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("-j", "--jobs", type=int, default=1, metavar="N",
+                       help="local worker processes running points in parallel (default 1: in this "
+                            "process)")
+    where.add_argument("--dask", metavar="ADDRESS", default=None,
+                       help="run the points on the Dask distributed cluster whose scheduler is at "
+                            "ADDRESS, e.g. tcp://host:8786 (needs the dask extra; on several hosts the "
+                            "output folder must be on a filesystem the workers share)")
+    p.add_argument("--dask-timeout", type=float, default=10.0, metavar="S",
+                   help="seconds to wait for the Dask scheduler to answer (default 10)")
+    p.add_argument("-o", "--out", type=Path, default=None, metavar="DIR",
+                   help="campaign folder: results, plots, point run folders and their cache (default "
+                        "runs/campaign-<name>; the same folder again resumes)")
+    p.add_argument("--list", action="store_true",
+                   help="print the points, their swept values and whether each is cached, run nothing")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=campaign)
+
+
+def _list(points, out: Path) -> int:
+    from hil.campaign import _read_cache, shown
+
+    for p in points:
+        cached = _read_cache(out / "points" / p.key[:16], p.key) is not None
+        print(f"point {p.index:>4}  {p.key[:16]}  {'cached' if cached else 'to run':<6}  "
+              f"{shown(p.values) or '(the base scenario)'}")
+    print(f"{len(points)} points")
+    return 0
+
+
+def campaign(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from hil.campaign import (
+        check_positive,
+        executor_for,
+        expand,
+        load_campaign,
+        run_campaign,
+        summary_lines,
+        write_plots,
+        write_table,
+    )
+
+    check_positive("--jobs", args.jobs)
+    if args.dask_timeout <= 0:
+        from hil.campaign import CampaignError
+
+        raise CampaignError(f"--dask-timeout {args.dask_timeout}: expected a positive number of seconds")
+    spec = load_campaign(args.campaign)
+    points = expand(spec)
+    out = args.out or Path("runs") / f"campaign-{spec.name}"
+    if args.list:
+        return _list(points, out)
+    bar = None
+    failed = 0
+
+    def progress(r) -> None:
+        nonlocal failed
+        failed += r.status != "ok"
+        if bar is not None:
+            bar.update(1)
+            if failed:
+                bar.set_postfix_str(f"{failed} failed")
+
+    try:
+        with executor_for(args.jobs, args.dask, args.dask_timeout) as executor:    # connects first
+            if not args.quiet:
+                bar = tqdm(total=len(points), unit="point", file=sys.stderr, desc=f"campaign {spec.name}")
+            result = run_campaign(spec, out, executor, points, progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    files = write_table(result)
+    files += write_plots(result)
+    for line in summary_lines(result):
+        print(line)
+    print(f"files: {', '.join(str(f) for f in files)}; run folders under {out / 'points'}")
+    if result.interrupted:
+        print(f"error: interrupted: {len(result.results)} of {result.total} points finished and cached; "
+              f"run the same command again to resume", file=sys.stderr)
+        return 130
+    if result.failed:
+        print(f"error: {len(result.failed)} of {result.total} points failed (see the error column of "
+              f"{files[0]})", file=sys.stderr)
+        return 1
+    return 0
