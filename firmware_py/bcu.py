@@ -5,7 +5,11 @@ full braking, latched until standstill and released request.  Deceleration feedb
 `firmware_py.decel_feedback`) when `BcuParams.feedback` is given: it reads the front and rear cars'
 accelerometers (PLANT_CAR1/n_SENSORS.AccelLong) and every car's WspActive, and sends its state, the
 pressure correction φ and the slope estimate in BCU_STATUS (FbState, FrictionPhi, SlopeEst); the BECUs
-apply φ.  Later issues add precise stopping (seed 002) and the consensus reference (seed 003).
+apply φ.  Precise stopping at a target point (seed 002 §III, §VI–§VIII, `firmware_py.stopping`) when
+`BcuParams.stopping` is given: it reads DESK_TARGET (TargetStopValid, TargetStopPos), keeps an odometer on
+the train speed estimate, and commands the service brake along the theoretical braking curve; the target
+deceleration sent is the larger of the driver's brake step and the stopping command.  A later issue adds
+the consensus reference (seed 003).
 
 Train speed: the highest speed estimate (BECUn_STATUS.SpeedEst) of the cars that are heard from and
 plausible.  A car whose estimate disagrees with the median of the train for longer than 3 of its
@@ -24,6 +28,7 @@ from enum import IntEnum
 from firmware_py.cycle import CycleTimer
 from firmware_py.decel_feedback import DecelFeedback, FbState, FeedbackParams
 from firmware_py.limits import clip, finite_or, rate_limit
+from firmware_py.stopping import StoppingController, StoppingParams, StopState
 
 
 class BcuMode(IntEnum):
@@ -34,13 +39,16 @@ class BcuMode(IntEnum):
     EMERGENCY = 2
 
 
-def bcu_mode_transition(mode: BcuMode, brake_step: int, emergency_req: bool, standstill: bool) -> BcuMode:
-    """Pure mode logic: emergency latches until the train stands and the request is gone."""
+def bcu_mode_transition(mode: BcuMode, brake_step: int, emergency_req: bool, standstill: bool,
+                        stop_demand: bool = False) -> BcuMode:
+    """Pure mode logic: emergency latches until the train stands and the request is gone; service while
+    a brake step is demanded or precise stopping brakes (`stop_demand`: following its curve or holding
+    the train at the stop point)."""
     if emergency_req:
         return BcuMode.EMERGENCY
     if mode == BcuMode.EMERGENCY and not standstill:
         return BcuMode.EMERGENCY
-    return BcuMode.SERVICE if brake_step > 0 else BcuMode.RELEASED
+    return BcuMode.SERVICE if brake_step > 0 or stop_demand else BcuMode.RELEASED
 
 
 def disagreeing_cars(speeds: Sequence[float], trusted: Sequence[bool], limit_mps: float,
@@ -74,6 +82,7 @@ class BcuParams:
     implausible_mps: float = 2.0
     implausible_after_us: int = 150_000
     feedback: FeedbackParams | None = None   # deceleration feedback, seed 004 §5; None: not fitted
+    stopping: StoppingParams | None = None   # precise stopping at a target point, seed 002; None: not fitted
 
 
 class Bcu:
@@ -101,6 +110,12 @@ class Bcu:
             self.inputs += self.accel_keys + self.wsp_keys
             self._speed_rx_us: int | None = None
             self.fb_out = None                     # last FeedbackOutput (diagnostic)
+        self.stopping: StoppingController | None = None
+        if self.p.stopping is not None:
+            self.stopping = StoppingController(self.p.stopping)
+            self.inputs += ("TargetStopValid", "TargetStopPos")
+            self._odo_rx_us: int | None = None
+            self.stop_out = None                   # last StopOutput (diagnostic)
         self.implausible = [False] * n_cars           # latched per car
         self._disagree_since: list[int | None] = [None] * n_cars
 
@@ -123,11 +138,20 @@ class Bcu:
         sensor_fault = any(finite_or(rx.get(key, 0.0), 0.0)[0] >= 0.5 for key in self.fault_keys)
         standstill = bool(known) and train_speed < p.standstill_mps
 
-        self.mode = bcu_mode_transition(self.mode, brake_step, emergency_req >= 0.5, standstill)
+        stop_cmd, stop_demand = 0.0, False
+        if self.stopping is not None:
+            # the odometer integrates the median of the cars' estimates: the maximum (the train speed, safe
+            # against sliding wheels) is biased upwards by the estimates' noise, and that bias integrates
+            so = self.stop_out = self._stopping_step(now_us, rx, dt_s, emergency_req >= 0.5, standstill,
+                                                     train_speed if known else float("nan"),
+                                                     statistics.median(known) if known else float("nan"))
+            stop_demand = so.state in (StopState.FOLLOWING, StopState.STOPPED)
+            stop_cmd = so.command_mps2 if stop_demand else 0.0
+        self.mode = bcu_mode_transition(self.mode, brake_step, emergency_req >= 0.5, standstill, stop_demand)
         if self.mode == BcuMode.EMERGENCY:
             self.target = p.emergency_decel_mps2                      # no jerk limit on emergency
         else:
-            wanted = p.step_decel_mps2[brake_step]
+            wanted = max(p.step_decel_mps2[brake_step], stop_cmd)
             jerk = p.jerk_limit_mps3 * dt_s
             self.target = rate_limit(wanted, self.target, jerk, jerk)
         emergency = self.mode == BcuMode.EMERGENCY
@@ -150,6 +174,26 @@ class Bcu:
             "FrictionPhi": phi,
             "SlopeEst": clip(slope, -0.064, 0.06375),            # the DBC signal's range
         }
+
+    def _stopping_step(self, now_us: int, rx: Mapping[str, float], dt_s: float, emergency_req: bool,
+                       standstill: bool, train_speed: float, odo_speed: float):
+        """Precise stopping's cycle: a fresh speed sample to the odometer (its reception time: the newest
+        BECUn_STATUS; every cycle for a plain mapping), then the controller."""
+        age_us = getattr(rx, "age_us", None)
+        if age_us is None:
+            t_rx: int | None = now_us
+        else:
+            ages = [a for a in (age_us(k, now_us) for k in self.speed_keys) if a is not None]
+            t_rx = now_us - min(ages) if ages else None
+        if t_rx is not None and t_rx != self._odo_rx_us and odo_speed == odo_speed:
+            self.stopping.odometer.sample(t_rx, odo_speed)
+            self._odo_rx_us = t_rx
+        valid, _ = finite_or(rx["TargetStopValid"], 0.0)
+        target_m, ok = finite_or(rx["TargetStopPos"], 0.0)
+        return self.stopping.step(now_us, dt_s, target_valid=valid >= 0.5 and ok, target_m=target_m,
+                                  emergency=emergency_req or self.mode == BcuMode.EMERGENCY,
+                                  standstill=standstill,
+                                  train_speed_mps=train_speed if train_speed == train_speed else 0.0)
 
     def _feedback_step(self, now_us: int, rx: Mapping[str, float], dt_s: float, brake_step: int,
                        emergency: bool, train_speed: float):

@@ -18,6 +18,7 @@ from firmware_py.becu import Becu, BecuParams
 from firmware_py.decel_feedback import FeedbackParams, FrictionSet
 from firmware_py.governor import GovernorParams, governor_params
 from firmware_py.pi import PIParams
+from firmware_py.stopping import StoppingParams
 from hil.codec import Codec
 from hil.desk import DeskScript
 from hil.errors import BindingError
@@ -111,6 +112,13 @@ def bcu_params(scenario: Scenario) -> BcuParams:
         steps = kw.get("step_decel_mps2", BcuParams().step_decel_mps2)
         kw["feedback"] = FeedbackParams(enabled=scenario.bcu.decel_feedback, tq_s=scenario.bcu.feedback_tq_s,
                                         friction_set=friction_set(scenario, steps))
+    if scenario.bcu.stopping != "none":
+        full = kw.get("step_decel_mps2", BcuParams().step_decel_mps2)[7]
+        # the odometer's reference point: the train's front passes the start position at t = 0
+        kw["stopping"] = StoppingParams(
+            method=scenario.bcu.stopping, planned_decel_mps2=scenario.bcu.stop_decel_mps2,
+            max_decel_mps2=full, hold_decel_mps2=full, start_position_m=scenario.train.start_position_m,
+            start_time_us=0, pi=dataclasses.replace(StoppingParams().pi, out_max=full))
     return BcuParams(**kw)
 
 
@@ -176,6 +184,8 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_na
                    + [f"BECU{i}_DIAG" for i in range(1, n + 1)])
         if ctrl.feedback is not None:                  # the front and rear accelerometers, seed 004 §6.1
             rx_msgs += list(dict.fromkeys(["PLANT_CAR1_SENSORS", f"PLANT_CAR{n}_SENSORS"]))
+        if ctrl.stopping is not None:                  # the target stop point, seed 002
+            rx_msgs.append("DESK_TARGET")
         tx_msgs = ["BCU_DEMAND", "BCU_EMERGENCY", "BCU_STATUS"]
         period, offset = ctrl.p.cycle_us, BCU_OFFSET_US
         inputs, outputs = ctrl.inputs, ctrl.OUTPUTS

@@ -11,6 +11,9 @@ Runs whose BCU has seed 004's deceleration feedback (`[bcu] decel_feedback = tru
 open-loop comparison) get the seed-004 KPIs under "seed004" (`seed004_kpis`) and a plot laid out like
 the paper's Figs. 19-20 (`plot_seed004`); `compare_seed004` draws an open-loop and a closed-loop run
 side by side.
+
+Runs with a target stop point (a `[[desk]]` event with `target_stop_m`, seed 002) get the precise-stop KPIs
+under "precise_stop" (`precise_stop_kpis`: stop error and jerk), printed in the summary.
 """
 
 from __future__ import annotations
@@ -40,6 +43,9 @@ PAPER_FIG8_MEAN_ERROR_G = 0.0718      # Fig. 8a, no governor: lim 1/T ∫ r⁰ �
 PAPER_FIG8_SS_ERROR_G = 0.0682        # Fig. 8b, governor: lim r⁰ − v̇, reference cut to r ≈ 0.2 g
 PAPER_FIG8_STOPPING_GAIN_M = 1.62     # §IV-A: the governor improves stopping accuracy over 30 s by this
 PAD_MU_NOMINAL = PadParams().mu_nominal   # μ_d0 of seed 004 eq. (32), the plant's pad model
+# Seed 002's published stop errors (§VII): the adaptive search without / with the differentiation unit
+PAPER_SEED002_STOP_ERROR_M = {"adaptive": "±25–45 m (Fig. 5)", "adaptive_diff": "±2–7 m (Fig. 6)"}
+JERK_DT_S = 0.1         # jerk = difference of the train deceleration over 0.1 s (a ride-comfort sampling)
 
 
 def write_truth_csv(columns: dict[str, np.ndarray], path: Path) -> None:
@@ -129,6 +135,8 @@ def compute_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[
         kpis["seed001"] = seed001_kpis(scenario, cols, target, t_brake, i_stop)
     if scenario.bcu.decel_feedback is not None:
         kpis["seed004"] = seed004_kpis(scenario, cols, target)
+    if any(e.target_stop_m is not None for e in scenario.desk):
+        kpis["precise_stop"] = precise_stop_kpis(scenario, cols, target, i_stop if stopped else None)
     return kpis
 
 
@@ -340,6 +348,53 @@ def seed004_summary_lines(k: dict | None) -> list[str]:
                     if k.get("pad_mu_ratio_range") else "")
                  + "   (paper, Figs. 19-20: closed loop smoother and closer to 1.32 m/s², no figure given)")
     return lines
+
+
+def precise_stop_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[np.ndarray, np.ndarray],
+                      i_stop: int | None) -> dict:
+    """Seed 002's figures of merit, from the plant's truth.
+
+    * `target_m`: the last target stop point the desk gave (track position of the leading car's front);
+    * `stop_error_m`: car 1's front at the standstill (every car below the plant's standstill speed) minus
+      the target [m]; + = overshoot; None when the train did not stop;
+    * `jerk_p95_mps3`, `jerk_max_mps3`: |d/dt| of the train's mass-weighted deceleration, differenced over
+      JERK_DT_S = 0.1 s, from the first non-zero target deceleration of the BCU to the standstill: the 95th
+      percentile and the maximum [m/s³];
+    * `braking_s`: that window's length [s]; `stopping`: the BCU's method ([bcu] stopping).
+    """
+    t = cols["t_s"]
+    n = scenario.train.cars
+    target_m = [e.target_stop_m for e in scenario.desk if e.target_stop_m is not None][-1]
+    masses = np.asarray(scenario.train.masses())
+    decel = -(_per_car(cols, "a_mps2", n) @ masses) / masses.sum()
+    tt, tv = target
+    on = np.flatnonzero(tv > 0.0) if tt.size else np.zeros(0, dtype=int)
+    t_on = float(tt[on[0]]) if on.size else float(t[0])
+    t_end = float(t[i_stop]) if i_stop is not None else float(t[-1])
+    grid = np.arange(t_on, t_end, JERK_DT_S)
+    jerk = np.abs(np.diff(np.interp(grid, t, decel))) / JERK_DT_S if grid.size > 1 else np.zeros(1)
+    return {
+        "stopping": scenario.bcu.stopping,
+        "target_m": target_m,
+        "stop_error_m": _r(float(cols["x_m_1"][i_stop]) - target_m, 3) if i_stop is not None else None,
+        "stopped": i_stop is not None,
+        "braking_s": _r(t_end - t_on, 3),
+        "jerk_p95_mps3": _r(float(np.percentile(jerk, 95))),
+        "jerk_max_mps3": _r(float(jerk.max())),
+    }
+
+
+def precise_stop_summary_lines(k: dict | None) -> list[str]:
+    """The precise-stop KPIs as summary lines, with seed 002's figure for the paper's methods."""
+    if not k:
+        return []
+    paper = PAPER_SEED002_STOP_ERROR_M.get(k["stopping"])
+    err = k["stop_error_m"]
+    return ["stop error              " + (f"{err:+.3f} m" if err is not None else "— (train did not stop)")
+            + f" at target {k['target_m']:.2f} m, method {k['stopping']}"
+            + (f"   (paper: {paper})" if paper else ""),
+            f"jerk                    p95 {k['jerk_p95_mps3']:.3f} m/s³, max {k['jerk_max_mps3']:.3f} m/s³ "
+            f"over {k['braking_s']:.1f} s of braking"]
 
 
 def read_signals(trace: Path, db: Database, codec: Codec, wanted: dict[str, tuple[str, str]],
@@ -627,6 +682,7 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
         lines.append(f"sensor flags            {shown}")
     lines += seed001_summary_lines(kpis.get("seed001"))
     lines += seed004_summary_lines(kpis.get("seed004"))
+    lines += precise_stop_summary_lines(kpis.get("precise_stop"))
     bus = kpis.get("bus")
     if bus:
         lines.append(f"bus ({bus['bitrate_bps'] // 1000} kbit/s)       load {100 * bus['load']:.1f} %, "

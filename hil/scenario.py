@@ -213,6 +213,13 @@ class BcuSpec(_Strict):
     friction_set: Literal["bench", "none"] = "bench"
     friction_set_fill: Literal["fraction", "time"] = "fraction"   # how untested speed classes are filled
     feedback_tq_s: Annotated[float, Field(gt=0, le=5)] = 0.1     # T_q of eq. (33) [s]
+    # seed 002: precise stopping at the [[desk]] target_stop_m: "none" (not fitted), the paper's adaptive
+    # search with united attempt and work steps without ("adaptive", Fig. 2) or with the differentiation
+    # unit ("adaptive_diff", Fig. 3), or the modern baseline "pi" (curve tracking, PI + feed-forward)
+    stopping: Literal["none", "adaptive", "adaptive_diff", "pi"] = "none"
+    # the braking curve's planned deceleration a_p [m/s²]: braking starts where a stop at a_p ends at the
+    # target (at once, and harder, when the target is nearer)
+    stop_decel_mps2: Annotated[float, Field(gt=0, le=5)] = 0.6
 
     @field_validator("step_decel_mps2")
     @classmethod
@@ -321,6 +328,18 @@ class Scenario(_Strict):
                 and not self.plant.pad_friction):
             raise ValueError("bcu.friction_set = 'bench' builds the set from the plant's pad model: it needs "
                              "plant.pad_friction = true (or bcu.friction_set = 'none')")
+        if self.bcu.stopping != "none" and not any(e.target_stop_m is not None for e in self.desk):
+            raise ValueError(f"bcu.stopping = '{self.bcu.stopping}' needs a [[desk]] event with "
+                             f"target_stop_m (the target stop point, track position [m])")
+        behind = [e.target_stop_m for e in self.desk
+                  if e.target_stop_m is not None and e.target_stop_m <= self.train.start_position_m]
+        if behind:
+            raise ValueError(f"desk target_stop_m {behind[0]} m is not ahead of train.start_position_m "
+                             f"{self.train.start_position_m} m")
+        steps = self.bcu.step_decel_mps2 or [1.0]
+        if self.bcu.stopping != "none" and self.bcu.stop_decel_mps2 > max(steps):
+            raise ValueError(f"bcu.stop_decel_mps2 {self.bcu.stop_decel_mps2} is above the full service "
+                             f"deceleration {max(steps)} m/s² (bcu.step_decel_mps2 step 7)")
         if self.becu.governor and self.plant.adhesion != "slip_speed":
             raise ValueError("becu.governor = true needs plant.adhesion = 'slip_speed' (the governor's "
                              "slip inclusion is built from that curve family)")
