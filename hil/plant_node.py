@@ -95,11 +95,6 @@ def plant_params(scenario: Scenario) -> PlantParams:
                        sensors=SensorParams(**sensor_kw))
 
 
-def build_plant(scenario: Scenario) -> Plant:
-    return Plant(plant_params(scenario), build_track(scenario), v0_mps=scenario.train.initial_speed_kmh / 3.6,
-                 x0_m=scenario.train.start_position_m, seed=scenario.seed)
-
-
 class TruthLog:
     """Ground truth sampled at a fixed period: cheap raw snapshots during the run, derived quantities
     (adhesion, optimal slip, forces) computed once when the columns are asked for."""
