@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 import re
 import struct
+from abc import ABC, abstractmethod
 from collections import Counter
 from dataclasses import dataclass, field
 from datetime import UTC, date, datetime, timedelta
@@ -182,7 +183,7 @@ _ADDRESS = re.compile(r"[A-Z]{2}[A-Z0-9]{3}")   # talker (2) + sentence type (3)
 _PRINTABLE = re.compile(r"[\x20-\x7e]*")
 
 
-class _StreamReader:
+class _StreamReader(ABC):
     """What both stream readers share: the buffer, the stats, the garbage-run state."""
 
     def __init__(self) -> None:
@@ -226,8 +227,9 @@ class _StreamReader:
             self.stats.reject("truncated", len(self._buf))
             self._buf.clear()
 
-    def _scan(self, out: list[ReceivedFix]) -> int:  # pragma: no cover - abstract
-        raise NotImplementedError
+    @abstractmethod
+    def _scan(self, out: list[ReceivedFix]) -> int:
+        """Parse what `_buf` holds into `out`; return how many bytes were consumed."""
 
 
 def _field_float(val) -> float:
