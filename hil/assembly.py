@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import importlib
 from dataclasses import dataclass
 
 from cantools.database.can import Database
@@ -44,9 +45,25 @@ class NodeInfo:
     offset_us: int
 
 
+#: scenario section -> the module that assembles that study's nodes.  Each module has
+#: ``node_names(scenario, names) -> list[str]`` (given the foundation's names, PLANT first; the plant node
+#: must stay first: the lockstep runner reads its truth, standstill and glance()) and
+#: ``build_node(name, scenario, db, codec, dbc_name) -> Node | None`` (None: the foundation builds it).
+STUDIES = {"preview": "hil.preview_nodes", "consensus": "hil.consensus_nodes", "acd": "hil.acd_nodes"}
+
+
+def studies(scenario: Scenario) -> list:
+    """The modules of the studies this scenario has a section for, in STUDIES order."""
+    return [importlib.import_module(mod) for key, mod in STUDIES.items()
+            if getattr(scenario, key) is not None]
+
+
 def node_names(scenario: Scenario) -> list[str]:
     n = scenario.train.cars
-    return ["PLANT", "DESK", "BCU"] + [f"BECU{i}" for i in range(1, n + 1)]
+    names = ["PLANT", "DESK", "BCU"] + [f"BECU{i}" for i in range(1, n + 1)]
+    for study in studies(scenario):
+        names = study.node_names(scenario, names)
+    return names
 
 
 def becu_messages(i: int) -> tuple[list[str], list[str]]:
@@ -167,6 +184,16 @@ def becu_params(scenario: Scenario, car: int) -> BecuParams:
 
 
 def build_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_name: str = "DBC") -> Node:
+    for study in studies(scenario):
+        node = study.build_node(name, scenario, db, codec, dbc_name)
+        if node is not None:
+            return node
+    return build_foundation_node(name, scenario, db, codec, dbc_name)
+
+
+def build_foundation_node(name: str, scenario: Scenario, db: Database, codec: Codec,
+                          dbc_name: str = "DBC") -> Node:
+    """A node of the foundation's train (PLANT, DESK, BCU, BECUn) as the scenario configures it."""
     n = scenario.train.cars
     if name == "PLANT":
         plant = build_plant(scenario)

@@ -14,18 +14,20 @@ import typing
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
 from hil.errors import ScenarioError
 from hil.faults import FaultSpec
+from hil.spec_acd import AcdSpec
+from hil.spec_consensus import ConsensusSpec
+from hil.spec_preview import PreviewSpec
+from hil.specbase import Strict
 
 MAX_CARS = 8
 RAIL_CONDITION_NAMES = ("extra_dry", "dry", "wet", "extra_wet")
 
 
-class _Strict(BaseModel):
-    # allow_inf_nan=False: a NaN or an infinity is a bad value for every number of a scenario
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+_Strict = Strict
 
 
 class TrainSpec(_Strict):
@@ -349,6 +351,10 @@ class Scenario(_Strict):
         return self
     faults: list[FaultSpec] = Field(default_factory=list)             # hil.faults, lockstep
     secoc: SecOcSpec = Field(default_factory=SecOcSpec)               # authentication keys
+    # the studies that bring nodes of their own (hil.assembly.studies): absent = not part of this run
+    preview: PreviewSpec | None = None        # seed 000: slip references with preview (hil/spec_preview.py)
+    consensus: ConsensusSpec | None = None    # seed 003: consensus braking (hil/spec_consensus.py)
+    acd: AcdSpec | None = None                # seed 002: anti-collision device (hil/spec_acd.py)
 
     @field_validator("desk")
     @classmethod

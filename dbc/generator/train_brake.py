@@ -24,63 +24,18 @@ Conventions
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import sys
 from pathlib import Path
 
-MAX_CARS = 8
+sys.path.insert(0, str(Path(__file__).resolve().parent))   # the parts beside this script
+
+import acd_frames  # noqa: E402
+import consensus_frames  # noqa: E402
+import preview_frames  # noqa: E402
+from dbcschema import MAX_CARS, Msg, Sig, becus, e2e, secoc  # noqa: E402,F401
+
 BITRATE_BPS = 500_000
 OUT = Path(__file__).resolve().parents[1] / "train_brake.dbc"
-
-
-@dataclass
-class Sig:
-    name: str
-    start: int
-    length: int
-    scale: float = 1.0
-    offset: float = 0.0
-    minimum: float = 0.0
-    maximum: float = 0.0
-    unit: str = ""
-    signed: bool = False
-    comment: str = ""
-    choices: dict[int, str] = field(default_factory=dict)
-
-
-@dataclass
-class Msg:
-    frame_id: int
-    name: str
-    sender: str
-    receivers: list[str]
-    cycle_ms: int
-    comment: str
-    signals: list[Sig]
-    dlc: int = 8
-    secoc_data_id: int = 0     # > 0: authenticated (SecOC profile 1) with this data id
-
-
-def e2e(comment_what: str) -> list[Sig]:
-    return [
-        Sig("CHECKSUM", 0, 8, maximum=255,
-            comment=f"E2E profile 1 CRC-8 (SAE J1850) over data id and {comment_what} "
-                    "(filled by the sender)"),
-        Sig("COUNTER", 8, 4, maximum=15, comment="E2E profile 1 alive counter 0..14, +1 every transmission"),
-    ]
-
-
-def secoc(what: str) -> list[Sig]:
-    """SecOC profile 1 trailer (hil/secoc.py): bytes 0-3 are the authentic part, E2E-protected."""
-    return [
-        Sig("SecOCFreshness", 32, 8, maximum=255,
-            comment=f"8 LSB of the freshness counter of {what} (filled by the sender)"),
-        Sig("SecOCMAC", 40, 24, maximum=16777215,
-            comment=f"24 MSB of the AES-128 CMAC over data id, bytes 0-3 and full freshness of {what}"),
-    ]
-
-
-def becus(n_cars: int = MAX_CARS) -> list[str]:
-    return [f"BECU{i}" for i in range(1, n_cars + 1)]
 
 
 WSP_CHOICES = {0: "FILL", 1: "HOLD", 2: "VENT"}
@@ -111,16 +66,6 @@ def messages() -> list[Msg]:
                     comment="1 = TargetStopPos holds a target stop point"),
                 Sig("TargetStopPos", 16, 24, scale=0.01, maximum=167772.15, unit="m",
                     comment="target stop point of the leading car's front, track position"),
-            ]),
-        Msg(0x020, "ACD_BRAKE_REQ", "ACD", ["BCU"], 100,
-            "Anti-collision device brake request to the BCU.",
-            e2e("the ACD request") + [
-                Sig("Request", 12, 2, maximum=3, comment="requested braking",
-                    choices={0: "NONE", 1: "SERVICE", 2: "EMERGENCY"}),
-                Sig("RequestedDecel", 16, 16, scale=0.001, maximum=65.535, unit="m/s^2",
-                    comment="deceleration the ACD asks for (positive = braking)"),
-                Sig("DistanceToObstacle", 32, 24, scale=0.01, maximum=167772.15, unit="m",
-                    comment="distance to the leader's last wagon or to the red signal"),
             ]),
         Msg(0x028, "BCU_DEMAND", "BCU", becus(), 10,
             "Train brake demand distributed to every car.",
@@ -223,35 +168,10 @@ def messages() -> list[Msg]:
                     comment="track slope tan(theta) under the train (+ uphill) estimated from the front and "
                             "rear accelerometers and the speed; 0.001 = 1 permille"),
             ]),
-        Msg(0x180, "RADIO_LEADER_POS", "PLANT", ["ACD"], 1000,
-            "Radio link: position of the leading train (relayed by the control centre).",
-            [
-                Sig("Latitude", 0, 32, scale=1e-7, minimum=-90.0, maximum=90.0, unit="deg", signed=True,
-                    comment="WGS-84 latitude of the leader's last wagon"),
-                Sig("Longitude", 32, 32, scale=1e-7, minimum=-180.0, maximum=180.0, unit="deg", signed=True,
-                    comment="WGS-84 longitude of the leader's last wagon"),
-            ]),
-        Msg(0x181, "RADIO_LEADER_INFO", "PLANT", ["ACD"], 1000,
-            "Radio link: leading train state.",
-            [
-                Sig("LeaderId", 0, 8, maximum=255, comment="identifier of the leading train"),
-                Sig("RouteSection", 8, 16, maximum=65535, comment="route section the leader occupies"),
-                Sig("Speed", 24, 16, scale=0.01, maximum=655.35, unit="m/s", comment="leader speed"),
-                Sig("TrainLength", 40, 16, scale=0.1, maximum=6553.5, unit="m", comment="leader length"),
-                Sig("AgeOfReport", 56, 8, scale=0.1, maximum=25.5, unit="s",
-                    comment="age of the leader's report when relayed"),
-            ]),
-        Msg(0x182, "RADIO_SIGNAL", "PLANT", ["ACD", "BCU"], 1000,
-            "Radio link: aspect of the next signal.",
-            [
-                Sig("SignalId", 0, 16, maximum=65535, comment="identifier of the next signal"),
-                Sig("Aspect", 16, 2, maximum=3, comment="signal aspect",
-                    choices={0: "UNKNOWN", 1: "RED", 2: "YELLOW", 3: "GREEN"}),
-                Sig("SignalPos", 24, 24, scale=0.01, maximum=167772.15, unit="m",
-                    comment="track position of the signal"),
-            ]),
     ]
-    return msgs
+    # the studies' frames, each in its own file beside this one
+    msgs += acd_frames.messages() + consensus_frames.messages() + preview_frames.messages()
+    return sorted(msgs, key=lambda m: m.frame_id)
 
 
 def _num(x: float) -> str:
