@@ -20,6 +20,7 @@ train Degraded (its estimate stays in: its BECU already excluded the failed sens
 
 from __future__ import annotations
 
+import math
 import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -89,7 +90,8 @@ class Bcu:
     """step(now_us, rx) -> BCU_DEMAND / BCU_EMERGENCY / BCU_STATUS signals."""
 
     OUTPUTS = ("Mode", "BrakeStep", "TargetDecel", "EmergencyActive", "Source", "CarsSilent", "Degraded",
-               "TrainSpeedEst", "CarsImplausible", "FbState", "FrictionPhi", "SlopeEst")
+               "TrainSpeedEst", "CarsImplausible", "FbState", "FrictionPhi", "SlopeEst", "StopState")
+    STOP_OUTPUTS = ("DistanceToGo", "RefSpeed", "StopCommand", "BalisesSeen", "SearchQ")    # BCU_STOP
 
     def __init__(self, n_cars: int, params: BcuParams | None = None) -> None:
         self.p = params or BcuParams()
@@ -97,6 +99,7 @@ class Bcu:
         self.mode = BcuMode.RELEASED
         self.target = 0.0
         self.timer = CycleTimer(self.p.cycle_us)
+        self.outputs = self.OUTPUTS                  # + STOP_OUTPUTS with precise stopping
         self.speed_keys = tuple(f"BECU{i}_STATUS.SpeedEst" for i in range(1, n_cars + 1))
         self.fault_keys = tuple(f"BECU{i}_DIAG.{sig}" for i in range(1, n_cars + 1)
                                 for sig in ("SpeedSensorFault", "AccelSensorFault"))
@@ -114,8 +117,13 @@ class Bcu:
         if self.p.stopping is not None:
             self.stopping = StoppingController(self.p.stopping)
             self.inputs += ("TargetStopValid", "TargetStopPos")
+            self.outputs += self.STOP_OUTPUTS
             self._odo_rx_us: int | None = None
             self.stop_out = None                   # last StopOutput (diagnostic)
+            self.balises_seen = 0                  # balise passages the odometer re-anchored on
+            self._balise_count: float | None = None
+            if self.p.stopping.balises:            # car 1's balise transmission module (PLANT_BTM)
+                self.inputs += ("BalisePos", "PassageAge", "BaliseCount", "BaliseValid")
         self.implausible = [False] * n_cars           # latched per car
         self._disagree_since: list[int | None] = [None] * n_cars
 
@@ -173,7 +181,17 @@ class Bcu:
             "FbState": int(fb_state),
             "FrictionPhi": phi,
             "SlopeEst": clip(slope, -0.064, 0.06375),            # the DBC signal's range
+            **(self._stop_signals() if self.stopping is not None else {"StopState": 0}),
         }
+
+    def _stop_signals(self) -> dict[str, float]:
+        """StopState in BCU_STATUS and the BCU_STOP frame, from the last StopOutput."""
+        so = self.stop_out
+        return {"StopState": int(so.state),
+                "DistanceToGo": so.distance_to_go_m if so.distance_to_go_m == so.distance_to_go_m else 0.0,
+                "RefSpeed": so.ref_speed_mps if so.ref_speed_mps == so.ref_speed_mps else 0.0,
+                "StopCommand": so.command_mps2, "BalisesSeen": self.balises_seen % 16,
+                "SearchQ": min(so.quality, 127.5) if so.quality == so.quality else 0.0}
 
     def _stopping_step(self, now_us: int, rx: Mapping[str, float], dt_s: float, emergency_req: bool,
                        standstill: bool, train_speed: float, odo_speed: float):
@@ -188,12 +206,32 @@ class Bcu:
         if t_rx is not None and t_rx != self._odo_rx_us and odo_speed == odo_speed:
             self.stopping.odometer.sample(t_rx, odo_speed)
             self._odo_rx_us = t_rx
+        if self.p.stopping.balises:
+            self._balise(now_us, rx)
         valid, _ = finite_or(rx["TargetStopValid"], 0.0)
         target_m, ok = finite_or(rx["TargetStopPos"], 0.0)
         return self.stopping.step(now_us, dt_s, target_valid=valid >= 0.5 and ok, target_m=target_m,
                                   emergency=emergency_req or self.mode == BcuMode.EMERGENCY,
                                   standstill=standstill,
                                   train_speed_mps=train_speed if train_speed == train_speed else 0.0)
+
+    def _balise(self, now_us: int, rx: Mapping[str, float]) -> None:
+        """A new balise passage in PLANT_BTM (its count changed) re-anchors the odometer: the passage time
+        is the frame's reception time (every cycle for a plain mapping) minus its PassageAge."""
+        valid, _ = finite_or(rx["BaliseValid"], 0.0)
+        count, ok = finite_or(rx["BaliseCount"], math.nan)
+        if valid < 0.5 or not ok or count == self._balise_count:
+            return
+        self._balise_count = count
+        pos, ok_pos = finite_or(rx["BalisePos"], math.nan)
+        age_s, ok_age = finite_or(rx["PassageAge"], math.nan)
+        if not (ok_pos and ok_age):
+            return
+        age_us = getattr(rx, "age_us", None)
+        rx_age = age_us("BaliseCount", now_us) if age_us is not None else 0
+        t_pass = now_us - (rx_age or 0) - age_s * 1e6
+        self.stopping.odometer.anchor(pos, t_pass)
+        self.balises_seen += 1
 
     def _feedback_step(self, now_us: int, rx: Mapping[str, float], dt_s: float, brake_step: int,
                        emergency: bool, train_speed: float):

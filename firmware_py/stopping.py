@@ -101,6 +101,7 @@ class StoppingParams:
     hold_decel_mps2: float = 1.0             # holding brake at standstill (STOPPED)
     start_position_m: float = 0.0            # odometer: the reference point passed at start_time_us ...
     start_time_us: int = 0                   # ... (the scenario's start: a balise at t = 0)
+    balises: bool = False                    # re-anchor the odometer on PLANT_BTM balise passages
     speed_latency_s: float = 0.005           # speed chain latency, wheel → BECU SpeedEst → CAN: the plant's
     #                                          sensor frame, the BECU's estimate and its 50 ms status frame
     #                                          (chosen, measured on the lockstep bench: see README)
@@ -156,6 +157,18 @@ class Odometer:
         if self.x is None:
             return self.x0
         return self.x + self.v * ((now_us - self.t_us) * 1e-6 + self.latency_s)
+
+    def anchor(self, x_m: float, t_us: float) -> float:
+        """A fixed reference point (a balise) was passed at `x_m` at time `t_us`: shift the odometer so that
+        it reads x_m then.  Returns the correction [m] (+: the odometer was behind)."""
+        if not (math.isfinite(x_m) and math.isfinite(t_us)):
+            return 0.0
+        if self.x is None:                  # no speed sample yet: the balise is the new reference point
+            self.x0, self.t0 = x_m, round(t_us)
+            return 0.0
+        shift = x_m - (self.x + self.v * ((t_us - self.t_us) * 1e-6 + self.latency_s))
+        self.x += shift
+        return shift
 
 
 @dataclass(frozen=True)

@@ -135,7 +135,8 @@ def bcu_params(scenario: Scenario) -> BcuParams:
         kw["stopping"] = StoppingParams(
             method=scenario.bcu.stopping, planned_decel_mps2=scenario.bcu.stop_decel_mps2,
             max_decel_mps2=full, hold_decel_mps2=full, start_position_m=scenario.train.start_position_m,
-            start_time_us=0, pi=dataclasses.replace(StoppingParams().pi, out_max=full))
+            start_time_us=0, pi=dataclasses.replace(StoppingParams().pi, out_max=full),
+            balises=bool(scenario.track.balises))
     return BcuParams(**kw)
 
 
@@ -197,9 +198,9 @@ def build_foundation_node(name: str, scenario: Scenario, db: Database, codec: Co
     n = scenario.train.cars
     if name == "PLANT":
         plant = build_plant(scenario)
-        ctrl = PlantController(plant, n, db, dbc_name)
+        ctrl = PlantController(plant, n, db, dbc_name, balises=scenario.track.balises)
         rx_msgs = [f"BECU{i}_PRESS_CMD" for i in range(1, n + 1)]
-        tx_msgs = [f"PLANT_CAR{i}_SENSORS" for i in range(1, n + 1)]
+        tx_msgs = [f"PLANT_CAR{i}_SENSORS" for i in range(1, n + 1)] + (["PLANT_BTM"] if ctrl.btm else [])
         period, offset, inputs, outputs = plant.params.dt_us, PLANT_OFFSET_US, ctrl.inputs, ctrl.outputs
     elif name == "DESK":
         ctrl = DeskScript(scenario.desk)
@@ -211,11 +212,12 @@ def build_foundation_node(name: str, scenario: Scenario, db: Database, codec: Co
                    + [f"BECU{i}_DIAG" for i in range(1, n + 1)])
         if ctrl.feedback is not None:                  # the front and rear accelerometers, seed 004 §6.1
             rx_msgs += list(dict.fromkeys(["PLANT_CAR1_SENSORS", f"PLANT_CAR{n}_SENSORS"]))
-        if ctrl.stopping is not None:                  # the target stop point, seed 002
-            rx_msgs.append("DESK_TARGET")
         tx_msgs = ["BCU_DEMAND", "BCU_EMERGENCY", "BCU_STATUS"]
+        if ctrl.stopping is not None:                  # the target stop point and balises, seed 002
+            rx_msgs += ["DESK_TARGET"] + (["PLANT_BTM"] if ctrl.p.stopping.balises else [])
+            tx_msgs.append("BCU_STOP")
         period, offset = ctrl.p.cycle_us, BCU_OFFSET_US
-        inputs, outputs = ctrl.inputs, ctrl.OUTPUTS
+        inputs, outputs = ctrl.inputs, ctrl.outputs
     elif name.startswith("BECU") and name[4:].isdigit() and 1 <= int(name[4:]) <= n:
         i = int(name[4:])
         ctrl = Becu(becu_params(scenario, i))

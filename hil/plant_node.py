@@ -4,7 +4,7 @@ the plant's ground truth, from which the KPIs are computed."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -148,6 +148,39 @@ def _message(db: Database, name: str, dbc_name: str):
 FAILSAFE_CYCLES = 3        # pressure-command cycles without a usable frame before the fail-safe applies
 
 
+class BaliseReader:
+    """Car 1's balise transmission module: watches the train's front pass fixed balises (track positions
+    [m], increasing) and reports the last one passed with the time since (PLANT_BTM).  The passage time
+    is interpolated inside the plant step in which the front crossed the balise; balises behind the start
+    position are not reported."""
+
+    OUTPUTS = ("PLANT_BTM.BalisePos", "PLANT_BTM.PassageAge", "PLANT_BTM.BaliseCount",
+               "PLANT_BTM.BaliseValid")
+
+    def __init__(self, positions: tuple[float, ...], x0_m: float) -> None:
+        self.positions = positions
+        self.next = sum(1 for b in positions if b <= x0_m)     # index of the next balise ahead
+        self.count = 0
+        self.passed_us: float | None = None                    # plant time of the last passage [µs]
+        self.x_prev = x0_m
+
+    def after_step(self, t0_us: int, dt_us: int, x_m: float, out: dict[str, float]) -> None:
+        """The plant stepped from t0_us by dt_us and its front is now at x_m: record passages, then set the
+        frame's values in `out`."""
+        while self.next < len(self.positions) and x_m >= self.positions[self.next]:
+            b = self.positions[self.next]
+            frac = (b - self.x_prev) / (x_m - self.x_prev) if x_m > self.x_prev else 1.0
+            self.passed_us = t0_us + frac * dt_us
+            self.count += 1
+            self.next += 1
+        self.x_prev = x_m
+        if self.passed_us is not None:
+            out["PLANT_BTM.BalisePos"] = self.positions[self.next - 1]
+            out["PLANT_BTM.PassageAge"] = min((t0_us + dt_us - self.passed_us) * 1e-6, 6.5535)
+            out["PLANT_BTM.BaliseCount"] = self.count % 256
+            out["PLANT_BTM.BaliseValid"] = 1
+
+
 class PlantController:
     """step(now_us, rx): sense (when the sensor frames are due), record truth, then integrate one step.
 
@@ -157,7 +190,8 @@ class PlantController:
     actuators apply the brake on their own — EP valve fully open to the reservoir, dump valve
     closed, set-point p̄ — until commands come back (`failsafe_us` counts the time per car)."""
 
-    def __init__(self, plant: Plant, n_cars: int, db: Database, dbc_name: str = "the DBC") -> None:
+    def __init__(self, plant: Plant, n_cars: int, db: Database, dbc_name: str = "the DBC",
+                 balises: Sequence[float] = ()) -> None:
         self.plant = plant
         self.n = n_cars
         self.valve_keys = [f"BECU{i}_PRESS_CMD.ValveCmd" for i in range(1, n_cars + 1)]
@@ -195,6 +229,9 @@ class PlantController:
         self._sensor_keys = [tuple(f"PLANT_CAR{i}_SENSORS.{sig}" for sig, _ in SENSOR_FIELDS)
                              for i in range(1, n_cars + 1)]
         self._counter_keys = [f"PLANT_CAR{i}_SENSORS.SensorCounter" for i in range(1, n_cars + 1)]
+        self.btm = BaliseReader(tuple(balises), plant.lead_position_m) if balises else None
+        if self.btm is not None:
+            self.outputs += BaliseReader.OUTPUTS
 
     def add_sensor_fault(self, fault: SensorFault) -> None:
         """A failed sensor (hil.faults `sensor`): applied to the readings this node sends."""
@@ -282,4 +319,6 @@ class PlantController:
                 self.truth.max_slip_mps = np.maximum(top, s)
         else:
             self.plant.step(self._valve, self._wsp)
+        if self.btm is not None:
+            self.btm.after_step(now_us, self.plant.t_us - now_us, self.plant.lead_position_m, out)
         return out

@@ -84,6 +84,16 @@ class TrackSpec(_Strict):
     rail_table: list[RailRow] | None = None
     gradient: list[GradientPoint] = Field(default_factory=list)
     curves: list[CurvePoint] = Field(default_factory=list)
+    # fixed balises (track positions [m], increasing): the train's BTM reports each passage of car 1's front
+    # (PLANT_BTM); a BCU doing precise stopping re-anchors its odometer on them
+    balises: list[float] = Field(default_factory=list)
+
+    @field_validator("balises")
+    @classmethod
+    def _balises_increasing(cls, v):
+        if any(b <= a for a, b in zip(v, v[1:], strict=False)):
+            raise ValueError(f"balise positions must increase strictly, got {v}")
+        return v
 
     @field_validator("rail", "gradient", "curves")
     @classmethod

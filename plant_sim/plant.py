@@ -211,6 +211,11 @@ class Plant:
         return self._n_steps * self._dt_us
 
     @property
+    def lead_position_m(self) -> float:
+        """Track position of car 1's front [m] (the truth's x of car 1)."""
+        return self._x[0]
+
+    @property
     def n_cars(self) -> int:
         return self._n
 

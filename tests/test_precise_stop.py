@@ -32,7 +32,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "scenarios" / "precise_stop.toml"
 METHODS = ("adaptive", "adaptive_diff", "pi")
 GOAL_P95_M = 0.3                 # issue #5: platform-door accuracy for the best method
-PAPER = {"adaptive": "±25–45 m (Fig. 5)", "adaptive_diff": "±2–7 m (Fig. 6)", "pi": "— (not in the paper)"}
+PAPER = {"adaptive": "±25–45 m (Fig. 5)", "adaptive_diff": "±2–7 m (Fig. 6)", "pi": "— (not in the paper)",
+         "pi, no balises": "— (not in the paper)"}
 
 S = StopState
 
@@ -102,6 +103,40 @@ def test_odometer_integrates_a_braking_train_exactly_up_to_its_latency():
     assert worst < 0.5 * (0.035 ** 2) + 0.01
 
 
+def test_odometer_anchor_on_a_balise_removes_the_drift():
+    """A speed estimate 1 % high makes the odometer run ahead; a balise passed at a known time puts it back
+    on the balise's position, and the drift starts again from there only."""
+    odo = Odometer(0.0, 0, latency_s=0.0)
+    v_true = 20.0
+    for k in range(0, 101):                              # 10 s of samples every 0.1 s, 1 % high
+        odo.sample(k * 100_000, v_true * 1.01)
+    assert odo.position(10_000_000) == pytest.approx(202.0)       # 2 m ahead of the truth (200 m)
+    shift = odo.anchor(190.0, 9_500_000)                 # the balise at 190 m was passed at 9.5 s
+    assert shift == pytest.approx(190.0 - 20.2 * 9.5)
+    assert odo.position(9_500_000) == pytest.approx(190.0)
+    assert odo.position(10_000_000) == pytest.approx(190.0 + 20.2 * 0.5)
+    assert odo.anchor(float("nan"), 9_600_000) == 0.0 and odo.position(9_500_000) == pytest.approx(190.0)
+    fresh = Odometer(0.0, 0, latency_s=0.0)              # before any speed sample: a new reference point
+    fresh.anchor(50.0, 2_000_000)
+    fresh.sample(3_000_000, 10.0)
+    assert fresh.position(3_000_000) == pytest.approx(60.0)
+
+
+def test_balise_reader_interpolates_the_passage_and_reports_the_last_balise():
+    from hil.plant_node import BaliseReader
+
+    btm = BaliseReader((-10.0, 100.0, 100.5, 300.0), x0_m=0.0)  # the one behind the start is not reported
+    out: dict[str, float] = {}
+    btm.after_step(0, 1000, 99.0, out)
+    assert out == {}                                      # nothing passed yet: the frame says BaliseValid 0
+    btm.after_step(1000, 1000, 101.0, out)                # 99 → 101 m: 100 m at 1.5 ms, 100.5 m at 1.75 ms
+    assert out["PLANT_BTM.BalisePos"] == 100.5 and out["PLANT_BTM.BaliseCount"] == 2
+    assert out["PLANT_BTM.PassageAge"] == pytest.approx((2000 - 1750) * 1e-6)   # 100.5 passed at 1.75 ms
+    btm.after_step(2000, 1000, 102.0, out)
+    assert out["PLANT_BTM.PassageAge"] == pytest.approx((3000 - 1750) * 1e-6)
+    assert out["PLANT_BTM.BaliseValid"] == 1
+
+
 def test_odometer_ignores_stale_and_non_finite_samples():
     odo = Odometer(0.0, 0, 0.0)
     odo.sample(100_000, 10.0)
@@ -161,17 +196,25 @@ def test_differentiation_unit_and_pi_improve_on_the_plain_search():
 
 
 # ------------------------------------------------------------------------- randomized lockstep runs
-def randomized_sets(method: str, k: int, distance_m: float | None) -> list[str]:
+#: the platform's balises, metres before the stop point (a pre-announcing one and one just before the
+#: stop, as precision-stopping balise groups are laid; chosen)
+BALISES_BEFORE_M = (200.0, 25.0)
+NO_BALISES = "pi, no balises"      # the PI baseline on the odometer alone (the foundation's reference point)
+
+
+def randomized_sets(method: str, k: int, distance_m: float | None, balises: bool = True) -> list[str]:
     """`--set` overrides of run k (seeded): mass ±15 %, gradient ±5 ‰, pad friction ±15 % (brake gain),
-    the stop point `distance_m` ahead (None: uniform in 400–1500 m)."""
+    the stop point `distance_m` ahead (None: uniform in 400–1500 m), balises BALISES_BEFORE_M before it."""
     rng = np.random.default_rng([2, k])               # seed 002, run k: the same for every method
     mass = 40_000.0 * rng.uniform(0.85, 1.15)
     permille = rng.uniform(-5.0, 5.0)
     gain = BrakeParams().alpha_squeeze_Nm_per_Pa * rng.uniform(0.85, 1.15)
     dist = rng.uniform(400.0, 1500.0) if distance_m is None else distance_m
+    laid = [round(dist - b, 2) for b in BALISES_BEFORE_M] if balises else []
     return [f"bcu.stopping={method}", f"seed={k}", f"train.mass_kg={mass:.1f}",
             f"track.gradient=[{{from_m = -500.0, permille = {permille:.3f}}}]",
-            f"plant.brake_gain_Nm_per_Pa={gain:.6f}", f"desk.0.target_stop_m={dist:.2f}"]
+            f"plant.brake_gain_Nm_per_Pa={gain:.6f}", f"desk.0.target_stop_m={dist:.2f}",
+            f"track.balises={laid}"]
 
 
 def run_one(args: tuple[str, int, float | None, str]) -> dict:
@@ -179,10 +222,11 @@ def run_one(args: tuple[str, int, float | None, str]) -> dict:
     from hil.run import run_scenario_lockstep
     from hil.scenario import load_scenario
 
-    method, k, distance_m, out = args
-    scenario = load_scenario(SCENARIO, sets=randomized_sets(method, k, distance_m))
-    report = run_scenario_lockstep(scenario, Path(out) / f"{method}_{k}")
-    return {"method": method, "k": k, **report.kpis["precise_stop"]}
+    label, k, distance_m, out = args
+    method, balises = ("pi", False) if label == NO_BALISES else (label, True)
+    scenario = load_scenario(SCENARIO, sets=randomized_sets(method, k, distance_m, balises))
+    report = run_scenario_lockstep(scenario, Path(out) / f"{label.replace(', ', '_')}_{k}")
+    return {"method": label, "k": k, **report.kpis["precise_stop"]}
 
 
 def run_campaign(tmp: Path, methods, runs: int, distance_m: float | None) -> list[dict]:
@@ -234,14 +278,16 @@ def test_precise_stop_short_runs_every_method(tmp_path):
 @pytest.mark.slow
 @pytest.mark.timeout(7200)                # 60 lockstep runs on two workers: ~25 min on a quiet 2-core host
 def test_precise_stop_randomized_campaign(tmp_path):
-    """Issue #5 acceptance: ≥ 20 seeded randomized runs per method, stop point 400–1500 m ahead.  Prints
-    the table; asserts the goal (p95 |error| ≤ 0.3 m) for the best method only where it is met."""
-    results = run_campaign(tmp_path, METHODS, 20, None)
+    """Issue #5 acceptance: ≥ 20 seeded randomized runs per method, stop point 400–1500 m ahead, balises
+    200 m and 25 m before it (and the PI once more without them).  Prints the table; asserts the goal
+    (p95 |error| ≤ 0.3 m) for the best method; where it is not met, says so as an expected failure."""
+    results = run_campaign(tmp_path, METHODS + (NO_BALISES,), 20, None)
     t = table(results)
     print_table(t)
     assert all(r["stopped"] for r in results)
     best = min(t, key=lambda m: t[m]["p95"])
     assert best == "pi"
+    assert t["pi"]["p95"] < t[NO_BALISES]["p95"]                    # the balises remove the odometer's drift
     assert t["adaptive_diff"]["p95"] < t["adaptive"]["p95"]          # the differentiation unit helps (§VII)
     if t[best]["p95"] > GOAL_P95_M:               # not loosened: reported as an expected failure
         pytest.xfail(f"goal not met: best method {best} p95 |stop error| {t[best]['p95']:.2f} m > "

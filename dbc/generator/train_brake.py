@@ -167,6 +167,35 @@ def messages() -> list[Msg]:
                 Sig("SlopeEst", 50, 9, scale=0.00025, minimum=-0.064, maximum=0.06375, signed=True,
                     comment="track slope tan(theta) under the train (+ uphill) estimated from the front and "
                             "rear accelerometers and the speed; 0.001 = 1 permille"),
+                Sig("StopState", 59, 2, maximum=3, comment="precise stopping (seed 002): state of the "
+                    "braking-curve follower", choices={0: "OFF", 1: "ARMED", 2: "FOLLOWING", 3: "STOPPED"}),
+            ]),
+        Msg(0x161, "BCU_STOP", "BCU", ["DESK"], 100,
+            "Precise stopping (seed 002): where the BCU believes the train is against its target and curve. "
+            "Sent only when the scenario's BCU does precise stopping.",
+            [
+                Sig("DistanceToGo", 0, 24, scale=0.01, minimum=-83886.08, maximum=83886.07, unit="m",
+                    signed=True, comment="target stop point minus the odometer's position of car 1's front"),
+                Sig("RefSpeed", 24, 16, scale=0.01, maximum=655.35, unit="m/s",
+                    comment="the braking curve's speed at this point (0 when not following)"),
+                Sig("StopCommand", 40, 12, scale=0.001, maximum=4.095, unit="m/s^2",
+                    comment="deceleration the stopping controller commands (before the jerk limit)"),
+                Sig("BalisesSeen", 52, 4, maximum=15,
+                    comment="balise passages the odometer has re-anchored on, modulo 16"),
+                Sig("SearchQ", 56, 8, scale=0.5, maximum=127.5, unit="m",
+                    comment="adaptive search: last work function Q = |S - S_th| (saturates; 0 for pi)"),
+            ]),
+        Msg(0x120, "PLANT_BTM", "PLANT", ["BCU"], 20,
+            "Balise transmission module of car 1: the last fixed balise its antenna (the train's front) "
+            "passed. Sent only when the track has balises ([track] balises).",
+            [
+                Sig("BalisePos", 0, 24, scale=0.01, minimum=-83886.08, maximum=83886.07, unit="m",
+                    signed=True, comment="track position of the last balise passed"),
+                Sig("PassageAge", 24, 16, scale=0.0001, maximum=6.5535, unit="s",
+                    comment="time since the antenna passed it, at transmission (saturates)"),
+                Sig("BaliseCount", 40, 8, maximum=255, comment="balises passed since start, modulo 256"),
+                Sig("BaliseValid", 48, 1, maximum=1, comment="1 once a balise has been passed",
+                    choices={0: "NONE", 1: "VALID"}),
             ]),
     ]
     # the studies' frames, each in its own file beside this one
