@@ -30,7 +30,10 @@ test-slow: $(STAMP)
 fuzz: $(STAMP)
 	$(PY) -m pytest -q -s -m slow -k fuzzed tests/test_e2e.py tests/test_fuzz.py
 
-## make bench: speed figures, railhil next to plain python-can/cantools, measured in one run
+## make bench: speed figures, railhil next to plain python-can/cantools, measured in one run, then every
+## figure of issue #10 next to its goal. Not timed; the 10^6-frame bus run takes minutes: shorten it with
+## `make bench BENCH_FRAMES=100000`; BENCH_RT_S=S sets the real-time lateness run's length (default 20 s),
+## BENCH_ONLY=bench_realtime,bench_bus runs only those
 bench: $(STAMP)
 	$(PY) bench/run_all.py
 

@@ -503,7 +503,16 @@ def write_table(result: CampaignResult) -> list[Path]:
 
 def write_plots(result: CampaignResult) -> list[Path]:
     """plot_<key>.png per numeric swept key: each of the campaign's plot KPIs (those the runs have)
-    against that key, one dot per finished point, and the mean per value for a grid key."""
+    against that key, one dot per finished point, and the mean per value for a grid key; then the
+    campaign's report.html (hil.report_html: the results table and these plots, one self-contained page)."""
+    from hil.report_html import write_campaign_report
+
+    files = _summary_plots(result)
+    return files + [write_campaign_report(result.out_dir, rows(result), result.campaign.name,
+                                          result.campaign.description)]
+
+
+def _summary_plots(result: CampaignResult) -> list[Path]:
     ok = [r for r in result.results if r.status == "ok"]
     metrics = [m for m in result.campaign.plot if any(_is_number(_flatten(r.kpis).get(m)) for r in ok)]
     if not ok or not metrics:

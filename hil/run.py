@@ -14,6 +14,7 @@ from hil.codec import Codec
 from hil.dbc import DEFAULT_DBC, load_dbc
 from hil.desk import DeskScript
 from hil.lockstep import RunOutcome, run_lockstep
+from hil.report_html import run_metadata, write_run_report
 from hil.results import (
     check_out_dir,
     compute_kpis,
@@ -140,11 +141,14 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
         "node_stats": outcome.node_stats,
         "bus_timing": outcome.bus,
         "faults": outcome.faults,
+        "wall_s": round(outcome.wall_s, 3),
+        **run_metadata(dbc_path_of(scenario), scenario.seed),   # versions, DBC SHA-256, git commit
         **(extra or {}),
     }
     run_json = out_dir / "run.json"
     run_json.write_text(json.dumps(meta, indent=2, default=str) + "\n")
-    return RunReport(out_dir, outcome, kpis, [trace, truth_csv, kpis_json, plot, run_json])
+    report = write_run_report(out_dir)                           # report.html: one self-contained page
+    return RunReport(out_dir, outcome, kpis, [trace, truth_csv, kpis_json, plot, run_json, report])
 
 
 def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None) -> RunReport:

@@ -34,6 +34,7 @@ COMMANDS = {
                  "or on a Dask cluster; resumable"),
     "reproduce": ("hil.cli.reproduce", "reproduce a paper's simulation campaigns (seed 000 picasso, seed 003 "
                   "consensus) next to its figures"),
+    "report": ("hil.cli.report", "write the self-contained HTML report of a run folder or a campaign folder"),
     "control-centre": ("hil.cli.control_centre", "the seed-002 control centre: pairs follower and leader "
                        "trains over TCP, reports kept in SQLite"),
 }
