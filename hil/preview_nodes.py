@@ -3,21 +3,305 @@ hil.assembly hands a scenario with a [preview] section to this module.
 
 `node_names` gets the foundation's node list (PLANT first) and returns this study's; `build_node`
 returns the study's own node for `name`, or None to let hil.assembly build the foundation's.
+
+Paper mode: PLANT = the reduced model of eqs. (1)-(4) (plant_sim.picasso) stepping with the Σ_i° it
+receives in PV_BECUi_SLIP_REF (held between frames), sending the train state (PV_PLANT_TRAIN) and each
+car's slip, adhesion and oracle σ̄° (PV_PLANT_CARi_ADH); BECU1..n = firmware_py.preview.PreviewBecu.
+No DESK and no BCU: the paper's braking starts at t = 0 with the slip references.
 """
 
 from __future__ import annotations
 
+import csv
+import math
+from pathlib import Path
+
 from cantools.database.can import Database
 
+from firmware_py.preview import EstimatorParams, PreviewBecu, RefParams
+from firmware_py.slipctl import SlipBecu, SlipCtlParams
 from hil.codec import Codec
-from hil.node import Node
+from hil.errors import ScenarioError
+from hil.node import Binding, Node
+from hil.plant_node import TRUTH_PERIOD_US, PlantController, build_track
 from hil.scenario import Scenario
+from plant_sim.adhesion import mu_scalar, slip_ratio_scalar
+from plant_sim.errors import PlantConfigError
+from plant_sim.params import RAIL_CONDITIONS, AdhesionParams
+from plant_sim.picasso import (
+    PicassoParams,
+    PicassoTruth,
+    Rail,
+    ReducedTrain,
+    adhesion_used,
+    sigma_opt_bar_scalar,
+    sigma_opt_true,
+)
+from plant_sim.plant import Plant
+from plant_sim.track import Track
+
+ROOT = Path(__file__).resolve().parent.parent
+PROFILES_DIR = ROOT / "scenarios" / "profiles"
+PLANT_OFFSET_US = 0
+BECU_OFFSET_US = 3_000           # + 500 µs per car, as the foundation's BECUs (hil.assembly)
 
 
+# ------------------------------------------------------------------------------------ θ(x) tables
+def profile_path(ref: str) -> Path:
+    """The CSV file a `preview.rail_profile` names: a profile of scenarios/profiles/, or a path (relative to
+    the current directory, then to scenarios/)."""
+    if "/" not in ref and not ref.endswith(".csv"):
+        path = PROFILES_DIR / f"{ref}.csv"
+        if path.is_file():
+            return path
+        known = sorted(p.stem for p in PROFILES_DIR.glob("*.csv"))
+        raise ScenarioError(f"preview.rail_profile = {ref!r}: no such profile in {PROFILES_DIR}; known: "
+                            f"{', '.join(known)} (or give the path of a CSV table x_m,theta1,theta2,theta3)")
+    for path in (Path(ref), ROOT / "scenarios" / ref):
+        if path.is_file():
+            return path
+    raise ScenarioError(f"preview.rail_profile = {ref!r}: no such file (looked in the current directory and "
+                        f"in {ROOT / 'scenarios'}); expected a CSV table x_m,theta1,theta2,theta3")
+
+
+def load_theta_table(path: str | Path) -> Track:
+    """θ(x) from a CSV file with the header x_m,theta1,theta2,theta3 (lines starting with # are comments),
+    linear between rows, constant beyond the ends."""
+    path = Path(path)
+    try:
+        lines = [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"{path}: cannot read the theta(x) table: {exc}") from None
+    rows = list(csv.reader(lines))
+    header = [h.strip() for h in rows[0]] if rows else []
+    if header != ["x_m", "theta1", "theta2", "theta3"]:
+        raise ScenarioError(f"{path}: expected the header x_m,theta1,theta2,theta3, got {','.join(header)!r}")
+    xs, thetas = [], []
+    for k, row in enumerate(rows[1:], start=2):
+        try:
+            vals = [float(c) for c in row]
+        except ValueError:
+            raise ScenarioError(f"{path}: data row {k}: expected 4 numbers, got {','.join(row)!r}") from None
+        if len(vals) != 4 or not all(math.isfinite(v) for v in vals):
+            raise ScenarioError(f"{path}: data row {k}: expected 4 finite numbers, got {','.join(row)!r}")
+        xs.append(vals[0])
+        thetas.append(vals[1:])
+    if not xs:
+        raise ScenarioError(f"{path}: the theta(x) table has no data rows")
+    try:
+        return Track.from_table(xs, thetas)
+    except PlantConfigError as exc:
+        raise ScenarioError(f"{path}: {exc}") from None
+
+
+def preview_track(scenario: Scenario) -> Track:
+    ref = scenario.preview.rail_profile
+    if ref is None:
+        try:
+            return build_track(scenario)
+        except PlantConfigError as exc:
+            raise ScenarioError(f"[track]: {exc}") from None
+    return load_theta_table(profile_path(ref))
+
+
+def picasso_params(scenario: Scenario) -> PicassoParams:
+    pv = scenario.preview
+    n = scenario.train.cars
+    if len(pv.spacing_m) != n - 1:
+        raise ScenarioError(f"preview.spacing_m has {len(pv.spacing_m)} value(s) {pv.spacing_m}; "
+                            f"train.cars = "
+                            f"{n} needs {n - 1} (Delta of cars 2..{n} behind car 1)")
+    return PicassoParams(spacing_m=(0.0, *pv.spacing_m), alpha_per_s=pv.alpha_per_s, sigma0=pv.sigma0,
+                         ideal=pv.method == "ideal", adhesion=AdhesionParams())
+
+
+def estimator_params(ad: AdhesionParams) -> EstimatorParams:
+    """The BECU estimator's curve family: the plant's named rail conditions, most adhesive first (the
+    commissioning library a real BECU would carry), and the speed factors k_i(v)."""
+    family = tuple(RAIL_CONDITIONS[c] for c in ("extra_dry", "dry", "wet", "extra_wet"))
+    return EstimatorParams(family=family, pi1_s_per_m=ad.pi1_s_per_m, pi2_s_per_m=ad.pi2_s_per_m)
+
+
+# ------------------------------------------------------------------------------------ the PLANT node
+class PicassoPlantController:
+    """step(now_us, rx): record truth (every 10 ms), send the measurements, integrate one step with the
+    references last received (before the first frame of a car: its σ_i(0), i.e. no change)."""
+
+    def __init__(self, rail: Rail, p: PicassoParams, v0_mps: float, step_us: int) -> None:
+        self.rail, self.p, self.n = rail, p, p.n
+        self.train = ReducedTrain(rail, p, v0_mps)
+        self.step_us = step_us
+        self.ref_keys = [f"PV_BECU{i}_SLIP_REF.SlipRef" for i in range(1, self.n + 1)]
+        self.inputs = tuple(self.ref_keys)
+        self.outputs = ("PV_PLANT_TRAIN.Speed", "PV_PLANT_TRAIN.Accel", "PV_PLANT_TRAIN.HeadPos") + tuple(
+            f"PV_PLANT_CAR{i}_ADH.{s}" for i in range(1, self.n + 1)
+            for s in ("Slip", "AdhesionUsed", "SigmaOptBarTrue"))
+        self.refs = [p.sigma0] * self.n
+        self.truth = PicassoTruth(p.spacing_m)
+        self.next_truth_us = 0
+        self.standstill = self.train.stopped
+        self.frames_applied = 0
+
+    def glance(self) -> dict:
+        import numpy as np
+        return {"v_mps": np.full(self.n, self.train.v), "x_m": self.train.x1 - np.asarray(self.p.spacing_m)}
+
+    def step(self, now_us: int, rx) -> dict[str, float]:
+        for k, key in enumerate(self.ref_keys):
+            r = rx[key]
+            if r == r:                                   # not NaN: received
+                self.refs[k] = r
+        tr, rail, p = self.train, self.rail, self.p
+        a = tr.accel()
+        mu = adhesion_used(rail, p, tr.x1, tr.v, tr.sig)
+        bars = [rail.sigma_opt_bar(tr.x1 - d) for d in p.spacing_m]
+        if now_us >= self.next_truth_us:
+            self.truth.record(now_us / 1e6, tr.x1, tr.v, a, tr.sig, self.refs,
+                              sigma_opt_true(rail, p, tr.x1, tr.v), mu)
+            self.next_truth_us += TRUTH_PERIOD_US
+        out = {"PV_PLANT_TRAIN.Speed": tr.v, "PV_PLANT_TRAIN.Accel": a, "PV_PLANT_TRAIN.HeadPos": tr.x1}
+        for i in range(self.n):
+            c = f"PV_PLANT_CAR{i + 1}_ADH."
+            out[c + "Slip"] = tr.sig[i]
+            out[c + "AdhesionUsed"] = mu[i]
+            out[c + "SigmaOptBarTrue"] = bars[i]
+        refs = tuple(self.refs)
+        tr.step(self.step_us * 1e-6, lambda x1, v, a_: refs)       # zero-order hold over the step
+        if tr.stopped and not self.standstill:          # the stop itself is a truth sample (v = 0)
+            self.truth.record((now_us + self.step_us) / 1e6, tr.x1, 0.0, tr.accel(), tr.sig, self.refs,
+                              sigma_opt_true(rail, p, tr.x1, 0.0), adhesion_used(rail, p, tr.x1, 0.0, tr.sig))
+        self.standstill = tr.stopped
+        return out
+
+
+# ------------------------------------------------------------------------------------ full mode
+class FullPlantController(PlantController):
+    """The foundation's wheelset plant (hil.plant_node.PlantController) that also sends, every 10 ms,
+    the train state (car 1's speed, acceleration, position) and each car's slip ratio, adhesion used and
+    oracle σ̄° (PV_PLANT_TRAIN, PV_PLANT_CARi_ADH) for the slip controllers of full mode."""
+
+    def __init__(self, plant: Plant, n_cars: int, db: Database, dbc_name: str = "the DBC") -> None:
+        super().__init__(plant, n_cars, db, dbc_name)
+        self.outputs = tuple(self.outputs) + ("PV_PLANT_TRAIN.Speed", "PV_PLANT_TRAIN.Accel",
+                                              "PV_PLANT_TRAIN.HeadPos") + tuple(
+            f"PV_PLANT_CAR{i}_ADH.{s}" for i in range(1, n_cars + 1)
+            for s in ("Slip", "AdhesionUsed", "SigmaOptBarTrue"))
+        self.next_pv_us = 0
+        self._dt_s = plant.params.dt_us * 1e-6
+
+    def step(self, now_us: int, rx) -> dict[str, float]:
+        out = super().step(now_us, rx)
+        if now_us >= self.next_pv_us:
+            snap = self.plant.snapshot()
+            ad = self.plant.params.adhesion
+            out["PV_PLANT_TRAIN.Speed"] = snap.v[0]
+            out["PV_PLANT_TRAIN.Accel"] = (snap.v[0] - snap.v_prev[0]) / self._dt_s
+            out["PV_PLANT_TRAIN.HeadPos"] = snap.x[0]
+            for k in range(self.n):
+                sigma = slip_ratio_scalar(snap.s[k], snap.v[k])
+                c = f"PV_PLANT_CAR{k + 1}_ADH."
+                out[c + "Slip"] = sigma
+                out[c + "AdhesionUsed"] = mu_scalar(tuple(snap.theta[k]), sigma, snap.v[k], ad)
+                out[c + "SigmaOptBarTrue"] = sigma_opt_bar_scalar(tuple(snap.theta[k]))
+            self.next_pv_us += 10_000
+        return out
+
+
+def full_spacing(scenario: Scenario) -> tuple[float, ...]:
+    """Δ_i of full mode: the plant's car pitch; `preview.spacing_m` must say the same."""
+    from hil.assembly import scenario_plant_params
+    pitch = scenario_plant_params(scenario).train.car_pitch_m
+    d = tuple(pitch * k for k in range(scenario.train.cars))
+    if tuple(scenario.preview.spacing_m) != d[1:]:
+        raise ScenarioError(f"preview.spacing_m = {scenario.preview.spacing_m}: in full mode the cars are "
+                            f"the "
+                            f"plant's, {pitch} m apart; expected {list(d[1:])}")
+    if scenario.plant.pressure_model != "lag":
+        raise ScenarioError("preview.mode = 'full' needs plant.pressure_model = 'lag' (the slip controller "
+                            "sets the cylinder pressure)")
+    return d
+
+
+def slipctl_params(scenario: Scenario, car: int) -> SlipCtlParams:
+    """The slip controller of car `car` (1-based), commissioned with the plant's car and brake."""
+    from hil.assembly import scenario_plant_params
+    pp = scenario_plant_params(scenario)
+    b = pp.brake
+    return SlipCtlParams(mass_kg=pp.train.masses_kg[car - 1], g_mps2=pp.train.g_mps2,
+                         wheel_radius_m=pp.train.wheel_radius_m, inertia_kgm2=pp.train.wheel_inertia_kgm2,
+                         brake_gain_Nm_per_Pa=b.alpha_squeeze_Nm_per_Pa,
+                         preload_Pa=-b.beta_squeeze_Nm / b.alpha_squeeze_Nm_per_Pa, p_max_Pa=b.p_max_Pa,
+                         tp_s=b.tp_s,
+                         hysteresis_Pa=(b.beta_release_Nm - b.beta_squeeze_Nm) / b.alpha_release_Nm_per_Pa)
+
+
+def build_full_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_name: str) -> Node | None:
+    from hil.assembly import scenario_plant_params
+    pv = scenario.preview
+    spacing = full_spacing(scenario)
+    n = len(spacing)
+    if name == "PLANT":
+        try:
+            plant = Plant(scenario_plant_params(scenario), preview_track(scenario),
+                          v0_mps=scenario.train.initial_speed_kmh / 3.6, x0_m=scenario.train.start_position_m,
+                          seed=scenario.seed)
+        except PlantConfigError as exc:
+            raise ScenarioError(f"full mode plant: {exc}") from None
+        ctrl = FullPlantController(plant, n, db, dbc_name)
+        rx_msgs = [f"BECU{i}_PRESS_CMD" for i in range(1, n + 1)]
+        tx_msgs = ([f"PLANT_CAR{i}_SENSORS" for i in range(1, n + 1)] + ["PV_PLANT_TRAIN"]
+                   + [f"PV_PLANT_CAR{i}_ADH" for i in range(1, n + 1)])
+        binding = Binding.build(db, name, ctrl.inputs, ctrl.outputs, rx_msgs, tx_msgs, dbc_name)
+        return Node(name, ctrl, binding, codec, db, period_us=plant.params.dt_us, offset_us=PLANT_OFFSET_US)
+    if name.startswith("BECU") and name[4:].isdigit() and 1 <= int(name[4:]) <= n:
+        i = int(name[4:])
+        ad = AdhesionParams()
+        rp = RefParams(car=i, spacing_m=spacing[i - 1], method=pv.method, beta=pv.beta,
+                       alpha_per_s=pv.alpha_per_s, pi2_s_per_m=ad.pi2_s_per_m, prediction=pv.speed_prediction,
+                       sigma0=pv.sigma0)
+        ctrl = SlipBecu(rp, n, pv.sigma_source, estimator_params(ad), slipctl_params(scenario, i))
+        rx_msgs = ["PV_PLANT_TRAIN", f"PV_PLANT_CAR{i}_ADH"] + [f"PV_BECU{j}_PREVIEW" for j in range(1, i)]
+        tx_msgs = [f"PV_BECU{i}_SLIP_REF", f"PV_BECU{i}_PREVIEW", f"BECU{i}_PRESS_CMD"]
+        binding = Binding.build(db, name, ctrl.inputs, ctrl.OUTPUTS, rx_msgs, tx_msgs, dbc_name)
+        return Node(name, ctrl, binding, codec, db, period_us=10_000,
+                    offset_us=BECU_OFFSET_US + 500 * (i - 1),
+                    safe_outputs={f"BECU{i}_PRESS_CMD.CylPressureSet": 450e3})
+    return None
+
+
+# ------------------------------------------------------------------------------------ assembly hooks
 def node_names(scenario: Scenario, names: list[str]) -> list[str]:
-    return names
+    if scenario.preview.mode == "full":
+        full_spacing(scenario)
+    else:
+        picasso_params(scenario)                  # a spacing list that does not fit the train: fail now
+    return ["PLANT"] + [f"BECU{i}" for i in range(1, scenario.train.cars + 1)]
 
 
 def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
                dbc_name: str = "DBC") -> Node | None:
+    pv = scenario.preview
+    if pv.mode == "full":
+        return build_full_node(name, scenario, db, codec, dbc_name)
+    p = picasso_params(scenario)
+    n = p.n
+    if name == "PLANT":
+        ctrl = PicassoPlantController(Rail(preview_track(scenario)), p,
+                                      scenario.train.initial_speed_kmh / 3.6, pv.plant_step_ms * 1000)
+        rx_msgs = [f"PV_BECU{i}_SLIP_REF" for i in range(1, n + 1)]
+        tx_msgs = ["PV_PLANT_TRAIN"] + [f"PV_PLANT_CAR{i}_ADH" for i in range(1, n + 1)]
+        binding = Binding.build(db, name, ctrl.inputs, ctrl.outputs, rx_msgs, tx_msgs, dbc_name)
+        return Node(name, ctrl, binding, codec, db, period_us=ctrl.step_us, offset_us=PLANT_OFFSET_US)
+    if name.startswith("BECU") and name[4:].isdigit() and 1 <= int(name[4:]) <= n:
+        i = int(name[4:])
+        ad = AdhesionParams()
+        rp = RefParams(car=i, spacing_m=p.spacing_m[i - 1], method=pv.method, beta=pv.beta,
+                       alpha_per_s=pv.alpha_per_s, pi2_s_per_m=ad.pi2_s_per_m, prediction=pv.speed_prediction,
+                       sigma0=pv.sigma0)
+        ctrl = PreviewBecu(rp, n, pv.sigma_source, estimator_params(ad))
+        rx_msgs = ["PV_PLANT_TRAIN", f"PV_PLANT_CAR{i}_ADH"] + [f"PV_BECU{j}_PREVIEW" for j in range(1, i)]
+        tx_msgs = [f"PV_BECU{i}_SLIP_REF", f"PV_BECU{i}_PREVIEW"]
+        binding = Binding.build(db, name, ctrl.inputs, ctrl.OUTPUTS, rx_msgs, tx_msgs, dbc_name)
+        return Node(name, ctrl, binding, codec, db, period_us=10_000,
+                    offset_us=BECU_OFFSET_US + 500 * (i - 1))
     return None
