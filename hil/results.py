@@ -118,7 +118,9 @@ def compute_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[
         "max_slip_ratio": [round(float(s), 4) for s in np.max(np.where(moving, ratio, 0.0), axis=0)],
         "wsp_activations": [int(k) for k in activations],
         "wsp_time_s": [round(float(k) * dt, 3) for k in np.sum(vent | (wsp == 1), axis=0)],
-        "mean_abs_decel_error_mps2": round(float(decel_err.mean()), 4) if decel_err.size else None,
+        # no BCU_DEMAND in the trace (seed 000's paper mode has no BCU): no target to judge against
+        "mean_abs_decel_error_mps2": (round(float(decel_err.mean()), 4) if decel_err.size and tt.size
+                                      else None),
         "frames_sent": int(sum(frames_sent.values())),
         "frames_recorded": int(frames_recorded),          # in the trace
         "frames_in_flight": int(in_flight),               # queued or on the wire at the end

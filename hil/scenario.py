@@ -540,6 +540,11 @@ def load_scenario(path: str | Path, overrides: dict | None = None,
     if scenario.dbc is not None:
         dbc_path = (path.parent / scenario.dbc).resolve()
         scenario = scenario.model_copy(update={"dbc": str(dbc_path)})
+    ref = scenario.preview.rail_profile if scenario.preview is not None else None
+    if ref and ("/" in ref or ref.endswith(".csv")) and not Path(ref).is_absolute() \
+            and (path.parent / ref).is_file():        # a θ(x) table beside the scenario file
+        preview = scenario.preview.model_copy(update={"rail_profile": str((path.parent / ref).resolve())})
+        scenario = scenario.model_copy(update={"preview": preview})
     return scenario
 
 
