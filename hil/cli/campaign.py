@@ -27,8 +27,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                     "resolved scenario, DBC and railhil version, so a rerun (after Ctrl-C, or with "
                     "more points) runs only what is not finished. A failing point is recorded with "
                     "its error and the others go on. Writes results.csv (and results.parquet when "
-                    "pyarrow is installed) and plot_<key>.png. Exit 0 when every point ran, 1 when "
-                    "some failed, 2 for bad input, 130 when interrupted.",
+                    "pyarrow is installed), plot_<key>.png and report.html. Exit 0 when every point ran, "
+                    "1 when some failed, 2 for bad input, 130 when interrupted.",
     )
     p.add_argument("campaign", type=Path, help="campaign TOML file, e.g. campaigns/mass_sweep.toml")
     where = p.add_mutually_exclusive_group()
