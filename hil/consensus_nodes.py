@@ -1,23 +1,243 @@
 """The nodes of seed 003's consensus-braking study:
 hil.assembly hands a scenario with a [consensus] section to this module.
 
-`node_names` gets the foundation's node list (PLANT first) and returns this study's; `build_node`
-returns the study's own node for `name`, or None to let hil.assembly build the foundation's.
+`node_names` gets the foundation's node list (PLANT first) and returns this study's: PLANT (the
+seed-003 plant, plant_sim/consensus.py), BCU (the virtual leader of eq. (9)) and BECU1..n (the consensus
+law, firmware_py/consensus.py).  The desk and the foundation's pneumatic brake are not part of the
+paper's model.  `build_node` builds them all.
+
+Schedule inside one consensus cycle T (the DBC cycle of the BECUn_CONS and PLANT_CONS_CARn frames): the
+plant sends the n sensor frames at the start of the cycle; BECU i runs once its sensor frame can have
+arrived, assuming the BECU frames overtake the sensor frames still queued (their identifiers are
+lower): offset_i = i·t_S + (i − 1)·t_C + 20 µs, with t_S, t_C the frames' durations at the bus bitrate
+(stuffing halfway between none and worst case).
 """
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 from cantools.database.can import Database
 
+from firmware_py.consensus import (
+    KMH,
+    POSITION_WRAP_M,
+    SAMPLE_MODULO,
+    ConsensusBecu,
+    ConsensusBecuParams,
+    ConsensusGains,
+    ObserverParams,
+    VirtualLeader,
+    VirtualLeaderParams,
+)
+from hil.busload import declared_bitrate, frame_bits
 from hil.codec import Codec
-from hil.node import Node
+from hil.errors import BindingError, ScenarioError
+from hil.node import Binding, Node
+from hil.plant_node import build_track
 from hil.scenario import Scenario
+from plant_sim.consensus import (
+    ConsensusForces,
+    ConsensusPlant,
+    ConsensusPlantParams,
+    Disturbance,
+    RailEvent,
+)
+from plant_sim.params import TrainParams
+
+STANDSTILL_MPS = 0.01         # every car slower than this counts as standing still (as hil.plant_node)
+DEFAULT_BITRATE = 500_000     # bit/s when neither the scenario nor the DBC gives one
 
 
 def node_names(scenario: Scenario, names: list[str]) -> list[str]:
-    return names
+    return ["PLANT", "BCU"] + [f"BECU{i}" for i in range(1, scenario.train.cars + 1)]
+
+
+def check(scenario: Scenario) -> None:
+    """The [consensus] section against [train]: one speed and position per car, cars ≤ 7."""
+    c, n = scenario.consensus, scenario.train.cars
+    if len(c.speeds_kmh) != n:
+        raise ScenarioError(f"scenario key 'consensus.speeds_kmh': {len(c.speeds_kmh)} speeds for "
+                            f"train.cars = {n}; "
+                            "expected one initial speed per car")
+
+
+def plant_params(scenario: Scenario) -> ConsensusPlantParams:
+    """The seed-003 plant of the scenario: Table 2 masses from [train], couplers κ, ε of TrainParams (Table
+    2), no draft-gear damping (the paper's spring has none), Davis coefficients of TrainParams (the paper
+    gives none) unless [train] running_resistance = false."""
+    check(scenario)
+    c, t = scenario.consensus, scenario.train
+    n = t.cars
+    kw: dict = {"masses_kg": t.masses(), "car_pitch_m": c.pitch_m, "coupler_c_Ns_per_m": 0.0}
+    if not t.running_resistance:
+        kw.update(davis_c0_N=0.0, davis_c1_Ns_per_m=0.0, davis_c2_Ns2_per_m2=0.0,
+                  davis_c2_lead_Ns2_per_m2=0.0)
+    tp = TrainParams(**kw)
+    rail: tuple = ()
+    if c.rail_change_s is not None:
+        rail = tuple(RailEvent(round(c.rail_change_s * 1e6), round(c.skid_s * 1e6), mu) if mu > 0 else None
+                     for mu in c.rail_mu)
+    dist = None
+    if c.disturbance_start_s is not None:
+        # equal amplitude per unit mass, phases spread over the train (chosen: cars are not in step)
+        dist = Disturbance(round(c.disturbance_start_s * 1e6),
+                           tuple(c.disturbance_mps2 * m for m in tp.masses_kg), c.disturbance_hz,
+                           tuple(2 * math.pi * k / n for k in range(n)))
+    # Table 2 order: x_i(t0) ascending with i; car 1 leads here, so car i takes the i-th from the end
+    x0 = tuple(reversed(c.positions_m))
+    track = build_track(scenario)
+    x_mid = float(np.mean(x0))
+    return ConsensusPlantParams(
+        train=tp, brake_gain=(c.brake_gain,) * n, sin_grade=float(track.sin_grade_at(np.array([x_mid]))[0]),
+        curvature_deg=float(track.curvature_degree_at(np.array([x_mid]))[0]), rail=rail, disturbance=dist,
+        v0_mps=tuple(v * KMH for v in c.speeds_kmh), x0_m=x0)
+
+
+class ConsensusTruth:
+    """Ground truth of every plant step (1 ms), picklable: `columns()` -> t_s and `<quantity>_<k>`."""
+
+    KEYS = ("x_m", "v_mps", "a_mps2", "force_N", "u_cmd", "phi_mps2", "skidding")
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.t_us: list[int] = []
+        self.rows: list[tuple] = []
+        self.max_abs_dl_m: list[float] = [0.0] * max(n - 1, 0)   # over every step [m]
+
+    def record(self, t_us: int, x: np.ndarray, v: np.ndarray, f: ConsensusForces, u: np.ndarray,
+               gain: tuple[float, ...], masses: tuple[float, ...]) -> None:
+        # φ_i/m_i as the observer's nominal model sees it: v̇ + K_b u/m (eq. (10) seed 003)
+        phi = f.accel_mps2 + np.asarray(gain) * u / np.asarray(masses)
+        self.t_us.append(t_us)
+        self.rows.append((x.copy(), v.copy(), f.accel_mps2, f.fa_N, u.copy(), phi, f.skidding, f.dl_m))
+
+    def columns(self) -> dict[str, np.ndarray]:
+        cols: dict[str, np.ndarray] = {"t_s": np.asarray(self.t_us, dtype=np.int64) / 1e6}
+        if not self.rows:
+            return cols
+        n = self.n
+        stacked = [np.array([r[k] for r in self.rows]) for k in range(8)]
+        for key, arr in zip(self.KEYS, stacked[:7], strict=True):
+            for k in range(n):
+                cols[f"{key}_{k + 1}"] = arr[:, k]
+        zeros = np.zeros(len(self.t_us))
+        for k in range(1, n + 1):         # quantities of the foundation's plant this model has not
+            cols[f"slip_speed_mps_{k}"] = zeros
+            cols[f"slip_ratio_{k}"] = zeros
+            cols[f"wsp_valve_{k}"] = zeros
+            cols[f"p_Pa_{k}"] = zeros
+        for k in range(1, n):
+            cols[f"coupler_dl_m_{k}"] = stacked[7][:, k - 1]
+        return cols
+
+
+class ConsensusPlantController:
+    """The PLANT node of seed 003: force commands in (BECUn_CONS.ForceCmd), speed and displacement out
+    (PLANT_CONS_CARn).  A car whose command has not arrived yet coasts (u = 0); afterwards it holds its
+    last command (the paper's actuator has no fail-safe of its own)."""
+
+    def __init__(self, plant: ConsensusPlant, sensor_period_us: int) -> None:
+        self.plant = plant
+        p = plant.p
+        self.n = n = p.train.n_cars
+        self.inputs = tuple(f"BECU{i}_CONS.ForceCmd" for i in range(1, n + 1))
+        self.outputs = tuple(f"PLANT_CONS_CAR{i}.{s}" for i in range(1, n + 1)
+                             for s in ("Speed", "Position", "Sample"))
+        self.sensor_period_us = sensor_period_us
+        self.u = np.zeros(n)
+        self.truth = ConsensusTruth(n)
+        self.standstill = False
+        self._version = -1
+
+    def glance(self) -> dict[str, np.ndarray]:
+        s = self.plant.state
+        return {"v_mps": s.v.copy(), "x_m": s.x.copy()}
+
+    def step(self, now_us: int, rx) -> dict[str, float]:
+        if rx.version != self._version:
+            self._version = rx.version
+            for k, key in enumerate(self.inputs):
+                value = rx[key]
+                if math.isfinite(value):
+                    self.u[k] = value
+        s = self.plant.state
+        out = {}
+        sample = (now_us // self.sensor_period_us) % SAMPLE_MODULO     # the cycle's sample counter
+        for i in range(self.n):
+            out[self.outputs[3 * i]] = max(0.0, float(s.v[i]))
+            out[self.outputs[3 * i + 1]] = float(s.x[i]) % POSITION_WRAP_M    # the odometer wraps (DBC)
+            out[self.outputs[3 * i + 2]] = sample
+        x, v = s.x.copy(), s.v.copy()
+        f = self.plant.step(self.u / 1.0)
+        p = self.plant.p
+        self.truth.record(now_us, x, v, f, self.u, p.brake_gain, p.train.masses_kg)
+        self.truth.max_abs_dl_m = [float(d) for d in self.plant.max_abs_dl_m]
+        self.standstill = bool(np.max(s.v) < STANDSTILL_MPS)
+        return out
+
+
+def _cycle_us(db: Database, name: str, dbc_name: str) -> int:
+    try:
+        msg = db.get_message_by_name(name)
+    except KeyError:
+        raise BindingError(f"consensus braking: {dbc_name} has no message {name!r}; it needs the seed-003 "
+                           "frames "
+                           "of dbc/train_brake.dbc (0x058-0x06F)") from None
+    if not msg.cycle_time:
+        raise BindingError(f"consensus braking: message {name} of {dbc_name} has no cycle time "
+                           "(GenMsgCycleTime)")
+    return int(msg.cycle_time) * 1000
+
+
+def becu_offset_us(scenario: Scenario, db: Database, car: int) -> int:
+    """When BECU `car` runs in its cycle [µs] (module doc): after its sensor frame has arrived."""
+    rate = scenario.bus.bitrate or declared_bitrate(db) or DEFAULT_BITRATE
+    t_s = (frame_bits(5, False, False) + frame_bits(5, False, True)) / 2 * 1e6 / rate
+    t_c = (frame_bits(8, False, False) + frame_bits(8, False, True)) / 2 * 1e6 / rate
+    return round(car * t_s + (car - 1) * t_c) + 20
+
+
+def becu_params(scenario: Scenario, car: int, sample_period_us: int = 1_000,
+                period_us: int = 1_000) -> ConsensusBecuParams:
+    c, t = scenario.consensus, scenario.train
+    gains = ConsensusGains(alpha1_per_s=c.alpha1, alpha2_per_s2_cm=c.alpha2, k_per_s=c.k, kd_per_s=c.kd,
+                           delta_mps2_cm3=c.delta, theta1_cm=-c.theta_cm, theta2_cm=c.theta_cm,
+                           u2_max_mps2=c.u2_max_mps2, loop_gain=c.loop_gain)
+    obs = ObserverParams(gamma1_mps=c.gamma1_mps, gamma2_mps2=c.gamma2_mps2, filter_per_s=c.kd)
+    return ConsensusBecuParams(car=car, n_cars=t.cars, mass_kg=t.masses()[car - 1], pitch_m=c.pitch_m,
+                               brake_gain=c.brake_gain, gains=gains, observer=obs, compensate=c.observer,
+                               sample_period_us=sample_period_us, period_us=period_us)
 
 
 def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
                dbc_name: str = "DBC") -> Node | None:
-    return None
+    n = scenario.train.cars
+    c = scenario.consensus
+    if name == "PLANT":
+        plant = ConsensusPlant(plant_params(scenario))
+        rx = [f"BECU{i}_CONS" for i in range(1, n + 1)]
+        tx = [f"PLANT_CONS_CAR{i}" for i in range(1, n + 1)]
+        periods = {_cycle_us(db, m, dbc_name) for m in tx}
+        if len(periods) != 1:
+            raise BindingError(f"consensus braking: the PLANT_CONS_CARn frames of {dbc_name} need one cycle "
+                               "time, "
+                               f"got {sorted(p // 1000 for p in periods)} ms")
+        ctrl = ConsensusPlantController(plant, periods.pop())
+        period, offset = plant.p.dt_us, 0
+    elif name == "BCU":
+        ctrl = VirtualLeader(VirtualLeaderParams(v0_mps=c.v_ref_kmh * KMH, decel_mps2=c.decel_kmh_s * KMH))
+        rx, tx = [], ["CONS_REF"]
+        period, offset = _cycle_us(db, "CONS_REF", dbc_name), 0
+    elif name.startswith("BECU") and name[4:].isdigit() and 1 <= int(name[4:]) <= n:
+        i = int(name[4:])
+        period = _cycle_us(db, f"BECU{i}_CONS", dbc_name)
+        ctrl = ConsensusBecu(becu_params(scenario, i, _cycle_us(db, f"PLANT_CONS_CAR{i}", dbc_name), period))
+        rx = [f"PLANT_CONS_CAR{i}", "CONS_REF"] + [f"BECU{j}_CONS" for j in range(1, n + 1) if j != i]
+        tx = [f"BECU{i}_CONS", f"BECU{i}_CONS_DIAG"]
+        offset = becu_offset_us(scenario, db, i) % period
+    else:
+        return None
+    binding = Binding.build(db, name, ctrl.inputs, ctrl.outputs, rx, tx, dbc_name)
+    return Node(name, ctrl, binding, codec, db, period_us=period, offset_us=offset)

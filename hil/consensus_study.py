@@ -1,13 +1,442 @@
-"""PLACEHOLDER — being written (see hil/cli/reproduce.py for the interface)."""
+"""`railhil reproduce consensus` — seed 003's consensus braking: cases 1-3 with and without the observer,
+the cycle sweep and the latency sweep, next to the paper's statements.
+
+Two settings are run, both in lockstep with the real nodes, frames and codec:
+
+- **paper**: the paper's simulation — Table 2's gains unscaled, the BECUs and the sensor frames every
+  1 ms (the paper's sampling), on the *ideal* bus (a frame arrives when it is sent).  A 500 kbit/s bus
+  cannot carry this (the static load is printed): it is the reference for the paper's claims.
+- **can**: the scenario as written (scenarios/consensus_case*.toml) — the DBC's cycle on the bit-timed
+  500 kbit/s bus, the gains scaled to the cycle (`loop_gain`).
+
+Cycle sweep: case 1 at cycles 1-10 ms (DBC cycle times of BECUn_CONS and PLANT_CONS_CARn replaced in a
+copy of the DBC) on both buses.  Latency sweep: the paper setting with 0-50 ms of extra delay on every
+BECUn_CONS frame (`[messages.BECUn_CONS] delay_min_us = delay_max_us`, hil/release.py).
+
+Figures per run (like Figs. 3-17 of seed 003): speeds, coupler displacements, tracking errors and the
+observer's estimate for car 2 against the plant's φ₂/m₂.  Definitions used in the tables:
+
+- max |Δl|: largest coupler deformation over every 1 ms plant step [mm]; holds: ≤ θ₂ = 10 mm.
+- convergence time: from t0 (case 1) or from the end of skidding (case 2), the time after which every
+  car's |v_i − v*| stays within a tolerance (TOLS_MPS: 1 km/h and 0.1 km/h) until the next event or
+  the end [s].
+- tracking RMS: RMS of v_i − v* over all cars from RMS_FROM (case 1: 1 s; case 2: recovery + 1 s; case
+  3: the disturbance window from 6 s) [m/s].
+- observer convergence: first time after t0 from which |φ̂₂ − φ₂/m₂| ≤ OBS_TOL for 100 ms (BECU2's DIAG
+  frame against the plant's truth) [ms].
+"""
 
 from __future__ import annotations
 
 import argparse
+import copy
+import json
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import can
+import numpy as np
+
+from hil.errors import RailhilError, ScenarioError
+
+SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
+CASES = (1, 2, 3)
+TOLS_MPS = (1.0 / 3.6, 0.1 / 3.6)   # convergence tolerances on |v_i − v*|: 1 km/h and 0.1 km/h (chosen)
+OBS_TOL = 0.1                  # observer tolerance on |φ̂ − φ/m| [m/s²] (chosen)
+THETA_M = 0.01                 # θ2 = −θ1 = 1 cm, Table 2
+PAPER = {
+    "case1": "convergence < 0.04 s; |Δl| within ±1 cm; observer converges within 20 ms",
+    "case2": "≈ 0.03 s to converge after the braking capacity is restored; |Δl| within ±1 cm",
+    "case3": "observer compensation keeps the tracking error small; without it the error oscillates",
+}
+
+
+@dataclass(frozen=True)
+class Job:
+    """One lockstep run of the study."""
+
+    label: str
+    case: int
+    observer: bool = True
+    setting: str = "paper"          # "paper" (1 ms, ideal bus, Table 2 gains) | "can" (the scenario as is)
+    cycle_ms: int | None = None     # replaces the DBC cycle of the consensus frames (None: paper 1, can DBC)
+    delay_ms: float = 0.0           # extra delay of every BECUn_CONS frame [ms]
+    horizon_s: float | None = None  # None: the scenario's max_duration_s
+    series: bool = True             # keep decimated time series for the figures
+
+
+def _scenario(job: Job):
+    from hil.scenario import MessageTiming, load_scenario
+    sc = load_scenario(SCENARIOS / f"consensus_case{job.case}.toml")
+    cons = sc.consensus.model_copy(update={"observer": job.observer})
+    upd: dict = {}
+    if job.setting == "paper":
+        cons = cons.model_copy(update={"loop_gain": None})
+        upd["bus"] = sc.bus.model_copy(update={"timing": "ideal"})
+    upd["consensus"] = cons
+    if job.horizon_s is not None:
+        upd["max_duration_s"] = job.horizon_s
+    if job.delay_ms:
+        d = round(job.delay_ms * 1000)
+        upd["messages"] = {f"BECU{i}_CONS": MessageTiming(delay_min_us=d, delay_max_us=d)
+                           for i in range(1, sc.train.cars + 1)}
+    return sc.model_copy(update=upd)
+
+
+def _database(cycle_ms: int | None):
+    from hil.dbc import load_dbc
+    db = load_dbc()
+    if cycle_ms is not None:
+        db = copy.deepcopy(db)
+        for m in db.messages:
+            if m.name.startswith("PLANT_CONS_CAR") or m.name.endswith("_CONS"):
+                m.cycle_time = cycle_ms
+    return db
+
+
+class DiagListener(can.Listener):
+    """Collects BECU2's consensus diagnostics (PhiHat) from the bus as a python-can listener."""
+
+    def __init__(self, codec, frame_id: int) -> None:
+        self.codec, self.frame_id = codec, frame_id
+        self.t: list[float] = []
+        self.phi_hat: list[float] = []
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if msg.arbitration_id == self.frame_id:
+            self.t.append(msg.timestamp)
+            self.phi_hat.append(self.codec[self.frame_id].decode(msg.data)["PhiHat"])
+
+
+def _settle_time(t: np.ndarray, ok: np.ndarray, start: float, end: float) -> float | None:
+    """Time from `start` after which `ok` holds until `end` [s] (None: never)."""
+    win = (t >= start) & (t < end)
+    if not win.any():
+        return None
+    tw, okw = t[win], ok[win]
+    if not okw[-1]:
+        return None
+    bad = np.flatnonzero(~okw)
+    if bad.size == 0:
+        return 0.0
+    return float(tw[bad[-1] + 1] - start)          # okw[-1] holds, so bad[-1] + 1 is inside
+
+
+def run_job(job: Job) -> dict:
+    """Run one job in lockstep and reduce it to the study's figures (and decimated series)."""
+    from hil.busload import static_load
+    from hil.codec import Codec
+    from hil.lockstep import run_lockstep
+    sc = _scenario(job)
+    cycle = job.cycle_ms if job.cycle_ms is not None else (1 if job.setting == "paper" else None)
+    db = _database(cycle)
+    codec = Codec(db)
+    diag_id = db.get_message_by_name("BECU2_CONS_DIAG").frame_id
+    listener = DiagListener(codec, diag_id)
+    out = run_lockstep(sc, db, codec, listener)
+    cols = out.truth.columns()
+    c = sc.consensus
+    n = sc.train.cars
+    t = cols["t_s"]
+    v_star = np.maximum(0.0, c.v_ref_kmh / 3.6 - c.decel_kmh_s / 3.6 * t)
+    v = np.column_stack([cols[f"v_mps_{k}"] for k in range(1, n + 1)])
+    ve = v - v_star[:, None]
+    dl = np.column_stack([cols[f"coupler_dl_m_{k}"] for k in range(1, n)])
+    max_dl = float(max(out.truth.max_abs_dl_m))
+    end = float(t[-1]) + 1e-9
+    events = [e for e in (c.rail_change_s, c.disturbance_start_s) if e is not None]
+    first_event = min(events) if events else end
+    recovery = None
+    conv, conv_after = [], []
+    for tol in TOLS_MPS:
+        ok = np.all(np.abs(ve) <= tol, axis=1)
+        conv.append(_settle_time(t, ok, 0.0, first_event))
+        if c.rail_change_s is not None:
+            recovery = c.rail_change_s + c.skid_s
+            nxt = c.disturbance_start_s if c.disturbance_start_s and c.disturbance_start_s > recovery else end
+            conv_after.append(_settle_time(t, ok, recovery, nxt))
+        else:
+            conv_after.append(None)
+    rms_from = c.disturbance_start_s if c.disturbance_start_s is not None else (
+        recovery + 1.0 if recovery is not None else 1.0)
+    sel = t >= rms_from
+    rms = float(np.sqrt(np.mean(ve[sel] ** 2))) if sel.any() else None
+    obs_ms = None
+    if listener.t:
+        td = np.asarray(listener.t)
+        phi_true = np.interp(td, t, cols["phi_mps2_2"])
+        good = np.abs(np.asarray(listener.phi_hat) - phi_true) <= OBS_TOL
+        win = max(1, round(0.1 / max(np.median(np.diff(td)), 1e-3))) if td.size > 1 else 1
+        for k in range(len(good) - win):
+            if good[k:k + win].all():
+                obs_ms = round(float(td[k]) * 1000, 1)
+                break
+    load = out.bus["load"] if out.bus else None
+    names = ["CONS_REF"] + [f"{f}" for i in range(1, n + 1)
+                            for f in (f"PLANT_CONS_CAR{i}", f"BECU{i}_CONS", f"BECU{i}_CONS_DIAG")]
+    ids = [db.get_message_by_name(m).frame_id for m in names]
+    static = static_load(db, bitrate_bps=sc.bus.bitrate or 500_000, frame_ids=ids).total
+    res = {
+        "label": job.label, "case": job.case, "observer": job.observer, "setting": job.setting,
+        "cycle_ms": cycle if cycle is not None else int(db.get_message_by_name("BECU1_CONS").cycle_time),
+        "bus": sc.bus.timing, "delay_ms": job.delay_ms, "horizon_s": round(end, 3),
+        "max_abs_dl_mm": round(max_dl * 1000, 3), "holds_1cm": bool(max_dl <= THETA_M),
+        "converged_s": None if conv[0] is None else round(conv[0], 3),
+        "converged_fine_s": None if conv[1] is None else round(conv[1], 3),
+        "converged_after_recovery_s": None if conv_after[0] is None else round(conv_after[0], 3),
+        "converged_after_recovery_fine_s": None if conv_after[1] is None else round(conv_after[1], 3),
+        "tracking_rms_mps": None if rms is None else round(rms, 5), "rms_from_s": rms_from,
+        "final_abs_ve_max_mps": round(float(np.max(np.abs(ve[-1]))), 4),
+        "observer_converged_ms": obs_ms, "bus_load_measured": None if load is None else round(load, 4),
+        "bus_load_static": round(static, 4), "wall_s": round(out.wall_s, 2),
+        "frames_lost": sum(v.get("deadline_misses", 0) for v in (out.bus or {}).get("messages", {}).values()),
+    }
+    if job.series:
+        k = max(1, round(0.01 / max(float(np.median(np.diff(t))), 1e-6)) if t.size > 1 else 1)
+        head = t <= 0.1                      # the first 100 ms at full rate (the convergence of Fig. 3)
+        idx = np.union1d(np.flatnonzero(head), np.arange(0, t.size, k))
+        res["series"] = {"t": t[idx], "v": v[idx], "v_star": v_star[idx], "dl": dl[idx], "ve": ve[idx],
+                         "phi2": cols["phi_mps2_2"][idx], "diag_t": np.asarray(listener.t),
+                         "phi_hat2": np.asarray(listener.phi_hat)}
+    return res
+
+
+def _run_all(jobs: list[Job], workers: int, progress: bool) -> list[dict]:
+    from tqdm import tqdm
+    bar = tqdm(total=len(jobs), desc="consensus runs", unit="run", disable=not progress, file=sys.stderr)
+    results: list[dict] = []
+    try:
+        if workers <= 1:
+            for j in jobs:
+                results.append(run_job(j))
+                bar.update()
+        else:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                for res in pool.map(run_job, jobs, chunksize=1):
+                    results.append(res)
+                    bar.update()
+    finally:
+        bar.close()
+    return results
+
+
+def build_jobs(cycles: list[int], latencies: list[float], sweep_horizon_s: float,
+               case_horizon_s: float | None) -> list[Job]:
+    jobs = []
+    for setting in ("paper", "can"):
+        for case in CASES:
+            for obs in (True, False):
+                jobs.append(Job(f"{setting}/case{case}/{'obs' if obs else 'noobs'}", case, obs, setting,
+                                horizon_s=case_horizon_s))
+    for setting in ("paper", "can"):
+        for cyc in cycles:
+            jobs.append(Job(f"cycle/{setting}/{cyc}ms", 1, True, setting, cycle_ms=cyc,
+                            horizon_s=sweep_horizon_s, series=False))
+    for d in latencies:
+        jobs.append(Job(f"latency/paper/{d:g}ms", 1, True, "paper", delay_ms=d, horizon_s=sweep_horizon_s,
+                        series=False))
+    return jobs
+
+
+# ----------------------------------------------------------------------------------------------- figures
+def plot_case(res: dict, path: Path) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    s = res["series"]
+    fig, ax = plt.subplots(2, 2, figsize=(12, 8))
+    t = s["t"]
+    for k in range(s["v"].shape[1]):
+        ax[0, 0].plot(t, s["v"][:, k] * 3.6, lw=0.9, label=f"car {k + 1}")
+        ax[1, 0].plot(t, s["ve"][:, k] * 3.6, lw=0.9, label=f"car {k + 1}")
+    ax[0, 0].plot(t, s["v_star"] * 3.6, "k--", lw=0.9, label="v*(t)")
+    for k in range(s["dl"].shape[1]):
+        ax[0, 1].plot(t, s["dl"][:, k] * 100, lw=0.9, label=f"coupler {k + 1}-{k + 2}")
+    for y in (-1, 1):
+        ax[0, 1].axhline(y, color="r", ls=":", lw=0.8)
+    ax[1, 1].plot(t, s["phi2"], lw=0.8, label="φ2/m2 (plant)")
+    if len(s["diag_t"]):
+        ax[1, 1].plot(s["diag_t"], s["phi_hat2"], lw=0.8, label="φ̂2 (BECU2 observer)")
+    ax[1, 1].set_ylim(-3, 3)
+    ax[0, 0].set(ylabel="speed [km/h]", title="speeds (Figs. 3, 7, 11, 14)")
+    ax[0, 1].set(ylabel="relative displacement Δl [cm]", title="couplers (Figs. 4, 8, 13, 16)")
+    ax[1, 0].set(ylabel="v − v* [km/h]", xlabel="t [s]", title="tracking error (Figs. 5, 9, 12, 15)")
+    ax[1, 1].set(ylabel="[m/s²]", xlabel="t [s]", title="observer, car 2 (Figs. 6, 10, 17)")
+    for a in ax.flat:
+        a.grid(alpha=0.3)
+        a.legend(fontsize=7)
+    fig.suptitle(f"seed 003 {res['label']}: cycle {res['cycle_ms']} ms, {res['bus']} bus, "
+                 f"max |Δl| {res['max_abs_dl_mm']} mm")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_sweeps(cycle_rows: list[dict], lat_rows: list[dict], path: Path) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4.5))
+    for setting, mark in (("paper", "o-"), ("can", "s-")):
+        rows = [r for r in cycle_rows if r["setting"] == setting]
+        a1.semilogy([r["cycle_ms"] for r in rows], [max(r["max_abs_dl_mm"], 1e-3) for r in rows], mark,
+                    label=f"{setting}: max |Δl|")
+    a1.axhline(10, color="r", ls=":", label="±1 cm")
+    ax_load = a1.twinx()
+    rows = [r for r in cycle_rows if r["setting"] == "can"]
+    ax_load.plot([r["cycle_ms"] for r in rows], [100 * r["bus_load_static"] for r in rows], "k--", lw=0.8,
+                 label="static bus load (500 kbit/s)")
+    ax_load.set_ylabel("bus load [%]")
+    a1.set(xlabel="consensus cycle [ms]", ylabel="max |Δl| [mm]", title="cycle sweep, case 1")
+    a1.legend(loc="upper left", fontsize=8)
+    ax_load.legend(loc="lower right", fontsize=8)
+    a2.semilogy([r["delay_ms"] for r in lat_rows], [max(r["max_abs_dl_mm"], 1e-3) for r in lat_rows], "o-")
+    a2.axhline(10, color="r", ls=":")
+    a2.set(xlabel="injected latency on BECUn_CONS [ms]", ylabel="max |Δl| [mm]",
+           title="latency sweep, case 1, paper setting")
+    for a in (a1, a2):
+        a.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# ------------------------------------------------------------------------------------------------- table
+def _f(x, nd=3) -> str:
+    return "-" if x is None else (f"{x:.{nd}f}" if isinstance(x, float) else str(x))
+
+
+def case_table(rows: list[dict]) -> list[str]:
+    out = [f"{'run':<20} {'cyc':>4} {'max|Δl| mm':>10} {'±1cm':>5} {'conv s':>13} {'conv rec s':>13} "
+           f"{'RMS v_e m/s':>11} {'obs ms':>7} {'load':>6}  paper   (conv: to 1 / 0.1 km/h)"]
+    for r in rows:
+        load = r["bus_load_measured"] if r["bus_load_measured"] is not None else r["bus_load_static"]
+        out.append(f"{r['label']:<20} {r['cycle_ms']:>4} {r['max_abs_dl_mm']:>10.2f} "
+                   f"{'yes' if r['holds_1cm'] else 'NO':>5} "
+                   f"{_f(r['converged_s']) + ' / ' + _f(r['converged_fine_s']):>13} "
+                   f"{_f(r['converged_after_recovery_s']) + ' / ':>8}"
+                   f"{_f(r['converged_after_recovery_fine_s']):<5} "
+                   f"{_f(r['tracking_rms_mps'], 4):>11} "
+                   f"{_f(r['observer_converged_ms'], 1):>7} {100 * load:>5.0f}%  "
+                   f"{PAPER['case' + str(r['case'])]}")
+    return out
+
+
+def sweep_table(rows: list[dict], key: str, unit: str) -> list[str]:
+    out = [f"{key + ' ' + unit:<14} {'setting':<7} {'max|Δl| mm':>10} {'±1cm':>5} {'conv s':>7} "
+           f"{'|v_e| end':>9} {'load':>6}"]
+    for r in rows:
+        load = r["bus_load_measured"] if r["bus_load_measured"] is not None else r["bus_load_static"]
+        out.append(f"{r[key]:<14g} {r['setting']:<7} {r['max_abs_dl_mm']:>10.2f} "
+                   f"{'yes' if r['holds_1cm'] else 'NO':>5} {_f(r['converged_s']):>7} "
+                   f"{r['final_abs_ve_max_mps']:>9.4f} {100 * load:>5.0f}%")
+    return out
+
+
+def slowest_holding(rows: list[dict]) -> int | None:
+    """The slowest cycle of a sweep at which ±1 cm holds and the cars converge, every faster one holding."""
+    best = None
+    for r in sorted(rows, key=lambda r: r["cycle_ms"]):
+        if not (r["holds_1cm"] and r["converged_s"] is not None):
+            break
+        best = r["cycle_ms"]
+    return best
+
+
+def first_breaking(rows: list[dict]) -> float | None:
+    for r in sorted(rows, key=lambda r: r["delay_ms"]):
+        if not r["holds_1cm"]:
+            return r["delay_ms"]
+    return None
+
+
+def _ints(text: str) -> list[int]:
+    try:
+        vals = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers (ms), got {text!r}") from None
+    if not vals or any(v < 1 or v > 100 for v in vals):
+        raise argparse.ArgumentTypeError(f"cycles must be 1..100 ms, got {text!r}")
+    return vals
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        vals = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers (ms), got {text!r}") from None
+    if not vals or any(not 0 <= v <= 1000 for v in vals):
+        raise argparse.ArgumentTypeError(f"latencies must be 0..1000 ms, got {text!r}")
+    return vals
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    pass
+    p.add_argument("--jobs", type=int, default=2,
+                   help="worker processes for the runs (default 2; 1 = in this process)")
+    p.add_argument("--out", type=Path, default=Path("runs") / "consensus",
+                   help="folder for the figures (PNG) and results.json (default runs/consensus)")
+    p.add_argument("--cycles", type=_ints, default=[1, 2, 3, 4, 5, 6, 8, 10],
+                   help="consensus cycles of the sweep [ms], comma-separated (default 1,2,3,4,5,6,8,10)")
+    p.add_argument("--latencies", type=_floats, default=[0, 0.5, 1, 2, 3, 5, 10, 20, 50],
+                   help="extra latency on every BECUn_CONS frame [ms], comma-separated "
+                        "(default 0,0.5,1,2,3,5,10,20,50)")
+    p.add_argument("--sweep-horizon", type=float, default=2.0,
+                   help="simulated time of each sweep run [s] (default 2: t0 transient and convergence)")
+    p.add_argument("--horizon", type=float, default=None,
+                   help="simulated time of each case run [s] (default: the scenario's max_duration_s, 10 s)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
-    raise NotImplementedError
+    if args.jobs < 1:
+        raise ScenarioError(f"--jobs {args.jobs}: expected 1 or more worker processes")
+    for name in ("horizon", "sweep_horizon"):
+        val = getattr(args, name)
+        if val is not None and not 0.05 <= val <= 60:
+            raise ScenarioError(f"--{name.replace('_', '-')} {val}: expected 0.05..60 s")
+    out: Path = args.out
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RailhilError(f"--out {out}: cannot create the folder: {exc}") from None
+    jobs = build_jobs(args.cycles, args.latencies, args.sweep_horizon, args.horizon)
+    results = _run_all(jobs, args.jobs, not args.no_progress)
+    by_label = {r["label"]: r for r in results}
+    files = []
+    for r in results:
+        if "series" in r:
+            files.append(plot_case(r, out / f"{r['label'].replace('/', '_')}.png"))
+    cycle_rows = [r for r in results if r["label"].startswith("cycle/")]
+    lat_rows = [r for r in results if r["label"].startswith("latency/")]
+    files.append(plot_sweeps(cycle_rows, lat_rows, out / "sweeps.png"))
+    lines = ["seed 003 consensus braking — cases (paper = 1 ms ideal bus, Table 2 gains; can = DBC cycle, "
+             "500 kbit/s bit-timed bus, loop_gain)"]
+    lines += case_table([by_label[j.label] for j in jobs if j.label.count("/") == 2 and "case" in j.label])
+    for setting in ("paper", "can"):
+        on = by_label.get(f"{setting}/case3/obs")
+        off = by_label.get(f"{setting}/case3/noobs")
+        if on and off and on["tracking_rms_mps"] and off["tracking_rms_mps"]:
+            red = 1 - on["tracking_rms_mps"] / off["tracking_rms_mps"]
+            lines.append(f"case 3 ({setting}): tracking RMS from {on['rms_from_s']} s with observer "
+                         f"{on['tracking_rms_mps']:.4f} m/s, without {off['tracking_rms_mps']:.4f} m/s: "
+                         f"reduction {100 * red:.0f} %")
+    lines += ["", "cycle sweep (case 1)"] + sweep_table(sorted(cycle_rows, key=lambda r: (r["setting"],
+                                                                                          r["cycle_ms"])),
+                                                          "cycle_ms", "")
+    for setting in ("paper", "can"):
+        rows = [r for r in cycle_rows if r["setting"] == setting]
+        lines.append(f"slowest cycle holding ±1 cm and converging ({setting}): "
+                     f"{_f(slowest_holding(rows))} ms")
+    lines += ["", "latency sweep (case 1, paper setting)"] + sweep_table(lat_rows, "delay_ms", "")
+    lines.append(f"±1 cm first breaks at an injected latency of {_f(first_breaking(lat_rows))} ms")
+    summary = [{k: v for k, v in r.items() if k != "series"} for r in results]
+    (out / "results.json").write_text(json.dumps(summary, indent=1))
+    files.append(out / "results.json")
+    print("\n".join(lines))
+    print("files: " + ", ".join(str(f) for f in files))
+    return 0
+
