@@ -161,15 +161,45 @@ def static_load(
 
 
 _PER_CAR = re.compile(r"^(?:BECU|PLANT_CAR)(\d+)_")
-_NOT_IN_DEFAULT_RUN = ("RADIO_", "ACD_")
+FUNCTION_ATTRIBUTE = "RailhilFunction"   # DBC message attribute: the optional function a frame belongs to
+
+
+def optional_function(msg) -> str:
+    """The optional function a message belongs to (its DBC attribute RailhilFunction, e.g.
+    "seed003_consensus"), or "" for a frame of the train's base functions."""
+    attrs = msg.dbc.attributes if msg.dbc is not None else {}
+    attr = attrs.get(FUNCTION_ATTRIBUTE)
+    return str(attr.value) if attr is not None and attr.value else ""
+
+
+def functions_of(db: Database) -> list[str]:
+    """The optional functions the DBC's frames belong to (attribute RailhilFunction), sorted."""
+    return sorted({f for f in map(optional_function, db.messages) if f})
+
+
+def with_functions(db: Database, functions: list[str] | tuple[str, ...]) -> Database:
+    """`db` with the frames of the train's base functions and of the optional `functions` only ("all":
+    every frame).  A DBC without RailhilFunction attributes comes back whole.  An unknown function is a
+    DbcError naming the known ones."""
+    known = functions_of(db)
+    if not known or "all" in functions:
+        return db
+    for f in functions:
+        if f not in known:
+            raise DbcError(f"--function {f!r}: no frame of the DBC belongs to it; its optional functions are "
+                           f"{', '.join(known)} (or 'all')")
+    keep = [m for m in db.messages if optional_function(m) in ("", *functions)]
+    return Database(messages=keep, nodes=db.nodes, buses=db.buses, version=db.version,
+                    dbc_specifics=db.dbc, strict=False)
 
 
 def train_frame_ids(db: Database, n_cars: int) -> list[int]:
     """The frame ids on the bus in a run of train_brake.dbc with `n_cars` cars, sorted.
 
-    Rule, on frame names: a per-car frame -- ``BECU<k>_...`` or ``PLANT_CAR<k>_...`` -- is kept
-    only if k <= n_cars; ``RADIO_...`` and ``ACD_...`` frames are left out (the default run has no
-    anti-collision device and no radio link); every other frame (BCU, DESK, ...) is kept.
+    Rule: a per-car frame -- ``BECU<k>_...`` or ``PLANT_CAR<k>_...`` -- is kept only if k <= n_cars; a
+    frame of an optional function (DBC attribute ``RailhilFunction``: the anti-collision device and its
+    radio, the studies' frames, precise stopping, balises) is left out, since the default run has none of
+    them; every other frame (BCU, DESK, ...) is kept.
     """
     cars = {int(m.group(1)) for m in map(_PER_CAR.match, (msg.name for msg in db.messages)) if m}
     if not cars:
@@ -178,7 +208,7 @@ def train_frame_ids(db: Database, n_cars: int) -> list[int]:
         raise ValueError(f"n_cars must be 1..{max(cars)} for this DBC, got {n_cars}")
     ids = []
     for msg in db.messages:
-        if msg.name.startswith(_NOT_IN_DEFAULT_RUN):
+        if optional_function(msg):
             continue
         car = _PER_CAR.match(msg.name)
         if car and int(car.group(1)) > n_cars:

@@ -8,7 +8,15 @@ from pathlib import Path
 import cantools
 import pytest
 
-from hil.busload import BusLoad, frame_bits, static_load, train_frame_ids
+from hil.busload import (
+    BusLoad,
+    frame_bits,
+    functions_of,
+    optional_function,
+    static_load,
+    train_frame_ids,
+    with_functions,
+)
 from hil.errors import DbcError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -83,12 +91,28 @@ def test_six_car_default_worst_case_load_is_at_most_60_percent(db) -> None:
 
 
 def test_eight_car_full_load(db) -> None:
-    load = static_load(db)  # every frame: 8 cars, ACD and radio
+    base = with_functions(db, [])             # the base train's frames of 8 cars (no optional function)
+    load = static_load(base)
     print(f"\n8-car full load: {100 * load.total:.1f} % ({load.bits_per_s:.0f} bit/s)")
-    assert len(load.rows) == len(db.messages)
-    assert load.bits_per_s == pytest.approx((1620 + 2 * 240 + 10 + 3) * 135)
-    unstuffed = static_load(db, worst_case_stuffing=False)
+    assert len(load.rows) == len(base.messages) < len(db.messages)
+    assert load.bits_per_s == pytest.approx((1620 + 2 * 240) * 135)
+    unstuffed = static_load(base, worst_case_stuffing=False)
     assert unstuffed.total == pytest.approx(load.total * 111 / 135)
+    # with the anti-collision device: its request (100 ms) and the radio link's three frames (1 s)
+    acd = static_load(with_functions(db, ["seed002_acd"]))
+    assert acd.bits_per_s - load.bits_per_s == pytest.approx(sum(
+        1000 / m.cycle_time * 135 for m in db.messages if optional_function(m) == "seed002_acd"))
+
+
+def test_optional_functions_are_chosen_by_name(db) -> None:
+    assert {"seed000_preview", "seed002_acd", "seed003_consensus", "seed002_precise_stop",
+            "track_balises"} <= set(functions_of(db))
+    assert with_functions(db, ["all"]) is db
+    stop = with_functions(db, ["seed002_precise_stop"])
+    names = {m.name for m in stop.messages}
+    assert "BCU_STOP" in names and "PLANT_BTM" not in names
+    with pytest.raises(DbcError, match="'nope'.*seed003_consensus"):
+        with_functions(db, ["nope"])
 
 
 def test_explicit_bitrate_wins(db) -> None:

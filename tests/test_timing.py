@@ -12,6 +12,7 @@ import can
 import numpy as np
 import pytest
 
+from hil.busload import with_functions
 from hil.cli.main import main
 from hil.dbc import load_dbc
 from hil.timing import (
@@ -321,9 +322,12 @@ def test_cli_on_a_lockstep_run_passes_when_unsent_frames_are_ignored(tmp_path, c
     scenario = load_scenario(ROOT / "scenarios" / "default.toml").model_copy(update={"max_duration_s": 2.0})
     run_scenario_lockstep(scenario, tmp_path)
     args = ["timing", str(tmp_path / TRACE_NAME), "--dbc", str(ROOT / "dbc" / "train_brake.dbc")]
-    assert main(args) == 1                               # ACD, radio and cars 7-8 are MISSING
+    assert main(args) == 1                               # cars 7-8 are MISSING
     capsys.readouterr()
-    ignore = ["--ignore", "ACD_*", "--ignore", "RADIO_*", "--ignore", "*7_*", "--ignore", "*8_*"]
+    # the optional functions' frames (ACD, radio, the studies') are out of scope unless --function names them
+    assert main(args + ["--ignore", "*7_*", "--ignore", "*8_*", "--function", "seed002_acd"]) == 1
+    capsys.readouterr()
+    ignore = ["--ignore", "*7_*", "--ignore", "*8_*"]
     assert main(args + ignore + ["--format", "json"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert len(report["messages"]) == 29 and {m["verdict"] for m in report["messages"]} == {"PASS"}
@@ -572,7 +576,7 @@ def test_rta_alone_on_the_train_dbc(tmp_path, capsys):
     from hil.busload import static_load
 
     db_path = ROOT / "dbc" / "train_brake.dbc"
-    db = load_dbc(db_path)
+    db = with_functions(load_dbc(db_path), [])      # by default the base train's frames only
     cyclic = [m.name for m in db.messages if m.cycle_time]
     assert main(["timing", "--rta", "--dbc", str(db_path)]) == 0
     out = capsys.readouterr().out

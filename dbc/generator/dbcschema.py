@@ -33,6 +33,9 @@ class Msg:
     signals: list[Sig]
     dlc: int = 8
     secoc_data_id: int = 0     # > 0: authenticated (SecOC profile 1) with this data id
+    # the optional function the frame belongs to (DBC attribute RailhilFunction): sent only in runs that
+    # have it; "" = the train's base functions, on the bus in every run
+    function: str = ""
 
 
 def e2e(comment_what: str) -> list[Sig]:

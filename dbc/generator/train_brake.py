@@ -24,6 +24,7 @@ Conventions
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -184,7 +185,7 @@ def messages() -> list[Msg]:
                     comment="balise passages the odometer has re-anchored on, modulo 16"),
                 Sig("SearchQ", 56, 8, scale=0.5, maximum=127.5, unit="m",
                     comment="adaptive search: last work function Q = |S - S_th| (saturates; 0 for pi)"),
-            ]),
+            ], function="seed002_precise_stop"),
         Msg(0x120, "PLANT_BTM", "PLANT", ["BCU"], 20,
             "Balise transmission module of car 1: the last fixed balise its antenna (the train's front) "
             "passed. Sent only when the track has balises ([track] balises).",
@@ -196,10 +197,12 @@ def messages() -> list[Msg]:
                 Sig("BaliseCount", 40, 8, maximum=255, comment="balises passed since start, modulo 256"),
                 Sig("BaliseValid", 48, 1, maximum=1, comment="1 once a balise has been passed",
                     choices={0: "NONE", 1: "VALID"}),
-            ]),
+            ], function="track_balises"),
     ]
     # the studies' frames, each in its own file beside this one
-    msgs += acd_frames.messages() + consensus_frames.messages() + preview_frames.messages()
+    for part, function in ((acd_frames, "seed002_acd"), (consensus_frames, "seed003_consensus"),
+                           (preview_frames, "seed000_preview")):
+        msgs += [dataclasses.replace(m, function=m.function or function) for m in part.messages()]
     return sorted(msgs, key=lambda m: m.frame_id)
 
 
@@ -245,6 +248,7 @@ def render() -> str:
         'BA_DEF_ BO_ "E2EProfile" ENUM "NONE","P01","P02";',
         'BA_DEF_ BO_ "E2EDataID" INT 0 65535;',
         'BA_DEF_ BO_ "SecOCDataID" INT 0 65535;',
+        'BA_DEF_ BO_ "RailhilFunction" STRING ;',
         'BA_DEF_ "Baudrate" INT 10000 1000000;',
         'BA_DEF_ "BusType" STRING ;',
         'BA_DEF_DEF_ "GenMsgCycleTime" 0;',
@@ -252,6 +256,7 @@ def render() -> str:
         'BA_DEF_DEF_ "E2EProfile" "NONE";',
         'BA_DEF_DEF_ "E2EDataID" 0;',
         'BA_DEF_DEF_ "SecOCDataID" 0;',
+        'BA_DEF_DEF_ "RailhilFunction" "";',
         'BA_DEF_DEF_ "Baudrate" 500000;',
         'BA_DEF_DEF_ "BusType" "CAN";',
         f'BA_ "Baudrate" {BITRATE_BPS};',
@@ -265,6 +270,8 @@ def render() -> str:
             out.append(f'BA_ "E2EDataID" BO_ {m.frame_id} {m.frame_id};')
         if m.secoc_data_id:
             out.append(f'BA_ "SecOCDataID" BO_ {m.frame_id} {m.secoc_data_id};')
+        if m.function:
+            out.append(f'BA_ "RailhilFunction" BO_ {m.frame_id} "{m.function}";')
     for m in msgs:
         for s in m.signals:
             if s.choices:
