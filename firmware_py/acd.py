@@ -29,8 +29,12 @@ Definitions (SI units; positions WGS-84 degrees, latitude + north, longitude + e
   distance from the own position (a signal report older than `signal_fresh_s` counts as red: fail-safe).
 - Hold: braking stays on while the release condition does not hold.  Emergency never steps down to
   service: it holds until released.
-- Release (steps 11–12): the leader moves (fresh report, v_l ≥ `leader_moving_mps`: the paper's
-  "v_u1 > 0" above GPS speed noise) and ΔS_c > B + `release_hysteresis_m`, or there is no leader on the
+- Without prediction (`AcdParams.predict` False, the paper's plain algorithm, for comparison): the ages
+  are taken as 0 — ΔS from the last fix and the last report as they are, B at the fix's speed; the
+  freshness rules (no release on a late report, a stale signal counts as red) stay.
+- Release (steps 11–12): the leader moves away (fresh report, v_l ≥ `leader_moving_mps`: the paper's
+  "v_u1 > 0" above GPS speed noise, and v_l above the own speed: the gap grows) and
+  ΔS_c > B + `release_hysteresis_m`, or there is no leader on the
   own route section any more; and no red signal within reach; and the data are fresh.
 - Adaptive braking (step 10, "adaptive smooth braking"): RequestedDecel = v_w² / (2 (D − margin −
   v_w t_r)) — the deceleration that stops the train the margin short of the obstacle at distance D —
@@ -182,6 +186,9 @@ class AcdParams:
     #                                          the leader's locomotive (paper step 6): ΔS = d − λ, a lower
     #                                          bound of the gap on any track (triangle inequality)
     no_obstacle_m: float = 167_772.15        # DistanceToObstacle when nothing is ahead: the DBC maximum
+    # §X's prediction (dead reckoning with the uncertainty margin). False: the paper's plain algorithm,
+    # ΔS and B from the last fix and the last report as they are, whatever their age (for comparison)
+    predict: bool = True
 
     def __post_init__(self) -> None:
         for name in ("service_decel_mps2", "emergency_decel_mps2", "min_decel_mps2", "leader_decel_max_mps2"):
@@ -267,9 +274,10 @@ def acd_evaluate(p: AcdParams, mode: AcdMode, inp: AcdInputs) -> AcdDecision:
             p.service_decel_mps2 if new == AcdMode.SERVICE else 0.0)
         return AcdDecision(new, Cause.NONE, decel, p.no_obstacle_m, nan, nan, nan, nan, nan, nan, nan, False)
 
-    v_w = own.speed_mps + p.own_accel_max_mps2 * own.age_s
-    own_adv_max = max_advance_m(own.speed_mps, own.age_s, p.own_accel_max_mps2)
-    own_adv_nom = max(own.speed_mps, 0.0) * max(own.age_s, 0.0)
+    own_age = own.age_s if p.predict else 0.0       # without prediction: the fix as it is
+    v_w = own.speed_mps + p.own_accel_max_mps2 * own_age
+    own_adv_max = max_advance_m(own.speed_mps, own_age, p.own_accel_max_mps2)
+    own_adv_nom = max(own.speed_mps, 0.0) * max(own_age, 0.0)
     b = braking_distance_m(v_w, p.service_decel_mps2, p.reaction_s)
     b_e = braking_distance_m(v_w, p.emergency_decel_mps2, p.emergency_reaction_s)
 
@@ -284,13 +292,17 @@ def acd_evaluate(p: AcdParams, mode: AcdMode, inp: AcdInputs) -> AcdDecision:
         if p.leader_pos_is_front:
             d -= ld.length_m
         late = ld.age_s > p.leader_fresh_s
-        gap_nom = d - own_adv_nom + max(ld.speed_mps, 0.0) * max(ld.age_s, 0.0)
-        gap = d - own_adv_max + min_advance_m(ld.speed_mps, ld.age_s, p.leader_decel_max_mps2)
+        ld_age = ld.age_s if p.predict else 0.0
+        gap_nom = d - own_adv_nom + max(ld.speed_mps, 0.0) * max(ld_age, 0.0)
+        gap = d - own_adv_max + min_advance_m(ld.speed_mps, ld_age, p.leader_decel_max_mps2)
         unc = gap_nom - gap
         obstacles.append((gap, Cause.LEADER))
         brake |= gap <= b + p.margin_m
         emergency |= gap <= b_e + p.emergency_margin_m
-        clear &= (not late and ld.speed_mps >= p.leader_moving_mps and gap > b + p.release_hysteresis_m)
+        # "the leader moves away" (issue #7): faster than us, so the gap grows — a leader still braking to
+        # a stop (moving, but slower) is no reason to release
+        clear &= (not late and ld.speed_mps >= p.leader_moving_mps and ld.speed_mps > own.speed_mps
+                  and gap > b + p.release_hysteresis_m)
 
     d_sig = nan
     sg = inp.signal
@@ -335,7 +347,7 @@ class Acd:
     OUTPUTS = ("Request", "RequestedDecel", "DistanceToObstacle")
     INPUTS = ("RADIO_LEADER_POS.Latitude", "RADIO_LEADER_POS.Longitude", "RADIO_LEADER_INFO.LeaderId",
               "RADIO_LEADER_INFO.RouteSection", "RADIO_LEADER_INFO.Speed", "RADIO_LEADER_INFO.TrainLength",
-              "RADIO_LEADER_INFO.AgeOfReport", "RADIO_SIGNAL.Aspect")
+              "RADIO_LEADER_INFO.AgeOfReport", "RADIO_SIGNAL.Aspect", "RADIO_SIGNAL.AgeOfAspect")
     LOCAL_INPUTS = ("OwnLatitude", "OwnLongitude", "OwnSpeed", "OwnFixValid", "OwnFixAge", "OwnRouteSection",
                     "SignalLatitude", "SignalLongitude")
 
@@ -377,8 +389,10 @@ class Acd:
         aspect = _num(rx, "RADIO_SIGNAL.Aspect")
         slat, slon = _num(rx, "SignalLatitude"), _num(rx, "SignalLongitude")
         if aspect == aspect and slat == slat and slon == slon:
+            sent_age = _num(rx, "RADIO_SIGNAL.AgeOfAspect")
             signal = SignalReport(int(round(aspect)), slat, slon,
-                                  self._rx_age_s(rx, ("RADIO_SIGNAL.Aspect",), now_us))
+                                  (sent_age if sent_age == sent_age else 0.0)
+                                  + self._rx_age_s(rx, ("RADIO_SIGNAL.Aspect",), now_us))
         return AcdInputs(own, int(round(section)) if section == section else None, leader, signal)
 
     def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:

@@ -164,8 +164,10 @@ def red(d_m: float, aspect=Aspect.RED, age=0.0) -> SignalReport:
     ("hold", S, situation(B20 + P.release_hysteresis_m - 2.0, leader_speed=5.0), S, Cause.LEADER),
     ("hold, leader stands", S, situation(B20 + 1000.0, leader_speed=0.0), S, Cause.LEADER),
     ("hold emergency", E, situation(B20 + P.margin_m + 5.0, leader_speed=5.0), E, Cause.LEADER),
-    # release (steps 11–12): leader moves and ΔS beyond B + hysteresis (its advance counted too)
-    ("release", S, situation(B20 + P.release_hysteresis_m + 2.0, leader_speed=5.0), M, Cause.NONE),
+    # release (steps 11–12): leader moves away (faster than us) and ΔS beyond B + hysteresis
+    ("release", S, situation(B20 + P.release_hysteresis_m + 2.0, leader_speed=25.0), M, Cause.NONE),
+    ("hold, leader moves but slower than us", S, situation(B20 + P.release_hysteresis_m + 2.0,
+                                                           leader_speed=5.0), S, Cause.LEADER),
     ("release, leader left section", S, situation(50.0, leader_section=8), M, Cause.NONE),
     ("release, no leader", S, AcdInputs(OwnFix(LAT0, LON0, 20.0, 0.0), 7, None, None), M, Cause.NONE),
     ("other section ignored", M, situation(30.0, leader_section=9), M, Cause.NONE),
@@ -416,3 +418,30 @@ def test_pairing_orders_trains_along_the_running_direction():
     assert pair_on_sections(back)["B"] == ("A", "C")
     no_heading = [TrainPosition(t.train, t.lat_deg, t.lon_deg, 4, None) for t in trains[:3]]
     assert pair_on_sections(no_heading) == {"A": (None, None), "B": (None, None), "C": (None, None)}
+
+
+# --- prediction off: the paper's plain algorithm (for the campaign's comparison) ---------------------
+
+P_OFF = AcdParams(predict=False)
+
+
+@pytest.mark.parametrize("own_age, leader_speed, leader_age", [
+    (0.0, 0.0, 0.0), (2.0, 0.0, 0.0), (0.0, 20.0, 4.0), (3.0, 10.0, 5.0)])
+def test_without_prediction_the_ages_are_ignored(own_age, leader_speed, leader_age):
+    inp = situation(1000.0, own_age=own_age, leader_speed=leader_speed, leader_age=leader_age)
+    dec = acd_evaluate(P_OFF, M, inp)
+    assert dec.leader_gap_m == pytest.approx(sphere(1000.0))                 # ΔS as reported
+    assert dec.speed_worst_mps == pytest.approx(20.0)                        # B at the fix's speed
+    assert dec.uncertainty_m == pytest.approx(0.0)
+    on = acd_evaluate(P, M, inp)
+    # prediction moves a standing leader not at all and the own train forward: a smaller gap; a moving
+    # leader is credited with the least it can have run since its report
+    expected = sphere(1000.0) - max_advance_m(20.0, own_age, P.own_accel_max_mps2) + min_advance_m(
+        leader_speed, leader_age, P.leader_decel_max_mps2)
+    assert on.leader_gap_m == pytest.approx(expected)
+    assert dec.leader_late == on.leader_late                                 # freshness rules stay
+
+
+def test_without_prediction_a_stale_signal_still_counts_as_red():
+    inp = AcdInputs(OwnFix(LAT0, LON0, 20.0, 0.0), 7, None, red(200.0, aspect=Aspect.GREEN, age=5.0))
+    assert acd_evaluate(P_OFF, M, inp).mode == AcdMode.SERVICE

@@ -1,7 +1,7 @@
 """The frames of the anti-collision study (seed 002): the ACD's brake request and the radio link.
 
 Part of dbc/generator/train_brake.py (run that script to write the DBC).
-Identifiers: 0x020 (safety: the ACD's request), 0x180-0x18F (radio).
+Identifiers: 0x020 (safety: the ACD's request), 0x180-0x182 (radio), 0x183 (the GPS model's truth feed).
 """
 
 from __future__ import annotations
@@ -47,5 +47,16 @@ def messages() -> list[Msg]:
                     choices={0: "UNKNOWN", 1: "RED", 2: "YELLOW", 3: "GREEN"}),
                 Sig("SignalPos", 24, 24, scale=0.01, maximum=167772.15, unit="m",
                     comment="track position of the signal"),
+                Sig("AgeOfAspect", 48, 8, scale=0.1, maximum=25.5, unit="s",
+                    comment="age of the aspect when sent: time since the radio last delivered it"),
+            ]),
+        Msg(0x183, "ACD_GNSS_TRUTH", "PLANT", ["ACD"], 100,
+            "Simulation only (no such frame on a train): the true position of the own train's GPS antenna "
+            "(front of car 1), the feed of the GPS receiver model in the ACD node, like a GNSS "
+            "simulator's feed from the vehicle model.",
+            [
+                Sig("TrackPos", 0, 32, scale=0.001, maximum=4294967.295, unit="m",
+                    comment="true track position of the antenna (length along the track polyline)"),
+                Sig("Speed", 32, 16, scale=0.01, maximum=655.35, unit="m/s", comment="true speed"),
             ]),
     ]
