@@ -8,8 +8,12 @@ pressure correction φ and the slope estimate in BCU_STATUS (FbState, FrictionPh
 apply φ.  Precise stopping at a target point (seed 002 §III, §VI–§VIII, `firmware_py.stopping`) when
 `BcuParams.stopping` is given: it reads DESK_TARGET (TargetStopValid, TargetStopPos), keeps an odometer on
 the train speed estimate, and commands the service brake along the theoretical braking curve; the target
-deceleration sent is the larger of the driver's brake step and the stopping command.  A later issue adds
-the consensus reference (seed 003).
+deceleration sent is the larger of the driver's brake step and the stopping command.  The anti-collision
+device (seed 002 §V, `firmware_py.acd`) when `BcuParams.acd` is set: ACD_BRAKE_REQ.Request = EMERGENCY is
+an emergency request; SERVICE asks for RequestedDecel, and the target deceleration is the largest of the
+driver's step, the stopping command and the ACD's request; BCU_EMERGENCY.Source = 2 (ACD) when the ACD
+demanded the emergency brake.  An ACD not heard from for `acd_timeout_us` requests nothing and makes the
+train Degraded.
 
 Train speed: the highest speed estimate (BECUn_STATUS.SpeedEst) of the cars that are heard from and
 plausible.  A car whose estimate disagrees with the median of the train for longer than 3 of its
@@ -84,6 +88,9 @@ class BcuParams:
     implausible_after_us: int = 150_000
     feedback: FeedbackParams | None = None   # deceleration feedback, seed 004 §5; None: not fitted
     stopping: StoppingParams | None = None   # precise stopping at a target point, seed 002; None: not fitted
+    acd: bool = False                        # obey ACD_BRAKE_REQ (an anti-collision device is fitted)
+    acd_timeout_us: int = 300_000            # the ACD's request (100 ms cycle) is stale after 3 cycles
+    #                                          (chosen)
 
 
 class Bcu:
@@ -92,12 +99,14 @@ class Bcu:
     OUTPUTS = ("Mode", "BrakeStep", "TargetDecel", "EmergencyActive", "Source", "CarsSilent", "Degraded",
                "TrainSpeedEst", "CarsImplausible", "FbState", "FrictionPhi", "SlopeEst", "StopState")
     STOP_OUTPUTS = ("DistanceToGo", "RefSpeed", "StopCommand", "BalisesSeen", "SearchQ")    # BCU_STOP
+    ACD_INPUTS = ("ACD_BRAKE_REQ.Request", "ACD_BRAKE_REQ.RequestedDecel")
 
     def __init__(self, n_cars: int, params: BcuParams | None = None) -> None:
         self.p = params or BcuParams()
         self.n_cars = n_cars
         self.mode = BcuMode.RELEASED
         self.target = 0.0
+        self.source = 0                              # BCU_EMERGENCY.Source: 0 none, 1 DESK, 2 ACD, 3 BCU
         self.timer = CycleTimer(self.p.cycle_us)
         self.outputs = self.OUTPUTS                  # + STOP_OUTPUTS with precise stopping
         self.speed_keys = tuple(f"BECU{i}_STATUS.SpeedEst" for i in range(1, n_cars + 1))
@@ -124,6 +133,8 @@ class Bcu:
             self._balise_count: float | None = None
             if self.p.stopping.balises:            # car 1's balise transmission module (PLANT_BTM)
                 self.inputs += ("BalisePos", "PassageAge", "BaliseCount", "BaliseValid")
+        if self.p.acd:
+            self.inputs += self.ACD_INPUTS
         self.implausible = [False] * n_cars           # latched per car
         self._disagree_since: list[int | None] = [None] * n_cars
 
@@ -155,14 +166,22 @@ class Bcu:
                                                      statistics.median(known) if known else float("nan"))
             stop_demand = so.state in (StopState.FOLLOWING, StopState.STOPPED)
             stop_cmd = so.command_mps2 if stop_demand else 0.0
-        self.mode = bcu_mode_transition(self.mode, brake_step, emergency_req >= 0.5, standstill, stop_demand)
-        if self.mode == BcuMode.EMERGENCY:
+        acd_emergency, acd_cmd, acd_silent = self._acd_request(now_us, rx) if p.acd else (False, 0.0, False)
+        desk_emergency = emergency_req >= 0.5
+        self.mode = bcu_mode_transition(self.mode, brake_step, desk_emergency or acd_emergency, standstill,
+                                        stop_demand or acd_cmd > 0.0)
+        emergency = self.mode == BcuMode.EMERGENCY
+        if emergency:
             self.target = p.emergency_decel_mps2                      # no jerk limit on emergency
+            if desk_emergency:                                        # BCU_EMERGENCY.Source: who
+                self.source = 1                                       # demanded it, DESK (kept while
+            elif acd_emergency or self.source == 0:                   # latched), else ACD
+                self.source = 2 if acd_emergency else 1
         else:
-            wanted = max(p.step_decel_mps2[brake_step], stop_cmd)
+            self.source = 0
+            wanted = max(p.step_decel_mps2[brake_step], stop_cmd, acd_cmd)
             jerk = p.jerk_limit_mps3 * dt_s
             self.target = rate_limit(wanted, self.target, jerk, jerk)
-        emergency = self.mode == BcuMode.EMERGENCY
         fb_state, phi, slope = FbState.OFF, 1.0, 0.0
         if self.feedback is not None:
             fb = self.fb_out = self._feedback_step(now_us, rx, dt_s, brake_step, emergency,
@@ -173,9 +192,9 @@ class Bcu:
             "BrakeStep": brake_step,
             "TargetDecel": self.target,
             "EmergencyActive": int(emergency),
-            "Source": 1 if emergency else 0,
+            "Source": self.source,
             "CarsSilent": silent,
-            "Degraded": int(silent != 0 or implausible != 0 or sensor_fault),
+            "Degraded": int(silent != 0 or implausible != 0 or sensor_fault or acd_silent),
             "TrainSpeedEst": train_speed if known else 0.0,
             "CarsImplausible": implausible,
             "FbState": int(fb_state),
@@ -183,6 +202,21 @@ class Bcu:
             "SlopeEst": clip(slope, -0.064, 0.06375),            # the DBC signal's range
             **(self._stop_signals() if self.stopping is not None else {"StopState": 0}),
         }
+
+    def _acd_request(self, now_us: int, rx: Mapping[str, float]) -> tuple[bool, float, bool]:
+        """(emergency requested, service deceleration requested [m/s²], silent) from ACD_BRAKE_REQ."""
+        age_us = getattr(rx, "age_us", None)
+        age = age_us(self.ACD_INPUTS[0], now_us) if age_us is not None else 0
+        request, ok = finite_or(rx[self.ACD_INPUTS[0]], 0.0)
+        if age is None or age > self.p.acd_timeout_us or not ok:
+            return False, 0.0, age is not None                # never heard from: not (yet) silent
+        decel, ok_decel = finite_or(rx[self.ACD_INPUTS[1]], self.p.step_decel_mps2[-1])
+        if round(request) == 2:
+            return True, 0.0, False
+        if round(request) == 1:                            # a bad deceleration asks for full service
+            return False, clip(decel if ok_decel else self.p.step_decel_mps2[-1], 0.0,
+                               self.p.step_decel_mps2[-1]), False
+        return False, 0.0, False
 
     def _stop_signals(self) -> dict[str, float]:
         """StopState in BCU_STATUS and the BCU_STOP frame, from the last StopOutput."""

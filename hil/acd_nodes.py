@@ -21,11 +21,9 @@ What the [acd] section adds to a run (seed 002 §IV–§V, §IX, §X):
   counted and ignored (hil.nmea).  Fixes with a GGA/binary HDOP above `max_hdop` are dropped (the
   instability episodes report HDOP 4, plant_sim.gps).  The firmware (firmware_py.acd, steps 1–12,
   with or without §X's prediction) sends ACD_BRAKE_REQ to the BCU.
-- **BCU** (`AcdBcu`): the foundation's Bcu, also fed by ACD_BRAKE_REQ (the foundation's BCU does
-  not receive it yet): an EMERGENCY request is an emergency request; a SERVICE request becomes the
-  smallest brake step whose deceleration is at least RequestedDecel (and at least step 1); the larger
-  of the desk's and the ACD's step is applied; BCU_DEMAND.Source = 2 (ACD) when the ACD's demand is
-  the one applied.
+- **BCU**: the foundation's Bcu with `BcuParams.acd` (hil.assembly sets it for a scenario with [acd]):
+  an EMERGENCY request is an emergency request (BCU_EMERGENCY.Source = 2, ACD); a SERVICE request asks
+  for RequestedDecel, and the demand is the largest of the desk's step, precise stopping and the ACD's.
 
 After a run, `judge` decides on plant truth: minimum gap to U1's last wagon, collision (gap ≤ 0),
 red-signal overruns (the front passes a signal showing red), brake applications of the ACD and the
@@ -53,14 +51,12 @@ from cantools.database.can import Database
 
 from firmware_py.acd import (
     Acd,
-    AcdMode,
     AcdParams,
     Aspect,
     TrainPosition,
     braking_distance_m,
     pair_on_sections,
 )
-from firmware_py.bcu import Bcu
 from hil.codec import Codec
 from hil.errors import RailhilError
 from hil.gpsserial import GpsLinkReader, GpsLinkWriter, PtyLink, open_port
@@ -423,63 +419,6 @@ class WorldPlant(PlantController):
         return out
 
 
-# ------------------------------------------------------------------------------------------- the BCU
-class _Overlay(Mapping):
-    """`rx` with some values replaced (the node runtime's reception times are kept)."""
-
-    def __init__(self, rx: Mapping[str, float], over: dict[str, float]) -> None:
-        self.rx, self.over = rx, over
-
-    def __getitem__(self, key: str) -> float:
-        return self.over[key] if key in self.over else self.rx[key]
-
-    def __iter__(self):
-        return iter(self.rx)
-
-    def __len__(self) -> int:
-        return len(self.rx)
-
-    def age_us(self, name: str, now_us: int):
-        age = getattr(self.rx, "age_us", None)
-        return None if age is None else age(name, now_us)
-
-
-def acd_brake_step(step_decel_mps2: tuple[float, ...], request: int, decel_mps2: float) -> int:
-    """The BCU brake step for an ACD SERVICE request of `decel_mps2` [m/s²]: the smallest step whose
-    deceleration is at least the request (step 7 above it; at least step 1); 0 without a request."""
-    if request != int(AcdMode.SERVICE):
-        return 0
-    for k in range(1, len(step_decel_mps2)):
-        if step_decel_mps2[k] >= decel_mps2 - 1e-9:
-            return k
-    return len(step_decel_mps2) - 1
-
-
-class AcdBcu(Bcu):
-    """The foundation's BCU, also obeying ACD_BRAKE_REQ (module docstring)."""
-
-    ACD_INPUTS = ("ACD_BRAKE_REQ.Request", "ACD_BRAKE_REQ.RequestedDecel")
-
-    def __init__(self, n_cars: int, params=None) -> None:
-        super().__init__(n_cars, params)
-        self.inputs = tuple(self.inputs) + self.ACD_INPUTS
-
-    def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
-        req = rx[self.ACD_INPUTS[0]]
-        dec = rx[self.ACD_INPUTS[1]]
-        req = int(req) if req == req else 0
-        dec = dec if dec == dec else self.p.step_decel_mps2[-1]
-        desk_step = rx["BrakeStep"] if rx["BrakeStep"] == rx["BrakeStep"] else 0
-        desk_em = rx["EmergencyReq"] if rx["EmergencyReq"] == rx["EmergencyReq"] else 0
-        acd_step = acd_brake_step(self.p.step_decel_mps2, req, dec)
-        acd_em = req == int(AcdMode.EMERGENCY)
-        out = super().step(now_us, _Overlay(rx, {"BrakeStep": max(desk_step, acd_step),
-                                                 "EmergencyReq": max(desk_em, float(acd_em))}))
-        if (acd_em and desk_em < 0.5) or (not out["EmergencyActive"] and acd_step > desk_step):
-            out["Source"] = 2                                      # DBC BCU_DEMAND.Source: ACD
-        return out
-
-
 # ------------------------------------------------------------------------------------------- the ACD
 class _AcdRx(Mapping):
     """The node's RxTable plus the device's own inputs (Acd.LOCAL_INPUTS)."""
@@ -694,16 +633,6 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
         tx_msgs = [f"PLANT_CAR{i}_SENSORS" for i in range(1, n + 1)] + [
             "RADIO_LEADER_POS", "RADIO_LEADER_INFO", "RADIO_SIGNAL", "ACD_GNSS_TRUTH"]
         period, offset = plant.params.dt_us, assembly.PLANT_OFFSET_US
-    elif name == "BCU":
-        ctrl = AcdBcu(n, assembly.bcu_params(scenario))
-        rx_msgs = (["DESK_CMD"] + [f"BECU{i}_STATUS" for i in range(1, n + 1)]
-                   + [f"BECU{i}_DIAG" for i in range(1, n + 1)] + ["ACD_BRAKE_REQ"])
-        if ctrl.feedback is not None:
-            rx_msgs += list(dict.fromkeys(["PLANT_CAR1_SENSORS", f"PLANT_CAR{n}_SENSORS"]))
-        if ctrl.stopping is not None:
-            rx_msgs.append("DESK_TARGET")
-        tx_msgs = ["BCU_DEMAND", "BCU_EMERGENCY", "BCU_STATUS"]
-        period, offset = ctrl.p.cycle_us, assembly.BCU_OFFSET_US
     elif name == ACD_NODE:
         ctrl = AcdDevice(spec, scenario.seed, _serial_kind(spec))
         rx_msgs = ["RADIO_LEADER_POS", "RADIO_LEADER_INFO", "RADIO_SIGNAL", "ACD_GNSS_TRUTH"]

@@ -137,6 +137,8 @@ def bcu_params(scenario: Scenario) -> BcuParams:
             max_decel_mps2=full, hold_decel_mps2=full, start_position_m=scenario.train.start_position_m,
             start_time_us=0, pi=dataclasses.replace(StoppingParams().pi, out_max=full),
             balises=bool(scenario.track.balises))
+    if scenario.acd is not None:                      # the anti-collision device's requests, seed 002
+        kw["acd"] = True
     return BcuParams(**kw)
 
 
@@ -212,6 +214,8 @@ def build_foundation_node(name: str, scenario: Scenario, db: Database, codec: Co
                    + [f"BECU{i}_DIAG" for i in range(1, n + 1)])
         if ctrl.feedback is not None:                  # the front and rear accelerometers, seed 004 §6.1
             rx_msgs += list(dict.fromkeys(["PLANT_CAR1_SENSORS", f"PLANT_CAR{n}_SENSORS"]))
+        if ctrl.p.acd:
+            rx_msgs.append("ACD_BRAKE_REQ")
         tx_msgs = ["BCU_DEMAND", "BCU_EMERGENCY", "BCU_STATUS"]
         if ctrl.stopping is not None:                  # the target stop point and balises, seed 002
             rx_msgs += ["DESK_TARGET"] + (["PLANT_BTM"] if ctrl.p.stopping.balises else [])

@@ -12,14 +12,12 @@ import numpy as np
 import pytest
 
 from firmware_py.acd import AcdMode, braking_distance_m
-from firmware_py.bcu import BcuParams
+from firmware_py.bcu import Bcu, BcuParams
 from hil.acd_nodes import (
-    AcdBcu,
     AcdDevice,
     CentreModel,
     RadioLink,
     World,
-    acd_brake_step,
     acd_params,
     geometry,
     judge,
@@ -119,36 +117,45 @@ def test_centre_pairs_on_the_section_relays_and_unpairs_when_the_leader_leaves()
 STEPS = BcuParams().step_decel_mps2
 
 
-@pytest.mark.parametrize("request_, decel, step", [
-    (0, 1.0, 0), (1, 0.0, 1), (1, 1 / 7, 1), (1, 0.30, 3), (1, 1.0, 7), (1, 5.0, 7), (2, 1.3, 0)])
-def test_acd_request_to_brake_step(request_, decel, step):
-    assert acd_brake_step(STEPS, request_, decel) == step
-
-
-def bcu_rx(bcu: AcdBcu, **values) -> RxTable:
+def bcu_rx(bcu: Bcu, now_us: int = 0, **values) -> RxTable:
     rx = RxTable(bcu.inputs)
     for i in range(1, bcu.n_cars + 1):
-        rx.update([("SpeedEst", f"BECU{i}_STATUS.SpeedEst")], {"SpeedEst": 20.0}, 0)
-    rx.update([(k.split(".")[-1], k) for k in values], {k.split(".")[-1]: v for k, v in values.items()}, 0)
+        rx.update([("SpeedEst", f"BECU{i}_STATUS.SpeedEst")], {"SpeedEst": 20.0}, now_us)
+    rx.update([(k.split(".")[-1], k) for k in values], {k.split(".")[-1]: v for k, v in values.items()},
+              now_us)
     return rx
 
 
 def test_bcu_follows_the_acd_service_request_and_its_emergency():
-    bcu = AcdBcu(2)
-    rx = bcu_rx(bcu, BrakeStep=2, EmergencyReq=0, **{"ACD_BRAKE_REQ.Request": 1,
-                                                     "ACD_BRAKE_REQ.RequestedDecel": 0.6})
+    bcu = Bcu(2, BcuParams(acd=True))
+    assert "ACD_BRAKE_REQ.Request" in bcu.inputs and "ACD_BRAKE_REQ.Request" not in Bcu(2).inputs
     out = {}
     for k in range(200):                                # 2 s: the jerk limit has ramped up
+        rx = bcu_rx(bcu, k * 10_000, BrakeStep=2, EmergencyReq=0,
+                    **{"ACD_BRAKE_REQ.Request": 1, "ACD_BRAKE_REQ.RequestedDecel": 0.6})
         out = bcu.step(k * 10_000, rx)
-    assert out["BrakeStep"] == 5 and out["TargetDecel"] == pytest.approx(STEPS[5]) and out["Source"] == 2
-    rx = bcu_rx(bcu, BrakeStep=0, EmergencyReq=0, **{"ACD_BRAKE_REQ.Request": 2,
-                                                     "ACD_BRAKE_REQ.RequestedDecel": 1.3})
+    # the demand is the ACD's 0.6 m/s², above the desk's step 2 (2/7 m/s²); a service brake, Source NONE
+    assert out["BrakeStep"] == 2 and out["TargetDecel"] == pytest.approx(0.6) and out["Source"] == 0
+    assert out["Mode"] == 1 and out["Degraded"] == 0
+    rx = bcu_rx(bcu, 2_000_000, BrakeStep=0, EmergencyReq=0,
+                **{"ACD_BRAKE_REQ.Request": 2, "ACD_BRAKE_REQ.RequestedDecel": 1.3})
     out = bcu.step(2_000_000, rx)
-    assert out["EmergencyActive"] == 1 and out["Source"] == 2
-    rx = bcu_rx(bcu, BrakeStep=7, EmergencyReq=0, **{"ACD_BRAKE_REQ.Request": 0,
-                                                     "ACD_BRAKE_REQ.RequestedDecel": 0.0})
-    bcu2 = AcdBcu(2)
-    assert bcu2.step(0, bcu_rx(bcu2, BrakeStep=7, EmergencyReq=0))["Source"] == 0   # nothing from the ACD
+    assert out["EmergencyActive"] == 1 and out["Source"] == 2           # the ACD demanded the emergency
+    quiet = Bcu(2, BcuParams(acd=True))                 # nothing heard from the ACD yet: the desk alone
+    out = quiet.step(0, bcu_rx(quiet, 0, BrakeStep=7, EmergencyReq=0))
+    assert out["Source"] == 0 and out["Degraded"] == 0 and out["Mode"] == 1
+
+
+def test_bcu_ignores_a_stale_acd_request_and_says_degraded():
+    bcu = Bcu(2, BcuParams(acd=True))
+    rx = bcu_rx(bcu, 0, BrakeStep=0, EmergencyReq=0,
+                **{"ACD_BRAKE_REQ.Request": 2, "ACD_BRAKE_REQ.RequestedDecel": 1.3})
+    assert bcu.step(0, rx)["EmergencyActive"] == 1
+    bcu = Bcu(2, BcuParams(acd=True))                   # the same request, heard 0.5 s ago: stale
+    for i in range(1, 3):
+        rx.update([("SpeedEst", f"BECU{i}_STATUS.SpeedEst")], {"SpeedEst": 20.0}, 500_000)
+    out = bcu.step(500_000, rx)
+    assert out["EmergencyActive"] == 0 and out["TargetDecel"] == 0.0 and out["Degraded"] == 1
 
 
 # --- the ACD node: GPS over the serial line ---------------------------------------------------------

@@ -32,8 +32,8 @@ COMMANDS = {
     "faults": ("hil.cli.faults", "fault injection campaigns: the EN 50159 threat matrix"),
     "campaign": ("hil.cli.campaign", "parameter sweeps of a scenario (grid and seeded random), in parallel "
                  "or on a Dask cluster; resumable"),
-    "reproduce": ("hil.cli.reproduce", "reproduce a paper's simulation campaigns (seed 000 picasso, seed 003 "
-                  "consensus) next to its figures"),
+    "reproduce": ("hil.cli.reproduce", "reproduce a paper's simulation campaigns (seed 000 picasso, seed 002 "
+                  "acd, seed 003 consensus) next to its figures"),
     "report": ("hil.cli.report", "write the self-contained HTML report of a run folder or a campaign folder"),
     "control-centre": ("hil.cli.control_centre", "the seed-002 control centre: pairs follower and leader "
                        "trains over TCP, reports kept in SQLite"),

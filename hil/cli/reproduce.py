@@ -10,11 +10,14 @@ from __future__ import annotations
 import argparse
 import importlib
 
-HELP = "reproduce a paper's simulation campaigns (seed 000 picasso, seed 003 consensus) next to its figures"
+HELP = ("reproduce a paper's simulation campaigns (seed 000 picasso, seed 002 acd, seed 003 consensus) "
+        "next to its figures")
 
 #: study -> (module, one-line description)
 STUDIES = {
     "picasso": ("hil.picasso", "seed 000: slip references Lf/Bd/Dp with preview, Table 1 and campaigns 2-3"),
+    "acd": ("hil.acd_nodes", "seed 002: anti-collision device, randomized two-train runs with and without "
+                             "prediction, judged on plant truth"),
     "consensus": ("hil.consensus_study", "seed 003: consensus braking, cases 1-3, cycle and latency sweeps"),
 }
 
