@@ -10,6 +10,9 @@ PLANT node, the reference generators in BECU1..n, frames through the codec and t
 
 Runs go to a process pool (`--jobs`), with a tqdm progress bar; the tables print at the end and the
 figures are written as PNG (fig5.png, fig6.png, fig7.png) with a results.json.
+
+`--full` runs full mode instead (scenarios/picasso_full.toml: the wheelset plant, each BECU's slip
+controller): Lf, Bd, Dp, the α each slip loop achieves (`achieved_alpha`), and paper mode at that α.
 """
 
 from __future__ import annotations
@@ -141,6 +144,63 @@ def run_full(method: str = "Bd", sets: tuple[str, ...] = ()) -> dict:
     alphas = [achieved_alpha(cols, k, np.array(frames[k])) for k in range(1, n + 1)]
     return {"method": method, "S_m": float(x[-1] - x[0]), "stopped": out.reason == "standstill",
             "wsp_activations": wsp, "achieved_alpha": alphas, "wall_s": out.wall_s}
+
+
+FULL_METHODS = ("Lf", "Bd", "Dp")
+
+
+def _run_full_one(args: tuple[str, tuple[str, ...]]) -> dict:
+    return run_full(*args)
+
+
+def reproduce_full(jobs: int, sets: tuple[str, ...] = (), progress: bool = True) -> dict:
+    """Full mode: Lf, Bd and Dp on the wheelset plant (FULL_SCENARIO with `sets`), on `jobs` processes, and
+    paper mode for the same cars at the α the slip loops achieved (their mean over cars and methods)."""
+    from tqdm import tqdm
+
+    from hil.scenario import load_scenario
+    scenario = load_scenario(FULL_SCENARIO, sets=list(sets))
+    todo = [(m, tuple(sets)) for m in FULL_METHODS]
+    bar = tqdm(total=len(todo), desc="picasso full-mode runs", unit="run", disable=not progress,
+               file=sys.stderr)
+    try:
+        if jobs <= 1:
+            runs = []
+            for t in todo:
+                runs.append(_run_full_one(t))
+                bar.update()
+        else:
+            with ProcessPoolExecutor(max_workers=jobs) as pool:
+                runs = []
+                for r in pool.map(_run_full_one, todo):
+                    runs.append(r)
+                    bar.update()
+    finally:
+        bar.close()
+    full = {r["method"]: r for r in runs}
+    alphas = [a for r in runs for a in r["achieved_alpha"] if math.isfinite(a)]
+    alpha = round(float(np.mean(alphas)), 2) if alphas else scenario.preview.alpha_per_s
+    v0, spacing = scenario.train.initial_speed_kmh / 3.6, tuple(scenario.preview.spacing_m)
+    profile = scenario.preview.rail_profile or DEFAULT_PROFILE
+    paper = {m: run_case(Case(m, alpha, v0, spacing, profile=profile))["S_m"]
+             for m in ("ideal", *FULL_METHODS)}
+    return {"full": full, "alpha_achieved": alpha, "alpha_design": scenario.preview.alpha_per_s,
+            "paper_at_alpha": paper, "v0_mps": v0, "spacing_m": list(spacing), "sets": list(sets),
+            "dp_shorter_m": full["Bd"]["S_m"] - full["Dp"]["S_m"]}
+
+
+def print_full(s: dict, write=print) -> None:
+    write(f"Full mode (wheelset plant, slip controllers; v(0) = {s['v0_mps']:.1f} m/s, Delta = "
+          f"{', '.join(f'{d:g}' for d in s['spacing_m'])} m, eq. (9) with alpha = {s['alpha_design']:g} 1/s)")
+    write(f"{'method':>6}{'S [m]':>9}{'WSP per car':>14}{'achieved alpha per car [1/s]':>31}"
+          f"{'paper mode at alpha = ' + format(s['alpha_achieved'], 'g'):>28}")
+    for m in FULL_METHODS:
+        r = s["full"][m]
+        wsp = " ".join(str(w) for w in r["wsp_activations"])
+        al = " ".join(f"{a:.2f}" for a in r["achieved_alpha"])
+        write(f"{m:>6}{r['S_m']:>9.2f}{wsp:>14}{al:>31}{s['paper_at_alpha'][m]:>28.2f}")
+    write(f"S° (paper mode, mu = mu°) {s['paper_at_alpha']['ideal']:.2f} m; Bd - Dp in full mode "
+          f"{s['dp_shorter_m']:+.2f} m ({'Dp shorter' if s['dp_shorter_m'] > 0 else 'Dp NOT shorter'})")
 
 
 def achieved_alpha(cols: dict, k: int, ref: np.ndarray) -> float:
@@ -396,6 +456,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a subset of each campaign (3 alphas in the grid, 4 in campaign 2, 3 betas): "
                         "a smoke run")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--full", action="store_true",
+                   help="full mode instead of the paper's campaigns: Lf, Bd and Dp on the wheelset plant "
+                        "with the slip controllers (scenarios/picasso_full.toml), the alpha they achieve, "
+                        "and paper mode at that alpha; writes results_full.json")
+    p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                   help="with --full: override a key of scenarios/picasso_full.toml (repeatable), e.g. "
+                        "preview.brake_inverse=direction")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -404,8 +471,18 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise PicassoError(f"--out {out}: exists and is not a folder; expected a folder for the figures")
+    if args.sets and not args.full:
+        raise PicassoError(f"--set {args.sets[0]}: only with --full (the paper campaigns set their own keys)")
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
+    if args.full:
+        s = reproduce_full(args.jobs, tuple(args.sets), progress=not args.quiet)
+        print_full(s)
+        js = out / "results_full.json"
+        js.write_text(json.dumps(s, indent=1, default=float) + "\n")
+        print(f"\n{len(FULL_METHODS)} full-mode lockstep runs over CAN in {time.perf_counter() - t0:.1f} s")
+        print(f"files: {js}")
+        return 0
     parts = campaign_cases(args.fast)
     results = run_all(parts, args.jobs, progress=not args.quiet)
     s = summarise(parts, results)

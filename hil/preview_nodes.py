@@ -8,6 +8,10 @@ Paper mode: PLANT = the reduced model of eqs. (1)-(4) (plant_sim.picasso) steppi
 receives in PV_BECUi_SLIP_REF (held between frames), sending the train state (PV_PLANT_TRAIN) and each
 car's slip, adhesion and oracle σ̄° (PV_PLANT_CARi_ADH); BECU1..n = firmware_py.preview.PreviewBecu.
 No DESK and no BCU: the paper's braking starts at t = 0 with the slip references.
+
+Full mode: PLANT = the foundation's wheelset plant (FullPlantController adds the PV_ frames above);
+BECU1..n = firmware_py.slipctl.SlipBecu, the same reference generator plus the slip controller that sets
+the cylinder pressure (BECUi_PRESS_CMD), commissioned from the plant's car and brake (`slipctl_params`).
 """
 
 from __future__ import annotations
@@ -227,7 +231,10 @@ def slipctl_params(scenario: Scenario, car: int) -> SlipCtlParams:
     from hil.assembly import scenario_plant_params
     pp = scenario_plant_params(scenario)
     b = pp.brake
-    return SlipCtlParams(mass_kg=pp.train.masses_kg[car - 1], g_mps2=pp.train.g_mps2,
+    pv = scenario.preview
+    return SlipCtlParams(alpha_c_per_s=pv.slip_alpha_c_per_s, ki_per_s2=pv.slip_ki_per_s2,
+                         brake_inverse=pv.brake_inverse, accel_source=pv.accel_source, above_own=pv.above_own,
+                         mass_kg=pp.train.masses_kg[car - 1], g_mps2=pp.train.g_mps2,
                          wheel_radius_m=pp.train.wheel_radius_m, inertia_kgm2=pp.train.wheel_inertia_kgm2,
                          brake_gain_Nm_per_Pa=b.alpha_squeeze_Nm_per_Pa,
                          preload_Pa=-b.beta_squeeze_Nm / b.alpha_squeeze_Nm_per_Pa, p_max_Pa=b.p_max_Pa,
@@ -261,6 +268,8 @@ def build_full_node(name: str, scenario: Scenario, db: Database, codec: Codec, d
                        sigma0=pv.sigma0)
         ctrl = SlipBecu(rp, n, pv.sigma_source, estimator_params(ad), slipctl_params(scenario, i))
         rx_msgs = ["PV_PLANT_TRAIN", f"PV_PLANT_CAR{i}_ADH"] + [f"PV_BECU{j}_PREVIEW" for j in range(1, i)]
+        if ctrl.p.accel_source == "own":
+            rx_msgs.append(f"PLANT_CAR{i}_SENSORS")            # the car's own accelerometer
         tx_msgs = [f"PV_BECU{i}_SLIP_REF", f"PV_BECU{i}_PREVIEW", f"BECU{i}_PRESS_CMD"]
         binding = Binding.build(db, name, ctrl.inputs, ctrl.OUTPUTS, rx_msgs, tx_msgs, dbc_name)
         return Node(name, ctrl, binding, codec, db, period_us=10_000,

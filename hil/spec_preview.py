@@ -2,10 +2,14 @@
 
 Its presence in a scenario makes hil.assembly hand the run's nodes to hil/preview_nodes.py.
 
-Paper mode (the only mode so far): the PLANT node is the reduced model of eqs. (1)-(4)
+Paper mode (`mode = "paper"`): the PLANT node is the reduced model of eqs. (1)-(4)
 (plant_sim.picasso), one braking car per [train] car, car k at `spacing_m[k-2]` metres behind car 1;
 each BECU is a reference generator (firmware_py.preview) whose Σ_i° reaches the plant over CAN.
 The initial speed is [train] initial_speed_kmh.
+
+Full mode (`mode = "full"`): the foundation's wheelset plant, each BECU's slip controller
+(firmware_py.slipctl) tracks Sigma_i° by modulating its cylinder pressure; the `slip_*`, `brake_inverse`,
+`accel_source` and `above_own` keys set that loop and matter in full mode only.
 """
 
 from __future__ import annotations
@@ -46,6 +50,24 @@ class PreviewSpec(Strict):
                           "to scenarios/); absent: the [track] rail")
     plant_step_ms: Literal[1, 2, 5, 10] = Field(
         5, description="integration step of the reduced model in the PLANT node [ms] (RK4)")
+
+    # ---- full mode only: the BECU's slip loop (firmware_py.slipctl.SlipCtlParams)
+    slip_alpha_c_per_s: Annotated[float, Field(
+        gt=0, le=100, description="full mode: alpha_c [1/s], the slip dynamics the slip loop asks for, "
+                                  "sigma' = alpha_c (Sigma° - sigma); what it achieves is measured")] = 10.0
+    slip_ki_per_s2: Annotated[float, Field(
+        ge=0, le=1000, description="full mode: integral gain k_i of the slip loop [1/s^2]")] = 10.0
+    brake_inverse: Literal["model", "direction"] = Field(
+        "model", description="full mode: how the slip loop turns its torque into a cylinder set-point: "
+                             "model (an internal model of the lag cylinder and of the brake's hysteresis, "
+                             "exact inverse) or direction (the first version: the hysteresis line guessed "
+                             "from the direction the wanted torque moves)")
+    accel_source: Literal["own", "train"] = Field(
+        "own", description="full mode: the deceleration in the slip loop's v'/v term: own (the car's "
+                           "accelerometer, PLANT_CARi_SENSORS) or train (car 1's, PV_PLANT_TRAIN)")
+    above_own: Annotated[float, Field(ge=0, le=10)] | None = Field(
+        None, description="full mode: cap the reference at (1 + above_own) times the optimum under the "
+                          "car's own wheels; absent: no cap (the reference as generated)")
 
     @model_validator(mode="after")
     def _increasing(self) -> PreviewSpec:
