@@ -29,6 +29,7 @@ import os
 import queue
 import random
 import signal
+import socket
 import sys
 import time
 import traceback
@@ -235,11 +236,35 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
             bus.shutdown()
 
 
+RECORDER_RCVBUF_BYTES = 4 << 20    # the recorder's socket receive buffer: ~30,000 frames of slack (chosen)
+
+
+def enlarge_receive_buffer(bus: can.BusABC, nbytes: int = RECORDER_RCVBUF_BYTES) -> int | None:
+    """Ask the kernel for a larger receive buffer on the bus's socket (udp_multicast, socketcan), so that a
+    recorder descheduled for a while on a busy machine does not drop frames; the size is capped by
+    net.core.rmem_max (SO_RCVBUFFORCE goes past it where the process may).  Returns the buffer size the
+    socket has now [bytes], None for a bus without a socket of its own (python-can keeps no public
+    handle: the interfaces' private attributes are looked up)."""
+    sock = getattr(getattr(bus, "_multicast", None), "_socket", None) or getattr(bus, "socket", None)
+    if not isinstance(sock, socket.socket):
+        return None
+    for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+        if option is None:
+            continue
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, option, nbytes)
+            break
+        except OSError:                       # SO_RCVBUFFORCE needs CAP_NET_ADMIN: fall back
+            continue
+    return sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+
+
 def _recorder_process(trace_path: str, cfg: dict, go, stop, results) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     bus = None
     try:
         bus = open_bus(cfg)
+        enlarge_receive_buffer(bus)
         _raise_priority(REALTIME_NICE)
         writer = can.Logger(trace_path)
         results.put(("ready", "RECORDER", None))

@@ -290,3 +290,23 @@ def test_node_processes_stop_when_the_runner_is_killed(tmp_path):
     assert "RECORDER" in pids
     with can.LogReader(str(tmp_path / "trace.blf")) as reader:   # the recorder closed it: readable
         assert sum(1 for _ in reader) >= 300
+
+
+def test_the_recorder_asks_the_kernel_for_a_large_receive_buffer():
+    """At 100 % load of a 1 Mbit/s bus (8,500 frames/s) a recorder descheduled for a few ms would overflow
+    the kernel's default 208 KiB; hil.realtime asks for RECORDER_RCVBUF_BYTES (capped by rmem_max unless
+    the process may force it)."""
+    import socket
+
+    from hil.realtime import RECORDER_RCVBUF_BYTES, enlarge_receive_buffer
+
+    bus = can.Bus(interface="udp_multicast", channel="239.255.77.77", port=41877)
+    try:
+        before = bus._multicast._socket.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        after = enlarge_receive_buffer(bus)
+    finally:
+        bus.shutdown()
+    rmem_max = int(open("/proc/sys/net/core/rmem_max").read())
+    may_force = os.geteuid() == 0
+    assert after >= (2 * RECORDER_RCVBUF_BYTES if may_force else min(2 * RECORDER_RCVBUF_BYTES, 2 * rmem_max))
+    assert after > before or before >= 2 * RECORDER_RCVBUF_BYTES
