@@ -240,15 +240,15 @@ class PreviewBecu:
         i = p.car
         self.estimator = SigmaEstimator(estimator or EstimatorParams()) if source == "estimate" else None
         self.buffer = PreviewBuffer()
-        self._train = ("PV_PLANT_TRAIN.Speed", "PV_PLANT_TRAIN.Accel", "PV_PLANT_TRAIN.HeadPos")
-        self._adh = (f"PV_PLANT_CAR{i}_ADH.Slip", f"PV_PLANT_CAR{i}_ADH.AdhesionUsed",
-                     f"PV_PLANT_CAR{i}_ADH.SigmaOptBarTrue")
-        self._ahead = [(j, f"PV_BECU{j}_PREVIEW.SigmaOptBar", f"PV_BECU{j}_PREVIEW.Position",
-                        f"PV_BECU{j}_PREVIEW.Valid") for j in range(1, i)]
+        self._train = ("PLANT_TRAIN.Speed", "PLANT_TRAIN.Accel", "PLANT_TRAIN.HeadPos")
+        self._adh = (f"PLANT_CAR{i}_ADH.Slip", f"PLANT_CAR{i}_ADH.AdhesionUsed",
+                     f"PLANT_CAR{i}_ADH.SigmaOptBarTrue")
+        self._ahead = [(j, f"BECU{j}_PREVIEW.SigmaOptBar", f"BECU{j}_PREVIEW.Position",
+                        f"BECU{j}_PREVIEW.Valid") for j in range(1, i)]
         self.inputs = self._train + self._adh + tuple(k for a in self._ahead for k in a[1:])
-        self.OUTPUTS = tuple(f"PV_BECU{i}_SLIP_REF.{s}" for s in
+        self.OUTPUTS = tuple(f"BECU{i}_SLIP_REF.{s}" for s in
                              ("SlipRef", "PreviewDist", "PredSpeed", "Method", "Source", "PreviewMiss")) + \
-            tuple(f"PV_BECU{i}_PREVIEW.{s}" for s in ("SigmaOptBar", "Position", "Source", "Valid"))
+            tuple(f"BECU{i}_PREVIEW.{s}" for s in ("SigmaOptBar", "Position", "Source", "Valid"))
         self._version = -1
         self._out: dict[str, float] = self._idle()
 

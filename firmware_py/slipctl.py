@@ -70,7 +70,7 @@ class SlipCtlParams:
     brake_inverse: str = "direction"
     response_s: float = 0.02           # "model": time given to the cylinder to get there [s] (chosen)
     setpoint_quantum_Pa: float = 1000.0  # resolution of CylPressureSet in the DBC [Pa]
-    # v̇ in σ̇'s (1 − σ) v̇/v term: "train" = car 1's (PV_PLANT_TRAIN.Accel), "own" = the car's own
+    # v̇ in σ̇'s (1 − σ) v̇/v term: "train" = car 1's (PLANT_TRAIN.Accel), "own" = the car's own
     # accelerometer (PLANT_CARi_SENSORS.AccelLong), which also sees its coupler's pushes and pulls
     accel_source: str = "train"
 
@@ -130,9 +130,9 @@ class SlipBecu:
         self._releasing = False
         self.wsp = Wsp.FILL
         self._ref_key = self.gen.OUTPUTS[0]
-        self._slip_key = f"PV_PLANT_CAR{i}_ADH.Slip"
-        self._mu_key = f"PV_PLANT_CAR{i}_ADH.AdhesionUsed"
-        self._own_key, self._valid_key = f"PV_BECU{i}_PREVIEW.SigmaOptBar", f"PV_BECU{i}_PREVIEW.Valid"
+        self._slip_key = f"PLANT_CAR{i}_ADH.Slip"
+        self._mu_key = f"PLANT_CAR{i}_ADH.AdhesionUsed"
+        self._own_key, self._valid_key = f"BECU{i}_PREVIEW.SigmaOptBar", f"BECU{i}_PREVIEW.Valid"
         self._last_us: int | None = None
         self._accel_key = f"PLANT_CAR{i}_SENSORS.AccelLong"
         if self.p.accel_source == "own":
@@ -158,7 +158,7 @@ class SlipBecu:
         self._last_us = now_us
         if self.p.brake_inverse == "model":
             self._advance_model(dt)
-        sigma, mu, v = rx[self._slip_key], rx[self._mu_key], rx["PV_PLANT_TRAIN.Speed"]
+        sigma, mu, v = rx[self._slip_key], rx[self._mu_key], rx["PLANT_TRAIN.Speed"]
         q = self.p
         own = out[self._own_key] / k2(v if math.isfinite(v) else 0.0, self.gen.p.pi2_s_per_m)
         ref = out[self._ref_key]
@@ -168,7 +168,7 @@ class SlipBecu:
             self.wsp = wsp_transition(self.wsp, sigma * v, v, q.wsp)            # slip speed s = σ v
             rate = self.pi.update(ref - sigma, dt, freeze=self.wsp != Wsp.FILL)   # desired σ̇ [1/s]
             r, vv = q.wheel_radius_m, max(v, 0.5)
-            accel = rx[self._accel_key] if q.accel_source == "own" else rx["PV_PLANT_TRAIN.Accel"]
+            accel = rx[self._accel_key] if q.accel_source == "own" else rx["PLANT_TRAIN.Accel"]
             rate -= (1.0 - sigma) * (accel if math.isfinite(accel) else 0.0) / vv      # the v̇ term of σ̇
             torque = mu * q.mass_kg * q.g_mps2 * r + q.inertia_kgm2 * vv / r * rate
             if q.brake_inverse == "model":

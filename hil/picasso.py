@@ -133,7 +133,7 @@ def run_full(method: str = "Bd", sets: tuple[str, ...] = ()) -> dict:
     cols = out.truth.columns()
     n = scenario.train.cars
     frames: dict[int, list[tuple[float, float]]] = {k: [] for k in range(1, n + 1)}
-    ids = {codec.by_name(f"PV_BECU{k}_SLIP_REF").frame_id: k for k in range(1, n + 1)}
+    ids = {codec.by_name(f"BECU{k}_SLIP_REF").frame_id: k for k in range(1, n + 1)}
     while (msg := refs.get_message(0.0)) is not None:
         k = ids.get(msg.arbitration_id)
         if k is not None:

@@ -5,11 +5,11 @@ hil.assembly hands a scenario with a [preview] section to this module.
 returns the study's own node for `name`, or None to let hil.assembly build the foundation's.
 
 Paper mode: PLANT = the reduced model of eqs. (1)-(4) (plant_sim.picasso) stepping with the Σ_i° it
-receives in PV_BECUi_SLIP_REF (held between frames), sending the train state (PV_PLANT_TRAIN) and each
-car's slip, adhesion and oracle σ̄° (PV_PLANT_CARi_ADH); BECU1..n = firmware_py.preview.PreviewBecu.
+receives in BECUi_SLIP_REF (held between frames), sending the train state (PLANT_TRAIN) and each
+car's slip, adhesion and oracle σ̄° (PLANT_CARi_ADH); BECU1..n = firmware_py.preview.PreviewBecu.
 No DESK and no BCU: the paper's braking starts at t = 0 with the slip references.
 
-Full mode: PLANT = the foundation's wheelset plant (FullPlantController adds the PV_ frames above);
+Full mode: PLANT = the foundation's wheelset plant (FullPlantController adds the preview frames above);
 BECU1..n = firmware_py.slipctl.SlipBecu, the same reference generator plus the slip controller that sets
 the cylinder pressure (BECUi_PRESS_CMD), commissioned from the plant's car and brake (`slipctl_params`).
 """
@@ -135,10 +135,10 @@ class PicassoPlantController:
         self.rail, self.p, self.n = rail, p, p.n
         self.train = ReducedTrain(rail, p, v0_mps)
         self.step_us = step_us
-        self.ref_keys = [f"PV_BECU{i}_SLIP_REF.SlipRef" for i in range(1, self.n + 1)]
+        self.ref_keys = [f"BECU{i}_SLIP_REF.SlipRef" for i in range(1, self.n + 1)]
         self.inputs = tuple(self.ref_keys)
-        self.outputs = ("PV_PLANT_TRAIN.Speed", "PV_PLANT_TRAIN.Accel", "PV_PLANT_TRAIN.HeadPos") + tuple(
-            f"PV_PLANT_CAR{i}_ADH.{s}" for i in range(1, self.n + 1)
+        self.outputs = ("PLANT_TRAIN.Speed", "PLANT_TRAIN.Accel", "PLANT_TRAIN.HeadPos") + tuple(
+            f"PLANT_CAR{i}_ADH.{s}" for i in range(1, self.n + 1)
             for s in ("Slip", "AdhesionUsed", "SigmaOptBarTrue"))
         self.refs = [p.sigma0] * self.n
         self.truth = PicassoTruth(p.spacing_m)
@@ -163,9 +163,9 @@ class PicassoPlantController:
             self.truth.record(now_us / 1e6, tr.x1, tr.v, a, tr.sig, self.refs,
                               sigma_opt_true(rail, p, tr.x1, tr.v), mu)
             self.next_truth_us += TRUTH_PERIOD_US
-        out = {"PV_PLANT_TRAIN.Speed": tr.v, "PV_PLANT_TRAIN.Accel": a, "PV_PLANT_TRAIN.HeadPos": tr.x1}
+        out = {"PLANT_TRAIN.Speed": tr.v, "PLANT_TRAIN.Accel": a, "PLANT_TRAIN.HeadPos": tr.x1}
         for i in range(self.n):
-            c = f"PV_PLANT_CAR{i + 1}_ADH."
+            c = f"PLANT_CAR{i + 1}_ADH."
             out[c + "Slip"] = tr.sig[i]
             out[c + "AdhesionUsed"] = mu[i]
             out[c + "SigmaOptBarTrue"] = bars[i]
@@ -182,13 +182,13 @@ class PicassoPlantController:
 class FullPlantController(PlantController):
     """The foundation's wheelset plant (hil.plant_node.PlantController) that also sends, every 10 ms,
     the train state (car 1's speed, acceleration, position) and each car's slip ratio, adhesion used and
-    oracle σ̄° (PV_PLANT_TRAIN, PV_PLANT_CARi_ADH) for the slip controllers of full mode."""
+    oracle σ̄° (PLANT_TRAIN, PLANT_CARi_ADH) for the slip controllers of full mode."""
 
     def __init__(self, plant: Plant, n_cars: int, db: Database, dbc_name: str = "the DBC") -> None:
         super().__init__(plant, n_cars, db, dbc_name)
-        self.outputs = tuple(self.outputs) + ("PV_PLANT_TRAIN.Speed", "PV_PLANT_TRAIN.Accel",
-                                              "PV_PLANT_TRAIN.HeadPos") + tuple(
-            f"PV_PLANT_CAR{i}_ADH.{s}" for i in range(1, n_cars + 1)
+        self.outputs = tuple(self.outputs) + ("PLANT_TRAIN.Speed", "PLANT_TRAIN.Accel",
+                                              "PLANT_TRAIN.HeadPos") + tuple(
+            f"PLANT_CAR{i}_ADH.{s}" for i in range(1, n_cars + 1)
             for s in ("Slip", "AdhesionUsed", "SigmaOptBarTrue"))
         self.next_pv_us = 0
         self._dt_s = plant.params.dt_us * 1e-6
@@ -198,12 +198,12 @@ class FullPlantController(PlantController):
         if now_us >= self.next_pv_us:
             snap = self.plant.snapshot()
             ad = self.plant.params.adhesion
-            out["PV_PLANT_TRAIN.Speed"] = snap.v[0]
-            out["PV_PLANT_TRAIN.Accel"] = (snap.v[0] - snap.v_prev[0]) / self._dt_s
-            out["PV_PLANT_TRAIN.HeadPos"] = snap.x[0]
+            out["PLANT_TRAIN.Speed"] = snap.v[0]
+            out["PLANT_TRAIN.Accel"] = (snap.v[0] - snap.v_prev[0]) / self._dt_s
+            out["PLANT_TRAIN.HeadPos"] = snap.x[0]
             for k in range(self.n):
                 sigma = slip_ratio_scalar(snap.s[k], snap.v[k])
-                c = f"PV_PLANT_CAR{k + 1}_ADH."
+                c = f"PLANT_CAR{k + 1}_ADH."
                 out[c + "Slip"] = sigma
                 out[c + "AdhesionUsed"] = mu_scalar(tuple(snap.theta[k]), sigma, snap.v[k], ad)
                 out[c + "SigmaOptBarTrue"] = sigma_opt_bar_scalar(tuple(snap.theta[k]))
@@ -256,8 +256,8 @@ def build_full_node(name: str, scenario: Scenario, db: Database, codec: Codec, d
             raise ScenarioError(f"full mode plant: {exc}") from None
         ctrl = FullPlantController(plant, n, db, dbc_name)
         rx_msgs = [f"BECU{i}_PRESS_CMD" for i in range(1, n + 1)]
-        tx_msgs = ([f"PLANT_CAR{i}_SENSORS" for i in range(1, n + 1)] + ["PV_PLANT_TRAIN"]
-                   + [f"PV_PLANT_CAR{i}_ADH" for i in range(1, n + 1)])
+        tx_msgs = ([f"PLANT_CAR{i}_SENSORS" for i in range(1, n + 1)] + ["PLANT_TRAIN"]
+                   + [f"PLANT_CAR{i}_ADH" for i in range(1, n + 1)])
         binding = Binding.build(db, name, ctrl.inputs, ctrl.outputs, rx_msgs, tx_msgs, dbc_name)
         return Node(name, ctrl, binding, codec, db, period_us=plant.params.dt_us, offset_us=PLANT_OFFSET_US)
     if name.startswith("BECU") and name[4:].isdigit() and 1 <= int(name[4:]) <= n:
@@ -267,10 +267,10 @@ def build_full_node(name: str, scenario: Scenario, db: Database, codec: Codec, d
                        alpha_per_s=pv.alpha_per_s, pi2_s_per_m=ad.pi2_s_per_m, prediction=pv.speed_prediction,
                        sigma0=pv.sigma0)
         ctrl = SlipBecu(rp, n, pv.sigma_source, estimator_params(ad), slipctl_params(scenario, i))
-        rx_msgs = ["PV_PLANT_TRAIN", f"PV_PLANT_CAR{i}_ADH"] + [f"PV_BECU{j}_PREVIEW" for j in range(1, i)]
+        rx_msgs = ["PLANT_TRAIN", f"PLANT_CAR{i}_ADH"] + [f"BECU{j}_PREVIEW" for j in range(1, i)]
         if ctrl.p.accel_source == "own":
             rx_msgs.append(f"PLANT_CAR{i}_SENSORS")            # the car's own accelerometer
-        tx_msgs = [f"PV_BECU{i}_SLIP_REF", f"PV_BECU{i}_PREVIEW", f"BECU{i}_PRESS_CMD"]
+        tx_msgs = [f"BECU{i}_SLIP_REF", f"BECU{i}_PREVIEW", f"BECU{i}_PRESS_CMD"]
         binding = Binding.build(db, name, ctrl.inputs, ctrl.OUTPUTS, rx_msgs, tx_msgs, dbc_name)
         return Node(name, ctrl, binding, codec, db, period_us=10_000,
                     offset_us=BECU_OFFSET_US + 500 * (i - 1),
@@ -297,8 +297,8 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
     if name == "PLANT":
         ctrl = PicassoPlantController(Rail(preview_track(scenario)), p,
                                       scenario.train.initial_speed_kmh / 3.6, pv.plant_step_ms * 1000)
-        rx_msgs = [f"PV_BECU{i}_SLIP_REF" for i in range(1, n + 1)]
-        tx_msgs = ["PV_PLANT_TRAIN"] + [f"PV_PLANT_CAR{i}_ADH" for i in range(1, n + 1)]
+        rx_msgs = [f"BECU{i}_SLIP_REF" for i in range(1, n + 1)]
+        tx_msgs = ["PLANT_TRAIN"] + [f"PLANT_CAR{i}_ADH" for i in range(1, n + 1)]
         binding = Binding.build(db, name, ctrl.inputs, ctrl.outputs, rx_msgs, tx_msgs, dbc_name)
         return Node(name, ctrl, binding, codec, db, period_us=ctrl.step_us, offset_us=PLANT_OFFSET_US)
     if name.startswith("BECU") and name[4:].isdigit() and 1 <= int(name[4:]) <= n:
@@ -308,8 +308,8 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
                        alpha_per_s=pv.alpha_per_s, pi2_s_per_m=ad.pi2_s_per_m, prediction=pv.speed_prediction,
                        sigma0=pv.sigma0)
         ctrl = PreviewBecu(rp, n, pv.sigma_source, estimator_params(ad))
-        rx_msgs = ["PV_PLANT_TRAIN", f"PV_PLANT_CAR{i}_ADH"] + [f"PV_BECU{j}_PREVIEW" for j in range(1, i)]
-        tx_msgs = [f"PV_BECU{i}_SLIP_REF", f"PV_BECU{i}_PREVIEW"]
+        rx_msgs = ["PLANT_TRAIN", f"PLANT_CAR{i}_ADH"] + [f"BECU{j}_PREVIEW" for j in range(1, i)]
+        tx_msgs = [f"BECU{i}_SLIP_REF", f"BECU{i}_PREVIEW"]
         binding = Binding.build(db, name, ctrl.inputs, ctrl.OUTPUTS, rx_msgs, tx_msgs, dbc_name)
         return Node(name, ctrl, binding, codec, db, period_us=10_000,
                     offset_us=BECU_OFFSET_US + 500 * (i - 1))

@@ -64,7 +64,7 @@ class PreviewSpec(Strict):
                              "from the direction the wanted torque moves)")
     accel_source: Literal["own", "train"] = Field(
         "own", description="full mode: the deceleration in the slip loop's v'/v term: own (the car's "
-                           "accelerometer, PLANT_CARi_SENSORS) or train (car 1's, PV_PLANT_TRAIN)")
+                           "accelerometer, PLANT_CARi_SENSORS) or train (car 1's, PLANT_TRAIN)")
     above_own: Annotated[float, Field(ge=0, le=10)] | None = Field(
         None, description="full mode: cap the reference at (1 + above_own) times the optimum under the "
                           "car's own wheels; absent: no cap (the reference as generated)")

@@ -165,9 +165,9 @@ def test_slip_controller_step_inverts_the_wheel_and_the_brake():
     becu = SlipBecu(RefParams(car=1, spacing_m=0.0, method="Bd"), 1, "oracle", None, q)
     rx = RxTable(becu.inputs)
     v, mu, sigma, bar = 20.0, 0.1, 0.01, 0.03
-    values = {"PV_PLANT_TRAIN.Speed": v, "PV_PLANT_TRAIN.Accel": 0.0, "PV_PLANT_TRAIN.HeadPos": 100.0,
-              "PV_PLANT_CAR1_ADH.Slip": sigma, "PV_PLANT_CAR1_ADH.AdhesionUsed": mu,
-              "PV_PLANT_CAR1_ADH.SigmaOptBarTrue": bar}
+    values = {"PLANT_TRAIN.Speed": v, "PLANT_TRAIN.Accel": 0.0, "PLANT_TRAIN.HeadPos": 100.0,
+              "PLANT_CAR1_ADH.Slip": sigma, "PLANT_CAR1_ADH.AdhesionUsed": mu,
+              "PLANT_CAR1_ADH.SigmaOptBarTrue": bar}
     rx.update([(k, k) for k in values], values, 0)
     out = becu.step(0, rx)
     ref = bar / (1 + v / 40)
@@ -175,12 +175,12 @@ def test_slip_controller_step_inverts_the_wheel_and_the_brake():
         q.alpha_c_per_s * (ref - sigma))                          # σ̇ = α_c (Σ° − σ) asked of the wheel
     assert out["BECU1_PRESS_CMD.CylPressureSet"] == pytest.approx(torque / 0.2 + 30e3)
     assert out["BECU1_PRESS_CMD.WspValve"] == 0
-    values["PV_PLANT_CAR1_ADH.Slip"] = 0.9 * ref                  # less torque needed: on the release line
+    values["PLANT_CAR1_ADH.Slip"] = 0.9 * ref                  # less torque needed: on the release line
     rx.update([(k, k) for k in values], values, 10_000)
     p2 = becu.step(10_000, rx)["BECU1_PRESS_CMD.CylPressureSet"]
     torque2 = mu * q.mass_kg * q.g_mps2 * q.wheel_radius_m + q.inertia_kgm2 * v / q.wheel_radius_m * (
         q.alpha_c_per_s * 0.1 * ref)
     assert p2 == pytest.approx(torque2 / 0.2 + 30e3 - 20e3)
-    values["PV_PLANT_CAR1_ADH.Slip"] = 0.5                        # a sliding wheel: WSP vents
+    values["PLANT_CAR1_ADH.Slip"] = 0.5                        # a sliding wheel: WSP vents
     rx.update([(k, k) for k in values], values, 20_000)
     assert becu.step(20_000, rx)["BECU1_PRESS_CMD.WspValve"] == 2

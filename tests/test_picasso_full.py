@@ -74,9 +74,9 @@ def test_model_becu_tracks_its_cylinder_through_a_vent():
     becu = SlipBecu(RefParams(car=1, spacing_m=0.0, method="Bd"), 1, "oracle", None, q)
     assert "PLANT_CAR1_SENSORS.AccelLong" in becu.inputs
     rx = RxTable(becu.inputs)
-    values = {"PV_PLANT_TRAIN.Speed": 20.0, "PV_PLANT_TRAIN.Accel": 0.0, "PV_PLANT_TRAIN.HeadPos": 100.0,
-              "PV_PLANT_CAR1_ADH.Slip": 0.01, "PV_PLANT_CAR1_ADH.AdhesionUsed": 0.1,
-              "PV_PLANT_CAR1_ADH.SigmaOptBarTrue": 0.03, "PLANT_CAR1_SENSORS.AccelLong": -1.0}
+    values = {"PLANT_TRAIN.Speed": 20.0, "PLANT_TRAIN.Accel": 0.0, "PLANT_TRAIN.HeadPos": 100.0,
+              "PLANT_CAR1_ADH.Slip": 0.01, "PLANT_CAR1_ADH.AdhesionUsed": 0.1,
+              "PLANT_CAR1_ADH.SigmaOptBarTrue": 0.03, "PLANT_CAR1_SENSORS.AccelLong": -1.0}
     now = 0
     for _ in range(30):                                      # a steady application
         rx.update([(k, k) for k in values], values, now)
@@ -84,7 +84,7 @@ def test_model_becu_tracks_its_cylinder_through_a_vent():
         now += 10_000
     assert out["BECU1_PRESS_CMD.WspValve"] == 0 and becu.p_model > 100e3
     assert out["BECU1_PRESS_CMD.CylPressureSet"] % 1000 == 0            # sent at the DBC's resolution
-    values["PV_PLANT_CAR1_ADH.Slip"] = 0.5                               # a slide: WSP vents
+    values["PLANT_CAR1_ADH.Slip"] = 0.5                               # a slide: WSP vents
     rx.update([(k, k) for k in values], values, now)
     assert becu.step(now, rx)["BECU1_PRESS_CMD.WspValve"] == 2
     p_before = becu.p_model

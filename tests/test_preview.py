@@ -127,21 +127,21 @@ def test_preview_becu_step_oracle_dp_car2():
     p = RefParams(car=2, spacing_m=50.0, method="Dp", alpha_per_s=1.5)
     becu = PreviewBecu(p, 2, "oracle")
     out = becu.step(0, RxTable(becu.inputs))                # nothing received yet: σ(0), not valid
-    assert out["PV_BECU2_SLIP_REF.SlipRef"] == p.sigma0 and out["PV_BECU2_PREVIEW.Valid"] == 0
+    assert out["BECU2_SLIP_REF.SlipRef"] == p.sigma0 and out["BECU2_PREVIEW.Valid"] == 0
     rx = None
     for k in range(300):                                    # car 1 broadcast σ̄°(x) = 0.02 + 1e-4 x
         x1 = float(k)
-        rx = _rx(becu, {"PV_BECU1_PREVIEW.SigmaOptBar": 0.02 + 1e-4 * x1, "PV_BECU1_PREVIEW.Position": x1,
-                        "PV_BECU1_PREVIEW.Valid": 1}, k * 10_000, rx)
+        rx = _rx(becu, {"BECU1_PREVIEW.SigmaOptBar": 0.02 + 1e-4 * x1, "BECU1_PREVIEW.Position": x1,
+                        "BECU1_PREVIEW.Valid": 1}, k * 10_000, rx)
         becu.step(k * 10_000, rx)
     v, a, x1 = 20.0, -1.5, 299.0
-    rx = _rx(becu, {"PV_PLANT_TRAIN.Speed": v, "PV_PLANT_TRAIN.Accel": a, "PV_PLANT_TRAIN.HeadPos": x1,
-                    "PV_PLANT_CAR2_ADH.Slip": 0.01, "PV_PLANT_CAR2_ADH.AdhesionUsed": 0.1,
-                    "PV_PLANT_CAR2_ADH.SigmaOptBarTrue": 0.02}, 3_000_000, rx)
+    rx = _rx(becu, {"PLANT_TRAIN.Speed": v, "PLANT_TRAIN.Accel": a, "PLANT_TRAIN.HeadPos": x1,
+                    "PLANT_CAR2_ADH.Slip": 0.01, "PLANT_CAR2_ADH.AdhesionUsed": 0.1,
+                    "PLANT_CAR2_ADH.SigmaOptBarTrue": 0.02}, 3_000_000, rx)
     out = becu.step(3_000_000, rx)
     d = delta_star(50.0, v, 1.5)
     v_hat = predict_speed_remark2(v, a, 50.0 - d)
-    assert out["PV_BECU2_SLIP_REF.PreviewDist"] == pytest.approx(d)
-    assert out["PV_BECU2_SLIP_REF.SlipRef"] == pytest.approx((0.02 + 1e-4 * (x1 - d)) / (1 + v_hat / 40))
-    assert out["PV_BECU2_SLIP_REF.PreviewMiss"] == 0
-    assert out["PV_BECU2_PREVIEW.SigmaOptBar"] == 0.02 and out["PV_BECU2_PREVIEW.Position"] == x1 - 50.0
+    assert out["BECU2_SLIP_REF.PreviewDist"] == pytest.approx(d)
+    assert out["BECU2_SLIP_REF.SlipRef"] == pytest.approx((0.02 + 1e-4 * (x1 - d)) / (1 + v_hat / 40))
+    assert out["BECU2_SLIP_REF.PreviewMiss"] == 0
+    assert out["BECU2_PREVIEW.SigmaOptBar"] == 0.02 and out["BECU2_PREVIEW.Position"] == x1 - 50.0

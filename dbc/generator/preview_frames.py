@@ -22,7 +22,7 @@ def messages() -> list[Msg]:
     msgs: list[Msg] = []
     for i in range(1, MAX_CARS + 1):
         msgs.append(Msg(
-            0x070 + i - 1, f"PV_BECU{i}_SLIP_REF", f"BECU{i}", ["PLANT"], 10,
+            0x070 + i - 1, f"BECU{i}_SLIP_REF", f"BECU{i}", ["PLANT"], 10,
             f"Seed 000 paper mode: car {i}'s slip reference Sigma_i (eq. 4) to the plant's closed-loop slip "
             "model, with the reference generator's state.",
             [
@@ -41,7 +41,7 @@ def messages() -> list[Msg]:
                     choices={0: "OK", 1: "MISS"}),
             ]))
     msgs.append(Msg(
-        0x109, "PV_PLANT_TRAIN", "PLANT", becus(), 10,
+        0x109, "PLANT_TRAIN", "PLANT", becus(), 10,
         "Seed 000 paper mode: the train's common speed, acceleration and the position of car 1 (rigid "
         "train, eq. 3).",
         [
@@ -53,7 +53,7 @@ def messages() -> list[Msg]:
         ]))
     for i in range(1, MAX_CARS + 1):
         msgs.append(Msg(
-            0x10A + i - 1, f"PV_PLANT_CAR{i}_ADH", "PLANT", [f"BECU{i}"], 10,
+            0x10A + i - 1, f"PLANT_CAR{i}_ADH", "PLANT", [f"BECU{i}"], 10,
             f"Seed 000: car {i}'s wheel-rail measurements: its slip, the adhesion it uses (from brake "
             "force) and the oracle's true sigma-bar° under the car.",
             [
@@ -66,7 +66,7 @@ def messages() -> list[Msg]:
             ]))
     for i in range(1, MAX_CARS + 1):
         msgs.append(Msg(
-            0x112 + i - 1, f"PV_BECU{i}_PREVIEW", f"BECU{i}", [b for b in becus() if b != f"BECU{i}"], 10,
+            0x112 + i - 1, f"BECU{i}_PREVIEW", f"BECU{i}", [b for b in becus() if b != f"BECU{i}"], 10,
             f"Seed 000 preview data: car {i}'s sigma-bar° (oracle or its own estimate) and the track "
             "position it belongs to, for the cars behind.",
             [
