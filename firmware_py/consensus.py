@@ -226,6 +226,18 @@ def sampled_gains(g: ConsensusGains, n_cars: int, period_us: int) -> tuple[Conse
                    u2_max_mps2=g.u2_max_mps2 * s * s), s
 
 
+def delayed_loop_poles(lam_t: float) -> tuple[complex, complex]:
+    """Poles of the sampled velocity-disagreement mode with one sample of delay [-] (chosen model).
+
+    The disagreement e of a pair of cars obeys ė = −λ e with λ = n α₁ + k (eqs. (25), (29)); sampled every T
+    and acting one sample late (the speeds of the cars whose BECU frames come later in the cycle are one
+    cycle old, and a command acts up to T after its sample): e_{k+1} = e_k − λT e_{k−1}, i.e.
+    z² − z + λT = 0.  Both poles lie inside the unit circle iff 0 < λT < 1 (Jury: a₀ = λT < 1,
+    1 + a₁ + a₀ = λT > 0, 1 − a₁ + a₀ = 2 + λT > 0).  ConsensusGains.loop_gain ρ sets λT = ρ/2."""
+    disc = complex(1.0 - 4.0 * lam_t) ** 0.5
+    return (1.0 + disc) / 2.0, (1.0 - disc) / 2.0
+
+
 def _finite(x: float) -> bool:
     return isinstance(x, (int, float)) and math.isfinite(x)
 

@@ -7,10 +7,11 @@ law, firmware_py/consensus.py).  The desk and the foundation's pneumatic brake a
 paper's model.  `build_node` builds them all.
 
 Schedule inside one consensus cycle T (the DBC cycle of the BECUn_CONS and PLANT_CONS_CARn frames): the
-plant sends the n sensor frames at the start of the cycle; BECU i runs once its sensor frame can have
-arrived, assuming the BECU frames overtake the sensor frames still queued (their identifiers are
-lower): offset_i = i·t_S + (i − 1)·t_C + 20 µs, with t_S, t_C the frames' durations at the bus bitrate
-(stuffing halfway between none and worst case).
+plant sends the n sensor frames at the start of the cycle; BECU i runs once its sensor frame has
+arrived, the BECU frames overtaking the sensor frames still queued (their identifiers are lower):
+offset_i = i·t_S + (i − 1)·t_C + 20 µs, with t_S, t_C the frames' worst-case durations at the bus bitrate
+(becu_offset_us).  The BCU sends CONS_REF after the loop's frames (bcu_offset_us), so that it never
+delays a sensor frame.
 """
 
 from __future__ import annotations
@@ -92,7 +93,7 @@ def plant_params(scenario: Scenario) -> ConsensusPlantParams:
     return ConsensusPlantParams(
         train=tp, brake_gain=(c.brake_gain,) * n, sin_grade=float(track.sin_grade_at(np.array([x_mid]))[0]),
         curvature_deg=float(track.curvature_degree_at(np.array([x_mid]))[0]), rail=rail, disturbance=dist,
-        v0_mps=tuple(v * KMH for v in c.speeds_kmh), x0_m=x0)
+        v0_mps=tuple(v * KMH for v in c.speeds_kmh), x0_m=x0, dt_us=c.plant_step_us)
 
 
 class ConsensusTruth:
@@ -191,12 +192,40 @@ def _cycle_us(db: Database, name: str, dbc_name: str) -> int:
     return int(msg.cycle_time) * 1000
 
 
+def _frame_us(db: Database, name: str, rate: float) -> float:
+    """Longest duration of frame `name` on the wire at `rate` bit/s (worst-case stuffing) [µs]."""
+    msg = db.get_message_by_name(name)
+    return frame_bits(msg.length, msg.is_extended_frame, True) * 1e6 / rate
+
+
 def becu_offset_us(scenario: Scenario, db: Database, car: int) -> int:
-    """When BECU `car` runs in its cycle [µs] (module doc): after its sensor frame has arrived."""
+    """When BECU `car` runs in its cycle [µs] (module doc): after its sensor frame has arrived.
+
+    Bit-timed bus: sensor frames 1..car and BECU frames 1..car−1 at their worst-case stuffed length, so that
+    the BECU always sees this cycle's sample (a BECU that runs before its sensor frame works on the sample
+    of the cycle before: one more cycle of delay).  Ideal bus (the paper setting): the estimate the paper
+    setting's results were produced with (5- and 8-byte frames, stuffing halfway)."""
     rate = scenario.bus.bitrate or declared_bitrate(db) or DEFAULT_BITRATE
+    if scenario.bus.timing == "bit":
+        t_s = _frame_us(db, f"PLANT_CONS_CAR{car}", rate)
+        t_c = _frame_us(db, f"BECU{car}_CONS", rate)
+        return round(car * t_s + (car - 1) * t_c) + 20
     t_s = (frame_bits(5, False, False) + frame_bits(5, False, True)) / 2 * 1e6 / rate
     t_c = (frame_bits(8, False, False) + frame_bits(8, False, True)) / 2 * 1e6 / rate
     return round(car * t_s + (car - 1) * t_c) + 20
+
+
+def bcu_offset_us(scenario: Scenario, db: Database, dbc_name: str) -> int:
+    """When the BCU sends CONS_REF [µs]: on the bit-timed bus after the consensus loop's frames of the cycle
+    (CONS_REF has the highest priority: sent at the cycle's start it would delay every sensor frame and
+    the BECUs would run on the previous sample); phase 0 when they leave no room or on the ideal bus."""
+    if scenario.bus.timing != "bit":
+        return 0
+    n = scenario.train.cars
+    rate = scenario.bus.bitrate or declared_bitrate(db) or DEFAULT_BITRATE
+    end = becu_offset_us(scenario, db, n) + _frame_us(db, f"BECU{n}_CONS", rate)
+    cycle = _cycle_us(db, f"BECU{n}_CONS", dbc_name)
+    return round(end) if end + _frame_us(db, "CONS_REF", rate) < cycle else 0
 
 
 def becu_params(scenario: Scenario, car: int, sample_period_us: int = 1_000,
@@ -224,12 +253,17 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
             raise BindingError(f"consensus braking: the PLANT_CONS_CARn frames of {dbc_name} need one cycle "
                                "time, "
                                f"got {sorted(p // 1000 for p in periods)} ms")
-        ctrl = ConsensusPlantController(plant, periods.pop())
+        sensor_us = periods.pop()
+        if sensor_us % plant.p.dt_us:
+            raise BindingError(f"consensus braking: scenario key 'consensus.plant_step_us' = {plant.p.dt_us} "
+                               f"does not divide the {sensor_us} us cycle of the PLANT_CONS_CARn frames "
+                               f"of {dbc_name}")
+        ctrl = ConsensusPlantController(plant, sensor_us)
         period, offset = plant.p.dt_us, 0
     elif name == "BCU":
         ctrl = VirtualLeader(VirtualLeaderParams(v0_mps=c.v_ref_kmh * KMH, decel_mps2=c.decel_kmh_s * KMH))
         rx, tx = [], ["CONS_REF"]
-        period, offset = _cycle_us(db, "CONS_REF", dbc_name), 0
+        period, offset = _cycle_us(db, "CONS_REF", dbc_name), bcu_offset_us(scenario, db, dbc_name)
     elif name.startswith("BECU") and name[4:].isdigit() and 1 <= int(name[4:]) <= n:
         i = int(name[4:])
         period = _cycle_us(db, f"BECU{i}_CONS", dbc_name)
@@ -240,4 +274,17 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
     else:
         return None
     binding = Binding.build(db, name, ctrl.inputs, ctrl.outputs, rx, tx, dbc_name)
-    return Node(name, ctrl, binding, codec, db, period_us=period, offset_us=offset)
+    node = Node(name, ctrl, binding, codec, db, period_us=period, offset_us=offset)
+    if name.startswith("BECU") and scenario.bus.timing == "bit":    # frames take no time on the ideal bus
+        stagger_diag(node, int(name[4:]), period)
+    return node
+
+
+def stagger_diag(node: Node, car: int, period_us: int) -> None:
+    """Spread the BECUs' DIAG frames over the consensus cycles of their DBC cycle: BECU i sends its first in
+    cycle (i − 1) mod k, k = DIAG cycle / consensus cycle.  Sent in the same cycle, six DIAG frames would
+    overrun the cycle and delay the next cycle's sensor frames (a BECU would then run on the previous
+    sample)."""
+    for tx in node.tx:
+        if tx.codec.name.endswith("_CONS_DIAG") and tx.cycle_us > period_us:
+            tx.next_due_us += ((car - 1) % (tx.cycle_us // period_us)) * period_us

@@ -1,17 +1,19 @@
 """`railhil reproduce consensus` — seed 003's consensus braking: cases 1-3 with and without the observer,
 the cycle sweep and the latency sweep, next to the paper's statements.
 
-Two settings are run, both in lockstep with the real nodes, frames and codec:
+Settings, all in lockstep with the real nodes, frames and codec:
 
 - **paper**: the paper's simulation — Table 2's gains unscaled, the BECUs and the sensor frames every
-  1 ms (the paper's sampling), on the *ideal* bus (a frame arrives when it is sent).  A 500 kbit/s bus
-  cannot carry this (the static load is printed): it is the reference for the paper's claims.
-- **can**: the scenario as written (scenarios/consensus_case*.toml) — the DBC's cycle on the bit-timed
-  500 kbit/s bus, the gains scaled to the cycle (`loop_gain`).
+  1 ms (the paper's sampling), 1 ms plant step, on the *ideal* bus (a frame arrives when it is sent).  A
+  500 kbit/s bus cannot carry this (the static load is printed): it is the reference for the paper's claims.
+- **can**: the scenario as written (scenarios/consensus_case*.toml) — the DBC's cycle (2 ms) on the
+  bit-timed bus of the consensus segment (1 Mbit/s), the gains scaled to the cycle (`loop_gain`).
+- **can500** (cycle sweep only): the same on a bit-timed 500 kbit/s bus (the DBC's Baudrate).
 
 Cycle sweep: case 1 at cycles 1-10 ms (DBC cycle times of BECUn_CONS and PLANT_CONS_CARn replaced in a
-copy of the DBC) on both buses.  Latency sweep: the paper setting with 0-50 ms of extra delay on every
-BECUn_CONS frame (`[messages.BECUn_CONS] delay_min_us = delay_max_us`, hil/release.py).
+copy of the DBC) in every setting, and case 3 (the hardest: every car skids, then regains its braking force
+at once) in the can setting over its first CASE3_SWEEP_S.  Latency sweep: the paper and can settings with
+extra delay on every BECUn_CONS frame (`[messages.BECUn_CONS] delay_min_us = delay_max_us`, hil/release.py).
 
 Figures per run (like Figs. 3-17 of seed 003): speeds, coupler displacements, tracking errors and the
 observer's estimate for car 2 against the plant's φ₂/m₂.  Definitions used in the tables:
@@ -46,6 +48,8 @@ CASES = (1, 2, 3)
 TOLS_MPS = (1.0 / 3.6, 0.1 / 3.6)   # convergence tolerances on |v_i − v*|: 1 km/h and 0.1 km/h (chosen)
 OBS_TOL = 0.1                  # observer tolerance on |φ̂ − φ/m| [m/s²] (chosen)
 THETA_M = 0.01                 # θ2 = −θ1 = 1 cm, Table 2
+SETTINGS = ("paper", "can", "can500")
+CASE3_SWEEP_S = 5.0            # case 3's cycle sweep runs past the end of skidding at 4.5 s [s]
 PAPER = {
     "case1": "convergence < 0.04 s; |Δl| within ±1 cm; observer converges within 20 ms",
     "case2": "≈ 0.03 s to converge after the braking capacity is restored; |Δl| within ±1 cm",
@@ -61,6 +65,7 @@ class Job:
     case: int
     observer: bool = True
     setting: str = "paper"          # "paper" (1 ms, ideal bus, Table 2 gains) | "can" (the scenario as is)
+    #                                 | "can500" (the scenario on a 500 kbit/s bus)
     cycle_ms: int | None = None     # replaces the DBC cycle of the consensus frames (None: paper 1, can DBC)
     delay_ms: float = 0.0           # extra delay of every BECUn_CONS frame [ms]
     horizon_s: float | None = None  # None: the scenario's max_duration_s
@@ -72,9 +77,11 @@ def _scenario(job: Job):
     sc = load_scenario(SCENARIOS / f"consensus_case{job.case}.toml")
     cons = sc.consensus.model_copy(update={"observer": job.observer})
     upd: dict = {}
-    if job.setting == "paper":
-        cons = cons.model_copy(update={"loop_gain": None})
-        upd["bus"] = sc.bus.model_copy(update={"timing": "ideal"})
+    if job.setting == "paper":           # the paper's simulation: no bus timing, Table 2 gains, 1 ms
+        cons = cons.model_copy(update={"loop_gain": None, "plant_step_us": 1000})
+        upd["bus"] = sc.bus.model_copy(update={"timing": "ideal", "bitrate": None})
+    elif job.setting == "can500":
+        upd["bus"] = sc.bus.model_copy(update={"bitrate": 500_000})
     upd["consensus"] = cons
     if job.horizon_s is not None:
         upd["max_duration_s"] = job.horizon_s
@@ -86,6 +93,7 @@ def _scenario(job: Job):
 
 
 def _database(cycle_ms: int | None):
+    """The project DBC, with the consensus loop's frames at `cycle_ms` when given (in a copy)."""
     from hil.dbc import load_dbc
     db = load_dbc()
     if cycle_ms is not None:
@@ -126,7 +134,7 @@ def _settle_time(t: np.ndarray, ok: np.ndarray, start: float, end: float) -> flo
 
 def run_job(job: Job) -> dict:
     """Run one job in lockstep and reduce it to the study's figures (and decimated series)."""
-    from hil.busload import static_load
+    from hil.busload import declared_bitrate, static_load
     from hil.codec import Codec
     from hil.lockstep import run_lockstep
     sc = _scenario(job)
@@ -177,11 +185,12 @@ def run_job(job: Job) -> dict:
     names = ["CONS_REF"] + [f"{f}" for i in range(1, n + 1)
                             for f in (f"PLANT_CONS_CAR{i}", f"BECU{i}_CONS", f"BECU{i}_CONS_DIAG")]
     ids = [db.get_message_by_name(m).frame_id for m in names]
-    static = static_load(db, bitrate_bps=sc.bus.bitrate or 500_000, frame_ids=ids).total
+    bitrate = sc.bus.bitrate or declared_bitrate(db) or 500_000
+    static = static_load(db, bitrate_bps=bitrate, frame_ids=ids).total
     res = {
         "label": job.label, "case": job.case, "observer": job.observer, "setting": job.setting,
         "cycle_ms": cycle if cycle is not None else int(db.get_message_by_name("BECU1_CONS").cycle_time),
-        "bus": sc.bus.timing, "delay_ms": job.delay_ms, "horizon_s": round(end, 3),
+        "bus": sc.bus.timing, "bitrate": bitrate, "delay_ms": job.delay_ms, "horizon_s": round(end, 3),
         "max_abs_dl_mm": round(max_dl * 1000, 3), "holds_1cm": bool(max_dl <= THETA_M),
         "converged_s": None if conv[0] is None else round(conv[0], 3),
         "converged_fine_s": None if conv[1] is None else round(conv[1], 3),
@@ -230,13 +239,17 @@ def build_jobs(cycles: list[int], latencies: list[float], sweep_horizon_s: float
             for obs in (True, False):
                 jobs.append(Job(f"{setting}/case{case}/{'obs' if obs else 'noobs'}", case, obs, setting,
                                 horizon_s=case_horizon_s))
-    for setting in ("paper", "can"):
+    for setting in SETTINGS:
         for cyc in cycles:
             jobs.append(Job(f"cycle/{setting}/{cyc}ms", 1, True, setting, cycle_ms=cyc,
                             horizon_s=sweep_horizon_s, series=False))
-    for d in latencies:
-        jobs.append(Job(f"latency/paper/{d:g}ms", 1, True, "paper", delay_ms=d, horizon_s=sweep_horizon_s,
-                        series=False))
+    for cyc in cycles:
+        jobs.append(Job(f"cycle/can/case3/{cyc}ms", 3, True, "can", cycle_ms=cyc,
+                        horizon_s=max(sweep_horizon_s, CASE3_SWEEP_S), series=False))
+    for setting in ("paper", "can"):
+        for d in latencies:
+            jobs.append(Job(f"latency/{setting}/{d:g}ms", 1, True, setting, delay_ms=d,
+                            horizon_s=sweep_horizon_s, series=False))
     return jobs
 
 
@@ -280,23 +293,28 @@ def plot_sweeps(cycle_rows: list[dict], lat_rows: list[dict], path: Path) -> Pat
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4.5))
-    for setting, mark in (("paper", "o-"), ("can", "s-")):
-        rows = [r for r in cycle_rows if r["setting"] == setting]
+    for setting, case, mark in (("paper", 1, "o-"), ("can", 1, "s-"), ("can", 3, "s--"), ("can500", 1, "^-")):
+        rows = [r for r in cycle_rows if r["setting"] == setting and r["case"] == case]
         a1.semilogy([r["cycle_ms"] for r in rows], [max(r["max_abs_dl_mm"], 1e-3) for r in rows], mark,
-                    label=f"{setting}: max |Δl|")
+                    label=f"{setting} case {case}: max |Δl|")
     a1.axhline(10, color="r", ls=":", label="±1 cm")
     ax_load = a1.twinx()
-    rows = [r for r in cycle_rows if r["setting"] == "can"]
-    ax_load.plot([r["cycle_ms"] for r in rows], [100 * r["bus_load_static"] for r in rows], "k--", lw=0.8,
-                 label="static bus load (500 kbit/s)")
+    for setting, style in (("can", "k--"), ("can500", "k:")):
+        rows = [r for r in cycle_rows if r["setting"] == setting and r["case"] == 1]
+        ax_load.plot([r["cycle_ms"] for r in rows], [100 * r["bus_load_static"] for r in rows], style, lw=0.8,
+                     label=f"static bus load ({setting})")
     ax_load.set_ylabel("bus load [%]")
-    a1.set(xlabel="consensus cycle [ms]", ylabel="max |Δl| [mm]", title="cycle sweep, case 1")
+    a1.set(xlabel="consensus cycle [ms]", ylabel="max |Δl| [mm]", title="cycle sweep")
     a1.legend(loc="upper left", fontsize=8)
     ax_load.legend(loc="lower right", fontsize=8)
-    a2.semilogy([r["delay_ms"] for r in lat_rows], [max(r["max_abs_dl_mm"], 1e-3) for r in lat_rows], "o-")
+    for setting, mark in (("paper", "o-"), ("can", "s-")):
+        rows = sorted((r for r in lat_rows if r["setting"] == setting), key=lambda r: r["delay_ms"])
+        a2.semilogy([r["delay_ms"] for r in rows], [max(r["max_abs_dl_mm"], 1e-3) for r in rows], mark,
+                    label=setting)
     a2.axhline(10, color="r", ls=":")
+    a2.legend(fontsize=8)
     a2.set(xlabel="injected latency on BECUn_CONS [ms]", ylabel="max |Δl| [mm]",
-           title="latency sweep, case 1, paper setting")
+           title="latency sweep, case 1")
     for a in (a1, a2):
         a.grid(alpha=0.3)
     fig.tight_layout()
@@ -327,22 +345,25 @@ def case_table(rows: list[dict]) -> list[str]:
 
 
 def sweep_table(rows: list[dict], key: str, unit: str) -> list[str]:
-    out = [f"{key + ' ' + unit:<14} {'setting':<7} {'max|Δl| mm':>10} {'±1cm':>5} {'conv s':>7} "
+    out = [f"{key + ' ' + unit:<14} {'setting':<7} {'case':>4} {'max|Δl| mm':>10} {'±1cm':>5} {'conv s':>7} "
            f"{'|v_e| end':>9} {'load':>6}"]
     for r in rows:
         load = r["bus_load_measured"] if r["bus_load_measured"] is not None else r["bus_load_static"]
-        out.append(f"{r[key]:<14g} {r['setting']:<7} {r['max_abs_dl_mm']:>10.2f} "
+        out.append(f"{r[key]:<14g} {r['setting']:<7} {r['case']:>4} {r['max_abs_dl_mm']:>10.2f} "
                    f"{'yes' if r['holds_1cm'] else 'NO':>5} {_f(r['converged_s']):>7} "
                    f"{r['final_abs_ve_max_mps']:>9.4f} {100 * load:>5.0f}%")
     return out
 
 
 def slowest_holding(rows: list[dict]) -> int | None:
-    """The slowest cycle of a sweep at which ±1 cm holds and the cars converge, every faster one holding."""
+    """The slowest cycle of a sweep at which ±1 cm holds and the cars converge, every cycle from the fastest
+    holding one up to it holding too (cycles faster than that may fail: a saturated bus)."""
     best = None
     for r in sorted(rows, key=lambda r: r["cycle_ms"]):
         if not (r["holds_1cm"] and r["converged_s"] is not None):
-            break
+            if best is not None:
+                break
+            continue
         best = r["cycle_ms"]
     return best
 
@@ -413,8 +434,9 @@ def run(args: argparse.Namespace) -> int:
     cycle_rows = [r for r in results if r["label"].startswith("cycle/")]
     lat_rows = [r for r in results if r["label"].startswith("latency/")]
     files.append(plot_sweeps(cycle_rows, lat_rows, out / "sweeps.png"))
-    lines = ["seed 003 consensus braking — cases (paper = 1 ms ideal bus, Table 2 gains; can = DBC cycle, "
-             "500 kbit/s bit-timed bus, loop_gain)"]
+    lines = ["seed 003 consensus braking — cases (paper = 1 ms ideal bus, Table 2 gains; "
+             "can = the scenarios: "
+             "the DBC cycle on the bit-timed consensus bus, loop_gain)"]
     lines += case_table([by_label[j.label] for j in jobs if j.label.count("/") == 2 and "case" in j.label])
     for setting in ("paper", "can"):
         on = by_label.get(f"{setting}/case3/obs")
@@ -424,15 +446,23 @@ def run(args: argparse.Namespace) -> int:
             lines.append(f"case 3 ({setting}): tracking RMS from {on['rms_from_s']} s with observer "
                          f"{on['tracking_rms_mps']:.4f} m/s, without {off['tracking_rms_mps']:.4f} m/s: "
                          f"reduction {100 * red:.0f} %")
-    lines += ["", "cycle sweep (case 1)"] + sweep_table(sorted(cycle_rows, key=lambda r: (r["setting"],
-                                                                                          r["cycle_ms"])),
-                                                          "cycle_ms", "")
+    lines += ["", "cycle sweep"] + sweep_table(sorted(cycle_rows, key=lambda r: (r["setting"], r["case"],
+                                                                               r["cycle_ms"])),
+                                                 "cycle_ms", "")
+    for setting, case in ((s_, c_) for s_ in SETTINGS for c_ in CASES):
+        rows = [r for r in cycle_rows if r["setting"] == setting and r["case"] == case]
+        if rows:
+            lines.append(f"slowest cycle holding ±1 cm and converging ({setting}, case {case}, "
+                         f"{rows[0]['bus']} bus {rows[0]['bitrate'] // 1000} kbit/s): "
+                         f"{_f(slowest_holding(rows))} ms")
+    lines += ["", "latency sweep (case 1)"] + sweep_table(sorted(lat_rows, key=lambda r: (r["setting"],
+                                                                                       r["delay_ms"])),
+                                                         "delay_ms", "")
     for setting in ("paper", "can"):
-        rows = [r for r in cycle_rows if r["setting"] == setting]
-        lines.append(f"slowest cycle holding ±1 cm and converging ({setting}): "
-                     f"{_f(slowest_holding(rows))} ms")
-    lines += ["", "latency sweep (case 1, paper setting)"] + sweep_table(lat_rows, "delay_ms", "")
-    lines.append(f"±1 cm first breaks at an injected latency of {_f(first_breaking(lat_rows))} ms")
+        rows = [r for r in lat_rows if r["setting"] == setting]
+        if rows:
+            lines.append(f"±1 cm first breaks at an injected latency of {_f(first_breaking(rows))} ms "
+                         f"({setting}, cycle {rows[0]['cycle_ms']} ms)")
     summary = [{k: v for k, v in r.items() if k != "series"} for r in results]
     (out / "results.json").write_text(json.dumps(summary, indent=1))
     files.append(out / "results.json")

@@ -51,6 +51,9 @@ class ConsensusSpec(Strict):
     loop_gain: Annotated[float, Field(gt=0, le=10)] | None = Field(
         None, description="sampled-data limit ρ: scale the velocity gains to ρ/((n α1 + k) 2T) at cycle T "
                           "(absent: the paper's gains unscaled)")
+    plant_step_us: Annotated[int, Field(ge=100, le=1000)] = Field(
+        1000, description="integration step of the plant [µs]: a command acts at the first step after it "
+                          "arrives (1000: the paper's 1 ms; must divide the consensus frames' cycle)")
     gamma1_mps: Annotated[float, Field(gt=0, le=100)] = Field(
         0.5, description="observer γ1 of eq. (11) [m/s]")
     gamma2_mps2: Annotated[float, Field(gt=0, le=100)] = Field(
