@@ -235,6 +235,11 @@ def _read_json(path: Path, what: str) -> dict:
 
 
 # --------------------------------------------------------------------------------------------- run page
+def _us(value) -> str:
+    """A time in µs for a table cell: whole µs, or a dash when there is none (a message never sent)."""
+    return "—" if value is None else f"{float(value):.0f}"
+
+
 def _timing_section(meta: dict) -> str:
     parts = []
     bus = meta.get("bus_timing")
@@ -248,9 +253,9 @@ def _timing_section(meta: dict) -> str:
         body = "".join(
             f"<tr><td>{_e(name)}</td><td class=num>0x{int(m.get('frame_id', 0)):03X}</td>"
             f"<td class=num>{_e(m.get('frames'))}</td>"
-            f"<td class=num>{float(m.get('response_max_us', 0)):.0f}</td>"
-            f"<td class=num>{float(m.get('response_mean_us', 0)):.0f}</td>"
-            f"<td class=num>{float(m.get('queued_max_us', 0)):.0f}</td>"
+            f"<td class=num>{_us(m.get('response_max_us'))}</td>"
+            f"<td class=num>{_us(m.get('response_mean_us'))}</td>"
+            f"<td class=num>{_us(m.get('queued_max_us'))}</td>"
             f"<td class=num>{_e(m.get('overwritten'))}</td><td class=num>{_e(m.get('deadline_misses'))}</td>"
             f"{_verdict_cell(m.get('deadline_misses') == 0)}</tr>" for name, m in rows)
         parts.append("<div class=scroll><table><thead><tr><th>message</th><th>id</th><th>frames</th>"
