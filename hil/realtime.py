@@ -287,6 +287,16 @@ class _Terminate(Exception):
     pass
 
 
+def truth_end_us(truth) -> int:
+    """The time of the last ground-truth sample [µs]: the foundation's TruthLog keeps `t_us`; a study's
+    truth (seed 000's reduced model, ...) gives only its columns, whose `t_s` is in seconds."""
+    t_us = getattr(truth, "t_us", None)
+    if t_us is not None:
+        return int(t_us[-1]) if len(t_us) else 0
+    t_s = truth.columns().get("t_s")
+    return round(float(t_s[-1]) * 1e6) if t_s is not None and len(t_s) else 0
+
+
 def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                  progress: Callable[[int, dict], None] | None = None) -> tuple[RunOutcome, float]:
     """Run every node in its own process; returns the outcome and the trace's epoch at t0."""
@@ -408,7 +418,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         reason = "failed"
     plant = payloads["PLANT"]
     truth: TruthLog = plant["truth"]
-    end_us = truth.t_us[-1] if truth.t_us else 0
+    end_us = truth_end_us(truth)
     outcome = RunOutcome(
         mode="realtime", end_us=end_us, reason=reason, truth=truth,
         frames_by_node={n: payloads[n]["stats"]["frames_sent"] for n in names if n in payloads},

@@ -312,3 +312,20 @@ def test_the_recorder_asks_the_kernel_for_a_large_receive_buffer():
     may_force = os.geteuid() == 0
     assert after >= (2 * RECORDER_RCVBUF_BYTES if may_force else min(2 * RECORDER_RCVBUF_BYTES, 2 * rmem_max))
     assert after > before or before >= 2 * RECORDER_RCVBUF_BYTES
+
+
+def test_the_run_ends_at_the_last_truth_sample_of_any_plant():
+    """The foundation's TruthLog keeps µs; a study's truth (seed 000's reduced model) only its columns:
+    the real-time runner reads the end of the run from either (it used to fail on the second)."""
+    from types import SimpleNamespace
+
+    from hil.realtime import truth_end_us
+    from plant_sim.picasso import PicassoTruth
+
+    assert truth_end_us(SimpleNamespace(t_us=[0, 10_000, 20_000])) == 20_000
+    assert truth_end_us(SimpleNamespace(t_us=[])) == 0
+    study = PicassoTruth([0.0, 50.0])
+    assert truth_end_us(study) == 0
+    for t in (0.0, 0.01, 15.83):
+        study.record(t, 100.0, 10.0, -2.0, (0.01, 0.01), (0.01, 0.01), (0.02, 0.02), (0.1, 0.1))
+    assert truth_end_us(study) == 15_830_000
