@@ -27,7 +27,7 @@ What the [acd] section adds to a run (seed 002 §IV–§V, §IX, §X):
 
 After a run, `judge` decides on plant truth: minimum gap to U1's last wagon, collision (gap ≤ 0),
 red-signal overruns (the front passes a signal showing red), brake applications of the ACD and the
-unnecessary ones.  `python -m hil.acd_nodes campaign FILE` runs a campaign file's points
+unnecessary ones.  `railhil reproduce acd campaign FILE` runs a campaign file's points
 (hil.campaign's seeded draws) with prediction on and off and prints the figures.
 """
 
@@ -807,7 +807,7 @@ def summarize(rows: list[dict]) -> list[str]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """Options of the ACD study's command (`python -m hil.acd_nodes`)."""
+    """Options of the ACD study's command (`railhil reproduce acd`)."""
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     c = sub.add_parser("campaign", help="run a campaign file's points with prediction on and off, judged "
@@ -887,19 +887,3 @@ def run(args: argparse.Namespace) -> int:
             w.writerows(rows)
         print(f"wrote {args.csv}")
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m hil.acd_nodes",
-                                     description="seed 002's anti-collision study: judged runs and campaigns")
-    add_arguments(parser)
-    args = parser.parse_args(argv)
-    try:
-        return run(args)
-    except RailhilError as exc:
-        print(f"error: {' '.join(str(exc).split())}", file=sys.stderr)
-        return exc.exit_code
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -375,24 +375,21 @@ def first_breaking(rows: list[dict]) -> float | None:
     return None
 
 
-def _ints(text: str) -> list[int]:
-    try:
-        vals = [int(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers (ms), got {text!r}") from None
-    if not vals or any(v < 1 or v > 100 for v in vals):
-        raise argparse.ArgumentTypeError(f"cycles must be 1..100 ms, got {text!r}")
-    return vals
+def _ms_list(kind: type, noun: str, lo: float, hi: float, what: str):
+    """An argparse type: comma-separated `noun` (parsed by `kind`) [ms], each in lo..hi."""
+    def parse(text: str) -> list:
+        try:
+            vals = [kind(x) for x in text.split(",") if x.strip()]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected comma-separated {noun} (ms), got {text!r}") from None
+        if not vals or any(not lo <= v <= hi for v in vals):
+            raise argparse.ArgumentTypeError(f"{what} must be {lo:g}..{hi:g} ms, got {text!r}")
+        return vals
+    return parse
 
 
-def _floats(text: str) -> list[float]:
-    try:
-        vals = [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers (ms), got {text!r}") from None
-    if not vals or any(not 0 <= v <= 1000 for v in vals):
-        raise argparse.ArgumentTypeError(f"latencies must be 0..1000 ms, got {text!r}")
-    return vals
+_ints = _ms_list(int, "integers", 1, 100, "cycles")
+_floats = _ms_list(float, "numbers", 0, 1000, "latencies")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -318,12 +318,12 @@ def test_lockstep_runs_are_reproducible_and_brake_where_b_says():
 
 
 def test_study_command_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
-    from hil.acd_nodes import main
+    from hil.cli.main import main
 
     for argv, what in ((["campaign", str(ROOT / "campaigns" / "mass_sweep.toml")], "no [acd] section"),
                        (["campaign", str(tmp_path / "none.toml")], "no such campaign file"),
                        (["campaign", str(ROOT / "campaigns" / "acd_random.toml"), "--jobs", "0"], "--jobs 0"),
                        (["judge", str(tmp_path)], "not a readable run folder")):
-        assert main(argv) == 2
+        assert main(["reproduce", "acd", *argv]) == 2
         err = capsys.readouterr().err
         assert err.startswith("error: ") and err.count("\n") == 1 and what in err and "Traceback" not in err
