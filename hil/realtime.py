@@ -49,7 +49,10 @@ START_MARGIN_S = 0.3           # t0 lies this far after the last process reporte
 JOIN_TIMEOUT_S = 10.0
 REALTIME_NICE = -10            # node processes ask for this priority where allowed (root, CAP_SYS_NICE)
 CATCH_UP_CYCLES = 5            # a node at most this many periods late catches up instead of skipping
-OBSERVE_AFTER_DEATH_S = 1.0    # after a node process dies, the others run on this long (its fail-safe)
+OBSERVE_AFTER_DEATH_S = 1.0    # after a node process dies, the others run on this long (its fail-safe),
+                               # counted on the plant's clock so a plant lagging under load records it all
+OBSERVE_GRACE_S = 30.0         # ... unless the plant does not get there within this much more wall time
+END_NEVER_US = 2**62           # the plant's end-of-observation time while no node has died
 
 
 def resolve_bus_config(cli: dict, scenario: Scenario) -> dict:
@@ -143,8 +146,8 @@ def _orphaned() -> bool:
     return parent is not None and not parent.is_alive()
 
 
-def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns, go, stop, results,
-                  progress) -> None:
+def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns, end_at_us, go, stop,
+                  results, progress) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)         # the parent coordinates shutdown
     bus = None
     try:
@@ -214,6 +217,9 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
                     stopped_since = None
                 if now >= max_us:
                     results.put(("done", name, "max_duration"))
+                    break
+                if now >= end_at_us.value:               # a node died: its aftermath is recorded
+                    results.put(("done", name, "observed"))
                     break
                 if progress is not None and now >= next_progress:
                     progress.put((now, plant.glance()))
@@ -307,6 +313,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     ctx = mp.get_context("fork" if sys.platform.startswith("linux") else "spawn")
     go, stop = ctx.Event(), ctx.Event()
     t0_ns = ctx.Value("q", 0)
+    end_at_us = ctx.Value("q", END_NEVER_US, lock=False)  # set by this process only: no lock needed
     results = ctx.Queue()
     progress_q = ctx.Queue() if progress is not None else None
     scenario_json = scenario.model_dump_json()
@@ -315,8 +322,8 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                                      args=(str(trace_path), cfg, go, stop, results), daemon=True)}
     for name in names:
         procs[name] = ctx.Process(target=_node_process, name=f"railhil-{name}", daemon=True,
-                                  args=(name, scenario_json, dbc_path, cfg, t0_ns, go, stop, results,
-                                        progress_q if name == "PLANT" else None))
+                                  args=(name, scenario_json, dbc_path, cfg, t0_ns, end_at_us, go, stop,
+                                        results, progress_q if name == "PLANT" else None))
 
     old_term = signal.getsignal(signal.SIGTERM)
 
@@ -371,7 +378,9 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                         raise NodeDied(death) from None
                     print(f"realtime: node {dead[0]} died; the others run on for "
                           f"{OBSERVE_AFTER_DEATH_S:g} s so their reaction is recorded", file=sys.stderr)
-                    observe_until = time.monotonic() + OBSERVE_AFTER_DEATH_S
+                    speed = scenario.realtime.speed
+                    end_at_us.value = _monotonic_us(t0, speed) + round(OBSERVE_AFTER_DEATH_S * 1e6)
+                    observe_until = time.monotonic() + OBSERVE_AFTER_DEATH_S / speed + OBSERVE_GRACE_S
                 if time.monotonic() > limit:
                     raise NodeDied("the plant did not finish within the scenario's max_duration_s") from None
                 continue

@@ -197,37 +197,68 @@ def test_a_killed_becu_is_named_and_the_bcu_reports_it_silent_within_3_cycles(tm
     status = db.get_message_by_name("BCU_STATUS")
     with can.LogReader(str(tmp_path / "trace.blf")) as reader:     # readable up to the end
         t0 = json.loads((tmp_path / "run.json").read_text())["trace_t0_s"]
-        rows = [(m.timestamp - t0, status.decode(bytes(m.data))) for m in reader
-                if m.arbitration_id == status.frame_id]
-    flagged = [t for t, sig in rows if sig["Degraded"] == 1 and sig["CarsSilent"] == 1 << 1]
-    assert flagged, rows[-5:]
-    print(f"\nBECU2 killed at {kill_s:.3f} s; BCU_STATUS reports it silent at {flagged[0]:.3f} s "
-          f"(+{1e3 * (flagged[0] - kill_s):.0f} ms)")
+        frames = [(m.timestamp - t0, m.arbitration_id, bytes(m.data)) for m in reader]
+    rows = [(t, status.decode(data)) for t, fid, data in frames if fid == status.frame_id]
+    flagged = [t for t, sig in rows if sig["Degraded"] == 1 and sig["CarsSilent"] & 1 << 1]
+    after = [t for t in flagged if t >= kill_s]
+    assert after, rows[-5:]
+    print(f"\nBECU2 killed at {kill_s:.3f} s; BCU_STATUS reports it silent at {after[0]:.3f} s "
+          f"(+{1e3 * (after[0] - kill_s):.0f} ms)")
     # BECU2_STATUS every 50 ms: silent after 3 of them (150 ms), seen on the next BCU_STATUS (100 ms)
-    assert flagged[0] - kill_s <= 0.150 + 0.100 + 0.05, (kill_s, flagged[0])
-    # not degraded between start-up (no car heard yet) and the kill
-    assert all(sig["Degraded"] == 0 for t, sig in rows if 0.5 < t < kill_s)
+    assert after[0] - kill_s <= 0.150 + 0.100 + 0.05, (kill_s, after[0])
+    assert all(sig["CarsSilent"] & 1 << 1 for t, sig in rows if t > after[0])      # and stays silent
+    # before the kill (start-up over) the BCU calls a car silent only where the trace shows it was: a
+    # process descheduled for > 150 ms on a loaded machine leaves a gap in its frames the BCU must report
+    for car in range(6):
+        fid = db.get_message_by_name(f"BECU{car + 1}_STATUS").frame_id
+        heard = np.array([t for t, f, _ in frames if f == fid])
+        for t in (t for t, sig in rows if 0.5 < t < kill_s and sig["CarsSilent"] & 1 << car):
+            last = heard[heard < t]
+            gap = t - last[-1] if len(last) else t
+            assert gap > 0.150 - 0.05, (car + 1, t, gap)      # 50 ms for the processes' reception times
 
 
-def test_a_killed_bcu_makes_every_becu_brake_within_100_ms(tmp_path):
-    """kill -9 of the BCU: every BECU loses its demand and applies fail-safe braking (plant truth);
-    the run goes on for a second to record it, then reports the dead node."""
-    import numpy as np
-
+def test_a_killed_bcu_makes_every_becu_brake_within_100_ms(tmp_path, default_lockstep):
+    """kill -9 of the BCU: every BECU loses its demand and commands fail-safe (emergency) pressure within
+    100 ms (the trace: one clock for the kill, the BCU's last frame and the commands), and every cylinder
+    gets there (the plant's truth); the run goes on for a second to record it, then names the dead node."""
     kill_s, err = kill_during_braking(tmp_path, "BCU")
     assert "the others run on" in err
     cols = np.genfromtxt(tmp_path / "truth.csv", delimiter=",", names=True)
     t = cols["t_s"]
     assert t[-1] > kill_s + 0.5                                   # the plant recorded the aftermath
-    before = np.searchsorted(t, kill_s - 0.02)
-    after = np.searchsorted(t, kill_s + 0.100)
-    rise_ms = []
+    db = load_dbc()
+    demand = db.get_message_by_name("BCU_DEMAND").frame_id
+    commands = {db.get_message_by_name(f"BECU{i}_PRESS_CMD").frame_id: i for i in range(1, 7)}
+    t0 = json.loads((tmp_path / "run.json").read_text())["trace_t0_s"]
+    last_demand, setpoints = 0.0, {i: [] for i in range(1, 7)}
+    with can.LogReader(str(tmp_path / "trace.blf")) as reader:
+        for m in reader:
+            if m.arbitration_id == demand:
+                last_demand = m.timestamp - t0
+            elif m.arbitration_id in commands:
+                sig = db.decode_message(m.arbitration_id, bytes(m.data))
+                setpoints[commands[m.arbitration_id]].append((m.timestamp - t0, sig["CylPressureSet"]))
+    # the BCU's last frame precedes the kill (by more than a cycle where a loaded machine descheduled it
+    # just before: the BECUs then brake from that silence on, which is the same fail-safe)
+    assert last_demand <= kill_s + 0.010, (last_demand, kill_s)
+    service = np.genfromtxt(default_lockstep.out_dir / "truth.csv", delimiter=",", names=True)
+    react_ms = []
     for i in range(1, 7):
+        ts, sp = np.array(setpoints[i]).T
+        failsafe_set = np.median(sp[ts >= kill_s + 0.5])
+        held = sp[ts <= last_demand][-1]                          # the service setpoint the BCU left
+        assert failsafe_set >= held + 20e3, (i, held, failsafe_set)
+        # BECUn_PRESS_CMD every 10 ms; the demand is stale after 3 of the BECU's 10 ms cycles (30 ms)
+        k = int(np.argmax((ts > last_demand) & (sp >= failsafe_set)))
+        assert sp[k] >= failsafe_set and ts[k] - last_demand <= 0.030 + 0.100, (i, ts[k], last_demand)
+        react_ms.append(round(1e3 * (ts[k] - last_demand)))
+        # and the cylinder follows: fail-safe braking is harder than the service step 7 of the same time
         p = cols[f"p_Pa_{i}"]
-        assert p[after] > p[before] + 20e3, (i, p[before], p[after])   # every cylinder filling
-        k = before + int(np.argmax(p[before:] > p[before] + 20e3))
-        rise_ms.append(round(1e3 * (t[k] - kill_s)))
-    print(f"\nBCU killed at {kill_s:.3f} s; each car's cylinder +20 kPa after (ms): {rise_ms}")
+        p_service = np.interp(kill_s, service["t_s"], service[f"p_Pa_{i}"])
+        assert np.median(p[t >= kill_s + 0.5]) > p_service + 40e3, (i, p_service)
+    print(f"\nBCU killed at {kill_s:.3f} s, its last demand at {last_demand:.3f} s; each BECU commands "
+          f"fail-safe pressure after (ms): {react_ms}")
 
 
 def test_unopenable_bus_is_one_line_and_falls_back_on_request(tmp_path):
