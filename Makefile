@@ -17,13 +17,18 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(VENV)/bin/railhil run scenarios/default.toml --realtime --fallback-lockstep
 
-## make test: the test suite (excludes tests marked slow)
+## make test: the test suite (excludes tests marked slow): the lockstep and unit tests on TEST_JOBS
+## pytest-xdist workers (default: one per core), then the real-time tests alone, one at a time, so that
+## their node processes do not compete with other tests for the CPUs
+TEST_JOBS ?= auto
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_JOBS) -m "not slow and not realtime"
+	$(PY) -m pytest -q -m "realtime and not slow"
 
 ## make test-slow: the long suites too
 test-slow: $(STAMP)
-	$(PY) -m pytest -q -m "slow or not slow"
+	$(PY) -m pytest -q -n $(TEST_JOBS) -m "not realtime"
+	$(PY) -m pytest -q -m realtime
 
 ## make fuzz: 10^6 fuzzed frames through decode + SecOC + E2E, twice: the protocol layers alone and the
 ## node runtime of the default train (RAILHIL_FUZZ_FRAMES=N for more, RAILHIL_FUZZ_SEED=S for another seed)
