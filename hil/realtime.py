@@ -331,6 +331,10 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         raise _Terminate()
 
     signal.signal(signal.SIGTERM, on_term)
+    # Ctrl-C / kill -INT ends the run cleanly even where the shell started us with SIGINT ignored (`cmd &`
+    # in a script, some CI runners): Python keeps an inherited SIG_IGN instead of raising KeyboardInterrupt
+    old_int = signal.getsignal(signal.SIGINT)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     payloads: dict[str, dict] = {}
     reason = "interrupted"
     wall0 = time.perf_counter()
@@ -419,6 +423,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                 p.terminate()
                 p.join(1.0)
         signal.signal(signal.SIGTERM, old_term)
+        signal.signal(signal.SIGINT, old_int)
     wall = time.perf_counter() - wall0
     if "PLANT" not in payloads:
         raise NodeDied((failure or "the PLANT process ended without handing back its ground truth")

@@ -23,9 +23,15 @@ from hil.dbc import load_dbc
 pytestmark = pytest.mark.realtime
 
 
-def railhil_popen(*args):
-    return subprocess.Popen([sys.executable, "-m", "hil", *args], cwd=ROOT, text=True,
+def railhil_popen(*args, preexec_fn=None):
+    return subprocess.Popen([sys.executable, "-m", "hil", *args], cwd=ROOT, text=True, preexec_fn=preexec_fn,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+
+
+def ignore_sigint() -> None:
+    """What a shell does to a command it starts in the background (`railhil run ... &` in a script, and
+    some CI runners): SIGINT ignored, which Python would otherwise inherit and keep."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def kill_all(proc) -> None:
@@ -153,7 +159,8 @@ def watch_like_cantools_monitor(proc, count: int = 200) -> set[str]:
 
 
 def test_interrupt_closes_the_trace_and_writes_the_run_folder(tmp_path):
-    proc = railhil_popen("run", str(DEFAULT), "--realtime", "--out", str(tmp_path), "-q")
+    proc = railhil_popen("run", str(DEFAULT), "--realtime", "--out", str(tmp_path), "-q",
+                         preexec_fn=ignore_sigint)
     try:
         _, line = wait_for_start(proc)
         assert {"BCU_DEMAND", "PLANT_CAR1_SENSORS", "BECU6_PRESS_CMD"} <= watch_like_cantools_monitor(proc)
