@@ -119,9 +119,19 @@ def bus_report(bus: BitTimedBus, db: Database, end_ns: int) -> dict:
             "messages": messages}
 
 
-def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Listener | None,
-                 progress: Callable[[int, dict], None] | None = None, dbc_name: str = "DBC") -> RunOutcome:
-    wall0 = time.perf_counter()
+@dataclass
+class LockstepSetup:
+    """The nodes of a lockstep run, built and checked against the DBC before anything is written."""
+
+    nodes: list[Node]
+    injector: object | None
+    releases: list
+    delays: dict
+
+
+def prepare_lockstep(scenario: Scenario, db: Database, codec: Codec, dbc_name: str = "DBC") -> LockstepSetup:
+    """Build every node, the fault injector, the release schedules and the message delays: a scenario the
+    DBC cannot carry fails here, with one line (RailhilError), before a run folder or trace exists."""
     nodes = [build_node(name, scenario, db, codec, dbc_name) for name in node_names(scenario)]
     keys = secoc_keys(scenario)
     for node in nodes:
@@ -129,10 +139,18 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
     injector = build_injector(scenario, db, codec, [n.name for n in nodes])
     if injector is not None:
         injector.attach(nodes)              # stuck signals and failed sensors live in the nodes
+    return LockstepSetup(nodes, injector, node_releases(scenario, db, nodes), message_delays(scenario, db))
+
+
+def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Listener | None,
+                 progress: Callable[[int, dict], None] | None = None, dbc_name: str = "DBC",
+                 setup: LockstepSetup | None = None) -> RunOutcome:
+    """Run `scenario` to its end in simulated time; `setup` from prepare_lockstep (built here if None)."""
+    wall0 = time.perf_counter()
+    setup = setup or prepare_lockstep(scenario, db, codec, dbc_name)
+    nodes, injector, releases, delays = setup.nodes, setup.injector, setup.releases, setup.delays
     plant_node = nodes[0]
     plant: PlantController = plant_node.controller
-    releases = node_releases(scenario, db, nodes)
-    delays = message_delays(scenario, db)
     delivery = LockstepBus(nodes, writer)
     timed = scenario.bus.timing == "bit"
     rogue = len(nodes)                   # the transmit queue of an attacker's frames (hil.faults)

@@ -51,6 +51,8 @@ REALTIME_NICE = -10            # node processes ask for this priority where allo
 CATCH_UP_CYCLES = 5            # a node at most this many periods late catches up instead of skipping
 OBSERVE_AFTER_DEATH_S = 1.0    # after a node process dies, the others run on this long (its fail-safe),
                                # counted on the plant's clock so a plant lagging under load records it all
+HELD_MAX_LAG_US = 50_000       # a run held real time when no node's cycle fell more than this behind (the
+                               # 10 ms ECUs' CATCH_UP_CYCLES) and none skipped a cycle (realtime_verdict)
 OBSERVE_GRACE_S = 30.0         # ... unless the plant does not get there within this much more wall time
 END_NEVER_US = 2**62           # the plant's end-of-observation time while no node has died
 
@@ -166,13 +168,13 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         node.use_keys(secoc_keys(scenario), scenario.secoc.window)
         bus = open_bus(cfg)
         _raise_priority(REALTIME_NICE)
+        gc.collect()                                     # before ready, not after go: nine processes
+        gc.freeze()                                      # collecting at once made the first cycles up to
+        gc.set_threshold(*LOOP_THRESHOLDS)               # 80 ms late; setup objects leave the scans
         results.put(("ready", name, None))
         while not go.wait(PARENT_CHECK_S):
             if _orphaned():
                 return
-        gc.collect()
-        gc.freeze()                                      # setup objects leave the collector's scans
-        gc.set_threshold(*LOOP_THRESHOLDS)
         t0 = t0_ns.value
         is_plant = name == "PLANT"
         plant = node.controller if is_plant else None
@@ -184,7 +186,7 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         next_us = release_ns // 1000
         next_progress = 0
         next_parent_check_us = 0
-        late = missed = 0
+        late = missed = max_lag = max_lag_at = 0
         while not stop.is_set():
             if next_us >= next_parent_check_us:          # a runner killed (-9) must not leave us running
                 next_parent_check_us = next_us + round(PARENT_CHECK_S * 1e6)
@@ -200,6 +202,8 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
             lag_us = _monotonic_us(t0, speed) - next_us
             if lag_us > 0:
                 late += 1
+                if lag_us > max_lag:
+                    max_lag, max_lag_at = lag_us, next_us
                 if lag_us > CATCH_UP_CYCLES * node.period_us and not is_plant:
                     skipped = lag_us // node.period_us
                     missed += skipped
@@ -227,6 +231,8 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         stats = vars(node.stats).copy()
         stats["late_cycles"] = late          # started after their deadline
         stats["missed_cycles"] = missed      # skipped after falling more than CATCH_UP_CYCLES behind
+        stats["max_lag_us"] = max_lag        # the latest a cycle was due when the one before ended
+        stats["max_lag_at_us"] = max_lag_at  # ... and that cycle's time in the run
         payload = {"stats": stats, "end_us": next_us}
         if is_plant:
             payload["truth"] = node.controller.truth
@@ -307,9 +313,11 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                  progress: Callable[[int, dict], None] | None = None) -> tuple[RunOutcome, float]:
     """Run every node in its own process; returns the outcome and the trace's epoch at t0."""
     from hil.assembly import node_names
+    from hil.results import check_out_dir
 
     probe = open_bus(cfg)                       # fail early, in the parent, with one clear line
     probe.shutdown()
+    check_out_dir(trace_path.parent)            # only now: a bus that does not open leaves no folder
     ctx = mp.get_context("fork" if sys.platform.startswith("linux") else "spawn")
     go, stop = ctx.Event(), ctx.Event()
     t0_ns = ctx.Value("q", 0)
@@ -440,6 +448,18 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     return outcome, epoch_t0, failure
 
 
+def realtime_verdict(node_stats: dict[str, dict]) -> dict:
+    """Did the run hold real time?  On a machine short of CPU a node starts its cycles late, or skips them,
+    and the plant's sensors go stale: the closed loop is then not that of the controllers at their cycle
+    times, and its figures (stopping distance, reaction times) say so little that they are flagged."""
+    lag = {n: round(s.get("max_lag_us", 0) / 1e3, 1) for n, s in node_stats.items()}
+    missed = {n: s.get("missed_cycles", 0) for n, s in node_stats.items()}
+    held = all(v * 1e3 <= HELD_MAX_LAG_US for v in lag.values()) and not any(missed.values())
+    worst = max(lag, key=lag.get, default=None)
+    return {"held": held, "max_lag_ms": lag, "missed_cycles": missed, "worst_node": worst,
+            "limit_ms": HELD_MAX_LAG_US / 1e3}
+
+
 def _show_progress(q, progress: Callable[[int, dict], None]) -> None:
     item = None
     while True:
@@ -456,7 +476,6 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
                           progress: Callable[[int, dict], None] | None = None):
     from hil.codec import Codec
     from hil.dbc import load_dbc
-    from hil.results import check_out_dir
     from hil.run import TRACE_NAME, dbc_path_of, finish_run
 
     if scenario.faults:                           # not silently dropped: say where they work
@@ -476,8 +495,7 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
     if scenario.messages:
         print("notice: [messages.*] extra delays apply to lockstep runs only; the real-time bus has its own",
               file=sys.stderr)
-    out_dir = check_out_dir(out_dir)
-    trace = out_dir / TRACE_NAME
+    trace = out_dir / TRACE_NAME                  # its folder is made once the bus opened
     outcome, epoch_t0, failure = run_realtime(scenario, str(dbc_path), trace, cfg, progress=progress)
     report = finish_run(scenario, outcome, out_dir, db, codec, trace_t0_s=epoch_t0,
                         trace_speed=scenario.realtime.speed,

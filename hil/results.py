@@ -690,6 +690,16 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
         lines.append(f"bus ({bus['bitrate_bps'] // 1000} kbit/s)       load {100 * bus['load']:.1f} %, "
                      f"worst response {bus['worst_response_us']:.0f} us ({bus['worst_response_message']}), "
                      f"{bus['deadline_misses']} deadline misses")
+    rt = kpis.get("realtime")
+    if rt:
+        worst = rt["worst_node"]
+        skipped = ", ".join(f"{n} {k}" for n, k in rt["missed_cycles"].items() if k)
+        lines.append(f"real time               held: no cycle more than {rt['limit_ms']:g} ms late (worst "
+                     f"{worst} {rt['max_lag_ms'][worst]:g} ms)" if rt["held"] else
+                     f"real time               NOT HELD: {worst} up to {rt['max_lag_ms'][worst]:g} ms late"
+                     + (f", cycles skipped: {skipped}" if skipped else "")
+                     + " - the machine was short of CPU; this run's figures are not the controllers' at "
+                       "their cycle times")
     lines.append("files: " + ", ".join(str(f) for f in files))
     return lines
 

@@ -13,7 +13,7 @@ import can
 from hil.codec import Codec
 from hil.dbc import DEFAULT_DBC, load_dbc
 from hil.desk import DeskScript
-from hil.lockstep import RunOutcome, run_lockstep
+from hil.lockstep import RunOutcome, prepare_lockstep, run_lockstep
 from hil.report_html import run_metadata, write_run_report
 from hil.results import (
     check_out_dir,
@@ -121,6 +121,9 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     flagged = plausibility_events(trace, db, codec, scenario.train.cars, trace_t0_s, trace_speed)
     if flagged or outcome.faults is not None:
         kpis["plausibility_flags"] = flagged       # first time [s] each sensor / car was flagged
+    if outcome.mode == "realtime":
+        from hil.realtime import realtime_verdict
+        kpis["realtime"] = realtime_verdict(outcome.node_stats)
     kpis["mode"] = outcome.mode
     kpis["seed"] = scenario.seed
     kpis["simulated_s"] = outcome.end_us / 1e6
@@ -152,10 +155,12 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
 
 
 def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None) -> RunReport:
-    out_dir = check_out_dir(out_dir)
     dbc_path = dbc_path_of(scenario)
     db = load_dbc(dbc_path)
     codec = Codec(db)
+    setup = prepare_lockstep(scenario, db, codec, str(dbc_path))   # bad input: no run folder is left
+    out_dir = check_out_dir(out_dir)
     with can.Logger(str(out_dir / TRACE_NAME)) as writer:
-        outcome = run_lockstep(scenario, db, codec, writer, progress=progress, dbc_name=str(dbc_path))
+        outcome = run_lockstep(scenario, db, codec, writer, progress=progress, dbc_name=str(dbc_path),
+                               setup=setup)
     return finish_run(scenario, outcome, out_dir, db, codec)

@@ -32,8 +32,10 @@ def test_dbc_that_does_not_load(tmp_path):
     (tmp_path / "broken.dbc").write_text("BO_ this is not a dbc\n")
     scen = tmp_path / "s.toml"
     scen.write_text('dbc = "broken.dbc"\n')
-    assert_one_line_error(railhil("run", str(scen), "--lockstep", "--out", str(tmp_path / "o")),
-                          "broken.dbc", "not a loadable DBC")
+    for mode in ("--lockstep", "--realtime"):
+        assert_one_line_error(railhil("run", str(scen), mode, "--out", str(tmp_path / "o")),
+                              "broken.dbc", "not a loadable DBC")
+        assert not (tmp_path / "o").exists()            # no empty run folder left behind
 
 
 def test_unknown_signal_name_in_a_node_binding(tmp_path):
@@ -42,8 +44,10 @@ def test_unknown_signal_name_in_a_node_binding(tmp_path):
     (tmp_path / "typo.dbc").write_text(text)
     scen = tmp_path / "s.toml"
     scen.write_text('dbc = "typo.dbc"\n[train]\ncars = 2\n')
-    assert_one_line_error(railhil("run", str(scen), "--lockstep", "--out", str(tmp_path / "o")),
-                          "AxleSpeed", "closest: AxelSpeed")
+    for mode in ("--lockstep", "--realtime"):
+        assert_one_line_error(railhil("run", str(scen), mode, "--out", str(tmp_path / "o")),
+                              "AxleSpeed", "closest: AxelSpeed")
+        assert not (tmp_path / "o").exists()            # nor a partial one: the nodes are built first
 
 
 def test_help_lists_the_run_command():

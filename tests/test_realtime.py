@@ -61,6 +61,17 @@ def wait_for_start(proc, timeout_s=90.0) -> tuple[dict[str, int], str]:
     raise AssertionError(f"the real-time run did not start: {''.join(seen)}")
 
 
+def skip_unless_realtime_held(out) -> None:
+    """The closed loop's figures are judged only when the run held real time (kpis.json "realtime", from
+    hil.realtime.realtime_verdict): on a machine so short of CPU that a node fell more than 50 ms behind
+    or skipped cycles, they are not the controllers' - the run itself says so, and so does the skip."""
+    rt = json.loads((out / "kpis.json").read_text())["realtime"]
+    if not rt["held"]:
+        worst = rt["worst_node"]
+        pytest.skip(f"real time not held on this machine during the run: {worst} up to "
+                    f"{rt['max_lag_ms'][worst]} ms late, cycles skipped {rt['missed_cycles']}")
+
+
 @pytest.fixture(scope="module")
 def realtime_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("default-realtime")
@@ -83,12 +94,15 @@ def test_trace_holds_every_node_at_its_cycle_times(realtime_run):
         m = db.get_message_by_frame_id(fid)
         senders.update(m.senders)
         assert len(ts) > 20, m.name
-        mean_period_ms = (ts[-1] - ts[0]) / (len(ts) - 1) * 1e3
-        assert abs(mean_period_ms - m.cycle_time) <= 0.05 * m.cycle_time, (m.name, mean_period_ms)
     assert senders == {"PLANT", "DESK", "BCU"} | {f"BECU{i}" for i in range(1, 7)}
-    assert "stopping distance" in stdout
+    assert "stopping distance" in stdout and "real time " in stdout
     kpis = json.loads((out / "kpis.json").read_text())
     assert kpis["frames_lost"] == 0, kpis                  # bus health: every frame sent was recorded
+    skip_unless_realtime_held(out)
+    for fid, ts in times.items():
+        m = db.get_message_by_frame_id(fid)
+        mean_period_ms = (ts[-1] - ts[0]) / (len(ts) - 1) * 1e3
+        assert abs(mean_period_ms - m.cycle_time) <= 0.05 * m.cycle_time, (m.name, mean_period_ms)
 
 
 def test_timing_gives_a_verdict_for_every_cyclic_frame(realtime_run):
@@ -111,28 +125,39 @@ def test_stopping_distance_agrees_with_lockstep(realtime_run, default_lockstep):
     context = {"kpis": kpis, "late/missed cycles": {n: (s.get("late_cycles"), s.get("missed_cycles"))
                                                     for n, s in stats.items()}}
     assert kpis["stopped"] and kpis["mode"] == "realtime", context
+    skip_unless_realtime_held(out)
     lock = default_lockstep.kpis["stopping_distance_m"]
     assert abs(kpis["stopping_distance_m"] - lock) / lock < 0.02, (lock, context)
 
 
-def wait_for_frames(start_line: str, count: int, timeout_s: float = 30.0) -> int:
-    """Join the run's own multicast group and block until `count` frames went by (or time out)."""
+def wait_for_frames(start_line: str, count: int, timeout_s: float = 30.0,
+                    until_s: float | None = None) -> int:
+    """Join the run's own multicast group and block until `count` frames went by (or time out); with
+    `until_s`, go on receiving until that many seconds after the call (the run's clock starts 0.3 s after
+    its start line, hil.realtime.START_MARGIN_S) - a time in the run that does not depend on how many
+    frames a test process starved of CPU manages to read."""
+    import time
+
     channel = start_line.split("channel=")[1].split(";")[0]
     group, port = channel.rsplit(":", 1)
     bus = can.Bus(interface="udp_multicast", channel=group, port=int(port))
+    end = None if until_s is None else time.monotonic() + until_s
     try:
         seen = 0
-        while seen < count and bus.recv(timeout=timeout_s) is not None:
+        while seen < count or (end is not None and time.monotonic() < end):
+            if bus.recv(timeout=timeout_s) is None:
+                break
             seen += 1
         return seen
     finally:
         bus.shutdown()
 
 
-def watch_like_cantools_monitor(proc, count: int = 200) -> set[str]:
+def watch_like_cantools_monitor(proc, want: set[str], count: int = 5000) -> set[str]:
     """Read the runner's 'watch it live with: cantools monitor DBC -i .. -c .. --bus-kwargs ..' line,
     open the bus from those flags exactly as cantools monitor does (python-can's CLI helpers) and
-    decode `count` frames with the DBC it names; return the message names seen."""
+    decode frames with the DBC it names until the messages `want` went by (at most `count` frames: a
+    node started late on a loaded machine is still waited for); return the message names seen."""
     import argparse
     import shlex
 
@@ -153,6 +178,8 @@ def watch_like_cantools_monitor(proc, count: int = 200) -> set[str]:
             assert msg is not None, "no frame within 30 s on the bus the runner named"
             names.add(db.get_message_by_frame_id(msg.arbitration_id).name)
             db.decode_message(msg.arbitration_id, bytes(msg.data))
+            if want <= names:
+                break
     finally:
         bus.shutdown()
     return names
@@ -163,7 +190,8 @@ def test_interrupt_closes_the_trace_and_writes_the_run_folder(tmp_path):
                          preexec_fn=ignore_sigint)
     try:
         _, line = wait_for_start(proc)
-        assert {"BCU_DEMAND", "PLANT_CAR1_SENSORS", "BECU6_PRESS_CMD"} <= watch_like_cantools_monitor(proc)
+        want = {"BCU_DEMAND", "PLANT_CAR1_SENSORS", "BECU6_PRESS_CMD"}
+        assert want <= watch_like_cantools_monitor(proc, want)
         assert wait_for_frames(line, 500) == 500              # the run is under way
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=90)
@@ -178,14 +206,16 @@ def test_interrupt_closes_the_trace_and_writes_the_run_folder(tmp_path):
 
 
 def kill_during_braking(tmp_path, node: str) -> tuple[float, str]:
-    """Start the default scenario, kill -9 `node` once braking is established (~2 s in), let the run
+    """Start the default scenario, kill -9 `node` once braking is established (1.6 s in), let the run
     end; return the kill time on the run's own clock [s] and stderr."""
     import time
 
     proc = railhil_popen("run", str(DEFAULT), "--realtime", "--out", str(tmp_path), "-q")
     try:
         pids, line = wait_for_start(proc)
-        assert wait_for_frames(line, 2500) == 2500          # ~1.7 s of traffic: the demand is up
+        # 1.6 s into the run: braking established (full service pressure at 1.5 s), the wet section at
+        # 100 m (4.2 s, where WSP would take pressure off) still ahead
+        assert wait_for_frames(line, 500, until_s=0.3 + 1.6) >= 500
         killed_at = time.time()
         os.kill(pids[node], signal.SIGKILL)
         _, err = proc.communicate(timeout=90)
@@ -209,6 +239,7 @@ def test_a_killed_becu_is_named_and_the_bcu_reports_it_silent_within_3_cycles(tm
     flagged = [t for t, sig in rows if sig["Degraded"] == 1 and sig["CarsSilent"] & 1 << 1]
     after = [t for t in flagged if t >= kill_s]
     assert after, rows[-5:]
+    skip_unless_realtime_held(tmp_path)
     print(f"\nBECU2 killed at {kill_s:.3f} s; BCU_STATUS reports it silent at {after[0]:.3f} s "
           f"(+{1e3 * (after[0] - kill_s):.0f} ms)")
     # BECU2_STATUS every 50 ms: silent after 3 of them (150 ms), seen on the next BCU_STATUS (100 ms)
@@ -249,6 +280,7 @@ def test_a_killed_bcu_makes_every_becu_brake_within_100_ms(tmp_path, default_loc
     # the BCU's last frame precedes the kill (by more than a cycle where a loaded machine descheduled it
     # just before: the BECUs then brake from that silence on, which is the same fail-safe)
     assert last_demand <= kill_s + 0.010, (last_demand, kill_s)
+    skip_unless_realtime_held(tmp_path)
     service = np.genfromtxt(default_lockstep.out_dir / "truth.csv", delimiter=",", names=True)
     react_ms = []
     for i in range(1, 7):
@@ -263,7 +295,8 @@ def test_a_killed_bcu_makes_every_becu_brake_within_100_ms(tmp_path, default_loc
         # and the cylinder follows: fail-safe braking is harder than the service step 7 of the same time
         p = cols[f"p_Pa_{i}"]
         p_service = np.interp(kill_s, service["t_s"], service[f"p_Pa_{i}"])
-        assert np.median(p[t >= kill_s + 0.5]) > p_service + 40e3, (i, p_service)
+        after = p[t >= kill_s + 0.5]
+        assert np.median(after) > p_service + 40e3, (i, p_service, kill_s, last_demand, t[-1], after[::10])
     print(f"\nBCU killed at {kill_s:.3f} s, its last demand at {last_demand:.3f} s; each BECU commands "
           f"fail-safe pressure after (ms): {react_ms}")
 
@@ -275,6 +308,7 @@ def test_unopenable_bus_is_one_line_and_falls_back_on_request(tmp_path):
                           timeout=120)
     assert proc.returncode == 3 and proc.stderr.startswith("error: cannot open the python-can bus")
     assert len(proc.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "a").exists()                 # and no empty run folder
     scen = tmp_path / "short.toml"
     scen.write_text(DEFAULT.read_text().replace("max_duration_s = 90.0", "max_duration_s = 2.0"))
     proc = subprocess.run([sys.executable, "-m", "hil", "run", str(scen), "--realtime", "--fallback-lockstep",
