@@ -152,7 +152,14 @@ def run_verdicts(kpis: dict, meta: dict) -> list[Verdict]:
     out.append(Verdict("controller step errors", str(steps), "= 0", steps == 0))
     if meta.get("mode") == "realtime":
         missed, late = _sum_stat(meta, "missed_cycles"), _sum_stat(meta, "late_cycles")
-        out.append(Verdict("real-time cycles missed", str(missed), "= 0", missed == 0))
+        rt = kpis.get("realtime")
+        if rt:                              # hil.realtime.realtime_verdict
+            worst = rt["worst_node"]
+            out.append(Verdict("real time held", f"{worst} up to {rt['max_lag_ms'][worst]:g} ms late, "
+                               f"{missed} cycles skipped",
+                               f"no cycle more than {rt['limit_ms']:g} ms late, none skipped", rt["held"]))
+        else:
+            out.append(Verdict("real-time cycles missed", str(missed), "= 0", missed == 0))
         out.append(Verdict("real-time cycles late", str(late), "(informational)", None))
     seen = kpis.get("protection_events") or {}
     detected = ", ".join(f"{k} {v}" for k, v in seen.items()) or "none"
