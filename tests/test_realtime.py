@@ -11,6 +11,8 @@ import os
 import signal
 import subprocess
 import sys
+from contextlib import contextmanager
+from pathlib import Path
 
 import can
 import can.cli
@@ -61,15 +63,30 @@ def wait_for_start(proc, timeout_s=90.0) -> tuple[dict[str, int], str]:
     raise AssertionError(f"the real-time run did not start: {''.join(seen)}")
 
 
-def skip_unless_realtime_held(out) -> None:
-    """The closed loop's figures are judged only when the run held real time (kpis.json "realtime", from
-    hil.realtime.realtime_verdict): on a machine so short of CPU that a node fell more than 50 ms behind
-    or skipped cycles, they are not the controllers' - the run itself says so, and so does the skip."""
-    rt = json.loads((out / "kpis.json").read_text())["realtime"]
-    if not rt["held"]:
+ATTEMPTS = 2      # a killed-node run that did not hold real time (a stall of the machine) is run again
+
+
+def realtime_held(out) -> bool:
+    return json.loads((out / "kpis.json").read_text())["realtime"]["held"]
+
+
+@contextmanager
+def excused_unless_realtime_held(out):
+    """A closed-loop check (periods, stopping distance, reaction times) that fails on a run which did not
+    hold real time (kpis.json "realtime", hil.realtime.realtime_verdict: a node more than 50 ms behind or
+    skipping cycles, the machine stalled) is skipped with that reason, not failed: its figures are not the
+    controllers'.  On a run that held real time the failure stands."""
+    try:
+        yield
+    except AssertionError as exc:
+        rt = json.loads((out / "kpis.json").read_text())["realtime"]
+        if rt["held"]:
+            raise
         worst = rt["worst_node"]
-        pytest.skip(f"real time not held on this machine during the run: {worst} up to "
-                    f"{rt['max_lag_ms'][worst]} ms late, cycles skipped {rt['missed_cycles']}")
+        first = (str(exc).strip().splitlines() or [""])[0][:200]
+        pytest.skip(f"real time not held on this machine during the run ({worst} up to "
+                    f"{rt['max_lag_ms'][worst]} ms late, cycles skipped {rt['missed_cycles']}); "
+                    f"the check that failed: {first}")
 
 
 @pytest.fixture(scope="module")
@@ -98,11 +115,11 @@ def test_trace_holds_every_node_at_its_cycle_times(realtime_run):
     assert "stopping distance" in stdout and "real time " in stdout
     kpis = json.loads((out / "kpis.json").read_text())
     assert kpis["frames_lost"] == 0, kpis                  # bus health: every frame sent was recorded
-    skip_unless_realtime_held(out)
-    for fid, ts in times.items():
-        m = db.get_message_by_frame_id(fid)
-        mean_period_ms = (ts[-1] - ts[0]) / (len(ts) - 1) * 1e3
-        assert abs(mean_period_ms - m.cycle_time) <= 0.05 * m.cycle_time, (m.name, mean_period_ms)
+    with excused_unless_realtime_held(out):
+        for fid, ts in times.items():
+            m = db.get_message_by_frame_id(fid)
+            mean_period_ms = (ts[-1] - ts[0]) / (len(ts) - 1) * 1e3
+            assert abs(mean_period_ms - m.cycle_time) <= 0.05 * m.cycle_time, (m.name, mean_period_ms)
 
 
 def test_timing_gives_a_verdict_for_every_cyclic_frame(realtime_run):
@@ -125,9 +142,9 @@ def test_stopping_distance_agrees_with_lockstep(realtime_run, default_lockstep):
     context = {"kpis": kpis, "late/missed cycles": {n: (s.get("late_cycles"), s.get("missed_cycles"))
                                                     for n, s in stats.items()}}
     assert kpis["stopped"] and kpis["mode"] == "realtime", context
-    skip_unless_realtime_held(out)
     lock = default_lockstep.kpis["stopping_distance_m"]
-    assert abs(kpis["stopping_distance_m"] - lock) / lock < 0.02, (lock, context)
+    with excused_unless_realtime_held(out):
+        assert abs(kpis["stopping_distance_m"] - lock) / lock < 0.02, (lock, context)
 
 
 def wait_for_frames(start_line: str, count: int, timeout_s: float = 30.0,
@@ -205,45 +222,50 @@ def test_interrupt_closes_the_trace_and_writes_the_run_folder(tmp_path):
     assert kpis["end_reason"] == "interrupted"
 
 
-def kill_during_braking(tmp_path, node: str) -> tuple[float, str]:
+def kill_during_braking(tmp_path, node: str) -> tuple[Path, float, str]:
     """Start the default scenario, kill -9 `node` once braking is established (1.6 s in), let the run
-    end; return the kill time on the run's own clock [s] and stderr."""
+    end; return the run folder, the kill time on the run's own clock [s] and stderr (ATTEMPTS runs at
+    most, until one held real time)."""
     import time
 
-    proc = railhil_popen("run", str(DEFAULT), "--realtime", "--out", str(tmp_path), "-q")
-    try:
-        pids, line = wait_for_start(proc)
-        # 1.6 s into the run: braking established (full service pressure at 1.5 s), the wet section at
-        # 100 m (4.2 s, where WSP would take pressure off) still ahead
-        assert wait_for_frames(line, 500, until_s=0.3 + 1.6) >= 500
-        killed_at = time.time()
-        os.kill(pids[node], signal.SIGKILL)
-        _, err = proc.communicate(timeout=90)
-    finally:
-        kill_all(proc)
-    assert proc.returncode == 4, err
-    last = err.strip().splitlines()[-1]
-    assert last.startswith("error: ") and node in last and "died" in last, err
-    t0 = json.loads((tmp_path / "run.json").read_text())["trace_t0_s"]
-    return killed_at - t0, err
+    for attempt in range(ATTEMPTS):
+        out = tmp_path / f"run{attempt}"
+        proc = railhil_popen("run", str(DEFAULT), "--realtime", "--out", str(out), "-q")
+        try:
+            pids, line = wait_for_start(proc)
+            # 1.6 s into the run: braking established (full service pressure at 1.5 s), the wet section
+            # at 100 m (4.2 s, where WSP would take pressure off) still ahead
+            assert wait_for_frames(line, 500, until_s=0.3 + 1.6) >= 500
+            killed_at = time.time()
+            os.kill(pids[node], signal.SIGKILL)
+            _, err = proc.communicate(timeout=90)
+        finally:
+            kill_all(proc)
+        assert proc.returncode == 4, err
+        last = err.strip().splitlines()[-1]
+        assert last.startswith("error: ") and node in last and "died" in last, err
+        if realtime_held(out):
+            break
+    t0 = json.loads((out / "run.json").read_text())["trace_t0_s"]
+    return out, killed_at - t0, err
 
 
 def test_a_killed_becu_is_named_and_the_bcu_reports_it_silent_within_3_cycles(tmp_path):
-    kill_s, _ = kill_during_braking(tmp_path, "BECU2")
+    out, kill_s, _ = kill_during_braking(tmp_path, "BECU2")
     db = load_dbc()
     status = db.get_message_by_name("BCU_STATUS")
-    with can.LogReader(str(tmp_path / "trace.blf")) as reader:     # readable up to the end
-        t0 = json.loads((tmp_path / "run.json").read_text())["trace_t0_s"]
+    with can.LogReader(str(out / "trace.blf")) as reader:     # readable up to the end
+        t0 = json.loads((out / "run.json").read_text())["trace_t0_s"]
         frames = [(m.timestamp - t0, m.arbitration_id, bytes(m.data)) for m in reader]
     rows = [(t, status.decode(data)) for t, fid, data in frames if fid == status.frame_id]
     flagged = [t for t, sig in rows if sig["Degraded"] == 1 and sig["CarsSilent"] & 1 << 1]
     after = [t for t in flagged if t >= kill_s]
     assert after, rows[-5:]
-    skip_unless_realtime_held(tmp_path)
     print(f"\nBECU2 killed at {kill_s:.3f} s; BCU_STATUS reports it silent at {after[0]:.3f} s "
           f"(+{1e3 * (after[0] - kill_s):.0f} ms)")
     # BECU2_STATUS every 50 ms: silent after 3 of them (150 ms), seen on the next BCU_STATUS (100 ms)
-    assert after[0] - kill_s <= 0.150 + 0.100 + 0.05, (kill_s, after[0])
+    with excused_unless_realtime_held(out):
+        assert after[0] - kill_s <= 0.150 + 0.100 + 0.05, (kill_s, after[0])
     assert all(sig["CarsSilent"] & 1 << 1 for t, sig in rows if t > after[0])      # and stays silent
     # before the kill (start-up over) the BCU calls a car silent only where the trace shows it was: a
     # process descheduled for > 150 ms on a loaded machine leaves a gap in its frames the BCU must report
@@ -260,17 +282,17 @@ def test_a_killed_bcu_makes_every_becu_brake_within_100_ms(tmp_path, default_loc
     """kill -9 of the BCU: every BECU loses its demand and commands fail-safe (emergency) pressure within
     100 ms (the trace: one clock for the kill, the BCU's last frame and the commands), and every cylinder
     gets there (the plant's truth); the run goes on for a second to record it, then names the dead node."""
-    kill_s, err = kill_during_braking(tmp_path, "BCU")
+    out, kill_s, err = kill_during_braking(tmp_path, "BCU")
     assert "the others run on" in err
-    cols = np.genfromtxt(tmp_path / "truth.csv", delimiter=",", names=True)
+    cols = np.genfromtxt(out / "truth.csv", delimiter=",", names=True)
     t = cols["t_s"]
     assert t[-1] > kill_s + 0.5                                   # the plant recorded the aftermath
     db = load_dbc()
     demand = db.get_message_by_name("BCU_DEMAND").frame_id
     commands = {db.get_message_by_name(f"BECU{i}_PRESS_CMD").frame_id: i for i in range(1, 7)}
-    t0 = json.loads((tmp_path / "run.json").read_text())["trace_t0_s"]
+    t0 = json.loads((out / "run.json").read_text())["trace_t0_s"]
     last_demand, setpoints = 0.0, {i: [] for i in range(1, 7)}
-    with can.LogReader(str(tmp_path / "trace.blf")) as reader:
+    with can.LogReader(str(out / "trace.blf")) as reader:
         for m in reader:
             if m.arbitration_id == demand:
                 last_demand = m.timestamp - t0
@@ -280,9 +302,16 @@ def test_a_killed_bcu_makes_every_becu_brake_within_100_ms(tmp_path, default_loc
     # the BCU's last frame precedes the kill (by more than a cycle where a loaded machine descheduled it
     # just before: the BECUs then brake from that silence on, which is the same fail-safe)
     assert last_demand <= kill_s + 0.010, (last_demand, kill_s)
-    skip_unless_realtime_held(tmp_path)
     service = np.genfromtxt(default_lockstep.out_dir / "truth.csv", delimiter=",", names=True)
     react_ms = []
+    with excused_unless_realtime_held(out):
+        judge_failsafe(cols, setpoints, service, kill_s, last_demand, react_ms)
+    print(f"\nBCU killed at {kill_s:.3f} s, its last demand at {last_demand:.3f} s; each BECU commands "
+          f"fail-safe pressure after (ms): {react_ms}")
+
+
+def judge_failsafe(cols, setpoints, service, kill_s: float, last_demand: float, react_ms: list) -> None:
+    t = cols["t_s"]
     for i in range(1, 7):
         ts, sp = np.array(setpoints[i]).T
         failsafe_set = np.median(sp[ts >= kill_s + 0.5])
@@ -297,8 +326,6 @@ def test_a_killed_bcu_makes_every_becu_brake_within_100_ms(tmp_path, default_loc
         p_service = np.interp(kill_s, service["t_s"], service[f"p_Pa_{i}"])
         after = p[t >= kill_s + 0.5]
         assert np.median(after) > p_service + 40e3, (i, p_service, kill_s, last_demand, t[-1], after[::10])
-    print(f"\nBCU killed at {kill_s:.3f} s, its last demand at {last_demand:.3f} s; each BECU commands "
-          f"fail-safe pressure after (ms): {react_ms}")
 
 
 def test_unopenable_bus_is_one_line_and_falls_back_on_request(tmp_path):
