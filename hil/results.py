@@ -675,7 +675,8 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
     ]
     if kpis.get("faults_injected") is not None or kpis.get("protection_events"):
         injected = ", ".join(f"{k} {v}" for k, v in (kpis.get("faults_injected") or {}).items()) or "none"
-        seen = ", ".join(f"{k} {v}" for k, v in kpis.get("protection_events", {}).items()) or "nothing"
+        seen = ", ".join(f"{k} {v}" + (" (frames 1.5 cycles late)" if k == "NONEWDATA" else "")
+                         for k, v in kpis.get("protection_events", {}).items()) or "nothing"
         lines.append(f"faults injected         {injected}; receivers reported {seen}")
     flags = kpis.get("plausibility_flags")
     if flags:                         # first time [s] each sensor fault / implausible car was flagged

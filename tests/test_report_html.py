@@ -121,6 +121,32 @@ def test_railhil_report_rebuilds_it_and_a_failed_check_shows(default_lockstep, t
     assert "FAIL: frames lost" in (run / "report.html").read_text()
 
 
+def test_late_frames_are_informational_in_real_time_and_a_stall_fails_the_real_time_check():
+    """E2E NONEWDATA (a frame 1.5 of its cycles late) is timing, not a protection error: informational in
+    real time (every `make run` has some), a failure in lockstep without faults; a run that did not hold
+    real time fails its own check."""
+    from hil.realtime import realtime_verdict
+    from hil.report_html import run_verdicts
+
+    def verdicts(mode, lag_us, missed=0):
+        stats = {"PLANT": {"max_lag_us": lag_us, "missed_cycles": 0},
+                 "BECU1": {"max_lag_us": 1_000, "missed_cycles": missed}}
+        kpis = {"end_reason": "standstill", "stopped": True, "frames_lost": 0,
+                "protection_events": {"NONEWDATA": 88}}
+        if mode == "realtime":
+            kpis["realtime"] = realtime_verdict(stats)
+        return {v.check: v for v in run_verdicts(kpis, {"mode": mode, "node_stats": stats})}
+
+    rt = verdicts("realtime", 42_900)
+    assert rt["E2E / SecOC errors reported"].passed is True
+    assert rt["frames 1.5 cycles late (E2E NONEWDATA)"].passed is None
+    assert rt["frames 1.5 cycles late (E2E NONEWDATA)"].value == "88"
+    assert rt["real time held"].passed is True and "PLANT up to 42.9 ms" in rt["real time held"].value
+    assert verdicts("realtime", 120_000)["real time held"].passed is False
+    assert verdicts("realtime", 1_000, missed=3)["real time held"].passed is False
+    assert verdicts("lockstep", 0)["frames 1.5 cycles late (E2E NONEWDATA)"].passed is False
+
+
 def test_report_bad_folders_are_one_line_errors(tmp_path, capsys):
     assert_one_line_error(*railhil(capsys, "report", tmp_path / "nope")[::2], "nope", "no such folder")
     assert_one_line_error(*railhil(capsys, "report", tmp_path)[::2], str(tmp_path), "run.json",
