@@ -63,7 +63,7 @@ def wait_for_start(proc, timeout_s=90.0) -> tuple[dict[str, int], str]:
     raise AssertionError(f"the real-time run did not start: {''.join(seen)}")
 
 
-ATTEMPTS = 2      # a killed-node run that did not hold real time (a stall of the machine) is run again
+ATTEMPTS = 2      # a run that did not hold real time (a stall of the machine) is run once more
 
 
 def realtime_held(out) -> bool:
@@ -91,10 +91,15 @@ def excused_unless_realtime_held(out):
 
 @pytest.fixture(scope="module")
 def realtime_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("default-realtime")
-    proc = subprocess.run([sys.executable, "-m", "hil", "run", str(DEFAULT), "--realtime", "--out", str(out),
-                           "-q"], cwd=ROOT, capture_output=True, text=True, timeout=400)
-    assert proc.returncode == 0, proc.stderr
+    """The default scenario in real time; run again (once) if the machine stalled so that it did not hold
+    real time."""
+    for _ in range(ATTEMPTS):
+        out = tmp_path_factory.mktemp("default-realtime")
+        proc = subprocess.run([sys.executable, "-m", "hil", "run", str(DEFAULT), "--realtime", "--out",
+                               str(out), "-q"], cwd=ROOT, capture_output=True, text=True, timeout=400)
+        assert proc.returncode == 0, proc.stderr
+        if realtime_held(out):
+            break
     return out, proc.stdout
 
 
