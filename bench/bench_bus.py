@@ -5,11 +5,11 @@ railhil's recorder process (goal of issue #10: 0 lost, all logged).
 
 The frames are classic 8-byte data frames, identifiers 0x100-0x13F; byte 0 is the sending process,
 bytes 1-4 its sequence number (little endian), bytes 5-7 vary with it.  Each frame's length in bit
-times is exact (hil.bustiming.FrameBits: its real stuff bits and the interframe space), and frame i is
+times is exact (hil.can.bustiming.FrameBits: its real stuff bits and the interframe space), and frame i is
 due at t0 + (bits of frames 0..i-1) / 1 Mbit/s: the frames follow each other as they would on a
 1 Mbit/s bus kept 100 % busy (about 8,000 frames/s at these lengths).  Frame i is sent by process
 i mod SENDERS at its due time (absolute deadlines, `time.sleep` until the next one is due; frames
-already due go out back to back).  The recorder is the real-time runner's own (hil.realtime: a
+already due go out back to back).  The recorder is the real-time runner's own (hil.runtime.realtime: a
 python-can Notifier feeding a BLF Logger).  Afterwards the BLF trace is read back: every (process,
 sequence number) must be there exactly once.
 
@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-import hil.realtime as realtime  # noqa: E402
+import hil.runtime.realtime as realtime  # noqa: E402
 
 N_FRAMES = int(os.environ.get("BENCH_FRAMES", "1000000"))
 SENDERS = 4                    # sender processes, like nodes
@@ -54,7 +54,7 @@ def frame_of(i: int) -> tuple[int, int, int, bytes]:
 
 def schedule_ns(n: int) -> tuple[np.ndarray, int]:
     """Due times [ns after t0] of frames 0..n-1 back to back at BITRATE_BPS, and their total bits."""
-    from hil.bustiming import FrameBits
+    from hil.can.bustiming import FrameBits
 
     shapes = {fid: FrameBits(fid, False, 8, 8, False) for fid in range(FIRST_ID, FIRST_ID + N_IDS)}
     bits = np.empty(n, dtype=np.int64)

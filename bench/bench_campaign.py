@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from hil.campaign import (  # noqa: E402
+from hil.campaign.sweep import (  # noqa: E402
     executor_for,
     expand,
     load_campaign,

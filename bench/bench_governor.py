@@ -1,7 +1,7 @@
 """Reference governor (seed 001 eq. 9): time per evaluation of govern(), mean / p99 / max, in closed loop.
 
 Each case runs the BECU's closed-loop model for its scenario -- the governor and the deceleration PI
-(eq. 16) of scenarios/rg_*.toml as hil.assembly builds them, the cylinder lag (eq. 4), the hysteresis
+(eq. 16) of scenarios/rg_*.toml as hil.runtime.assembly builds them, the cylinder lag (eq. 4), the hysteresis
 (eq. 10a) and the friction lag whose rate switches at random inside the inclusion every cycle -- and
 times every call of govern(), as the BECU makes it once per 10 ms cycle. There is no offline set
 computation: the admissible set is evaluated online by prediction (firmware_py.governor's docstring).
@@ -25,7 +25,7 @@ if str(ROOT) not in sys.path:
 
 from firmware_py.governor import GovernorState, govern, play  # noqa: E402
 from firmware_py.pi import pi_step  # noqa: E402
-from hil.assembly import becu_params  # noqa: E402
+from hil.runtime.assembly import becu_params  # noqa: E402
 from hil.scenario import load_scenario  # noqa: E402
 
 CASES = (  # (label, scenario, simulated seconds)

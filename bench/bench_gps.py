@@ -17,8 +17,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from hil.gpsserial import DEFAULT_BAUDRATE, line_time_us  # noqa: E402
-from hil.nmea import PROTOCOLS  # noqa: E402
+from hil.links.gpsserial import DEFAULT_BAUDRATE, line_time_us  # noqa: E402
+from hil.links.nmea import PROTOCOLS  # noqa: E402
 from plant_sim.gps import GpsModel, GpsParams  # noqa: E402
 
 N = 200

@@ -19,10 +19,10 @@ import can
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-import hil.lockstep as lockstep  # noqa: E402
-from hil.codec import Codec  # noqa: E402
-from hil.dbc import load_dbc  # noqa: E402
-from hil.lockstep import run_lockstep  # noqa: E402
+import hil.runtime.lockstep as lockstep  # noqa: E402
+from hil.can.codec import Codec  # noqa: E402
+from hil.can.dbc import load_dbc  # noqa: E402
+from hil.runtime.lockstep import run_lockstep  # noqa: E402
 from hil.scenario import load_scenario  # noqa: E402
 
 

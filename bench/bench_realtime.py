@@ -2,11 +2,11 @@
 
 Measured in the same run (goal of issue #10: p99 ≤ 100 µs and ≥ 2× better than send_periodic).
 
-One real-time run of scenarios/default.toml (railhil's own runner, hil.realtime.run_realtime: one OS
+One real-time run of scenarios/default.toml (railhil's own runner, hil.runtime.realtime.run_realtime: one OS
 process per node, PLANT, DESK, BCU, BECU1-6, and the recorder, on a udp_multicast bus of its own),
 cut to RT_SECONDS simulated seconds (env BENCH_RT_S).  Lateness of a cycle = CLOCK_MONOTONIC when the
 node's wait for that cycle returns (its frames are computed and sent right after) minus the cycle's
-absolute deadline; it is recorded by wrapping hil.realtime._wait_and_receive in the node processes
+absolute deadline; it is recorded by wrapping hil.runtime.realtime._wait_and_receive in the node processes
 (the scheduler itself is unchanged).  Figures are pooled over the 10 ms nodes (BCU, BECU1-6); the 1 ms
 plant and the 100 ms desk are shown apart.
 
@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-import hil.realtime as realtime  # noqa: E402
+import hil.runtime.realtime as realtime  # noqa: E402
 
 RT_SECONDS = float(os.environ.get("BENCH_RT_S", "20"))   # simulated = wall seconds of the run
 PERIOD_S = 0.010                                          # the cycle compared: 10 ms
@@ -91,7 +91,7 @@ def _stats_us(ns: list[int] | np.ndarray) -> tuple[float, float, float, int]:
 def measure(seconds: float = RT_SECONDS) -> dict:
     """{node: lateness list [ns]} of one real-time default run, and "send_periodic": the same of python-can's
     task run beside it; also "late_cycles" and "missed_cycles" as hil counted them."""
-    from hil.dbc import DEFAULT_DBC
+    from hil.can.dbc import DEFAULT_DBC
     from hil.scenario import load_scenario
 
     scenario = load_scenario(ROOT / "scenarios" / "default.toml")

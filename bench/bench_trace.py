@@ -2,11 +2,11 @@
 
 All figures come from one run on traces generated here, in a temporary directory, with python-can's
 writers: 10⁶ frames of dbc/train_brake.dbc (8 cars: every cyclic message at its GenMsgCycleTime,
-each with its own phase and up to 0.3 ms of jitter, payloads encoded by hil.codec with counters
+each with its own phase and up to 0.3 ms of jitter, payloads encoded by hil.can.codec with counters
 counting and smooth values), as BLF; the first 200 000 of them as candump -L text (.log).
 
-(a) the `timing` read path in this process: ``hil.tracecolumns.read_columns`` against python-can's
-    ``can.LogReader`` with the per-frame loop ``hil.timing.frame_arrays`` (equal columns checked);
+(a) the `timing` read path in this process: ``hil.trace.columns.read_columns`` against python-can's
+    ``can.LogReader`` with the per-frame loop ``hil.trace.timing.frame_arrays`` (equal columns checked);
 (b) ``railhil trace decode X.log --dbc dbc/train_brake.dbc`` against ``cantools decode
     dbc/train_brake.dbc < X.log``, both as subprocesses with defaults, output to /dev/null, best of 2
     each (interpreter start-up and imports included, as a user sees them); also railhil on the
@@ -38,10 +38,10 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from hil.codec import Codec  # noqa: E402
-from hil.dbc import load_dbc  # noqa: E402
-from hil.timing import frame_arrays  # noqa: E402
-from hil.tracecolumns import read_columns  # noqa: E402
+from hil.can.codec import Codec  # noqa: E402
+from hil.can.dbc import load_dbc  # noqa: E402
+from hil.trace.columns import read_columns  # noqa: E402
+from hil.trace.timing import frame_arrays  # noqa: E402
 
 DBC = ROOT / "dbc" / "train_brake.dbc"
 BIN = Path(sys.executable).parent
@@ -51,13 +51,13 @@ POOL = 256  # payloads per message, used in turn: 8-bit and 4-bit counters count
 JITTER_S = 0.3e-3  # each frame late by up to this (uniform), like arbitration delay on a loaded bus
 SEED = 8
 
-# `railhil timing` with hil.tracecolumns.read_trace_columns in place of frame_arrays(open_trace(...)),
+# `railhil timing` with hil.trace.columns.read_trace_columns in place of frame_arrays(open_trace(...)),
 # for as long as hil/cli/timing.py reads the slow way (the change proposed in issue #8)
 WIRED = """
 import sys
 import hil.cli.timing as cli
 from hil.cli.main import main
-from hil.tracecolumns import read_trace_columns
+from hil.trace.columns import read_trace_columns
 
 class Opened:
     def __init__(self, path):

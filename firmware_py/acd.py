@@ -336,7 +336,7 @@ class Acd:
     """step(now_us, rx) -> ACD_BRAKE_REQ signals.
 
     `rx` holds the DBC inputs `INPUTS` (the radio frames) and the own-train inputs `LOCAL_INPUTS`, which
-    no DBC frame carries (the GPS comes over the serial line, hil.gpsserial; the route section and the
+    no DBC frame carries (the GPS comes over the serial line, hil.links.gpsserial; the route section and the
     signal's position over the radio): OwnLatitude/OwnLongitude [deg], OwnSpeed [m/s], OwnFixValid
     (0/1), OwnFixAge [s] (age of the fix when handed over), OwnRouteSection, SignalLatitude/
     SignalLongitude [deg].  A missing or non-finite value counts as not received.  When `rx` has
@@ -403,7 +403,7 @@ class Acd:
         return {"Request": int(dec.mode), "RequestedDecel": decel, "DistanceToObstacle": dec.distance_m}
 
 
-# --- Steps 4–5: the control centre's pairing (served by hil.control_centre) --------------------------
+# --- Steps 4–5: the control centre's pairing (served by hil.links.control_centre) --------------------------
 
 @dataclass(frozen=True)
 class TrainPosition:

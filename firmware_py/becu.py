@@ -357,7 +357,7 @@ class Becu:
 
     def demand_lost(self, now_us: int, rx: Mapping[str, float]) -> bool:
         """Loss of command: no usable brake demand for more than `failsafe_cycles` cycles.  Frames the
-        E2E or SecOC check rejects never update the demand (hil.node), so a corrupt, forged, stale or
+        E2E or SecOC check rejects never update the demand (hil.runtime.node), so a corrupt, forged, stale or
         missing demand all age it.  Needs the reception times of the node runtime's RxTable; a plain
         mapping (unit tests) never loses its command; neither does a BECU that never had one."""
         age_us = getattr(rx, "age_us", None)

@@ -1,8 +1,8 @@
 """The nodes of seed 002's anti-collision study:
-hil.assembly hands a scenario with a [acd] section to this module.
+hil.runtime.assembly hands a scenario with a [acd] section to this module.
 
 `node_names` gets the foundation's node list (PLANT first) and returns this study's; `build_node`
-returns the study's own node for `name`, or None to let hil.assembly build the foundation's.
+returns the study's own node for `name`, or None to let hil.runtime.assembly build the foundation's.
 
 What the [acd] section adds to a run (seed 002 §IV–§V, §IX, §X):
 
@@ -11,24 +11,24 @@ What the [acd] section adds to a run (seed 002 §IV–§V, §IX, §X):
   the track in WGS-84 with route sections, the leading train U1 (plant_sim.leader, scripted), the
   wayside signals with their aspects over time, and the radio link (latency, jitter, loss, outages,
   `RadioLink`) to the control centre (`CentreModel`: steps 3–6 of the paper, the same pairing
-  function as the TCP service hil.control_centre).  The follower's radio box puts what it last got
+  function as the TCP service hil.links.control_centre).  The follower's radio box puts what it last got
   on CAN: RADIO_LEADER_POS/INFO (LeaderId 0: no leader on the section) and RADIO_SIGNAL.  The plant
   also sends ACD_GNSS_TRUTH: the true antenna position, the feed of the GPS receiver model (in a
   real HIL, the GNSS simulator's feed from the vehicle model; no such frame exists on a train).
 - **ACD** (`AcdDevice`): the GPS receiver (plant_sim.gps: noise, dropouts, instability) writes NMEA
   RMC+GGA (or the framed binary) onto a serial line through pyserial — ``loop://`` in lockstep, a
   real pseudo-terminal pair in real time — and the device reads it back, checksums verified, garbage
-  counted and ignored (hil.nmea).  Fixes with a GGA/binary HDOP above `max_hdop` are dropped (the
+  counted and ignored (hil.links.nmea).  Fixes with a GGA/binary HDOP above `max_hdop` are dropped (the
   instability episodes report HDOP 4, plant_sim.gps).  The firmware (firmware_py.acd, steps 1–12,
   with or without §X's prediction) sends ACD_BRAKE_REQ to the BCU.
-- **BCU**: the foundation's Bcu with `BcuParams.acd` (hil.assembly sets it for a scenario with [acd]):
+- **BCU**: the foundation's Bcu with `BcuParams.acd` (hil.runtime.assembly sets it for a scenario with [acd]):
   an EMERGENCY request is an emergency request (BCU_EMERGENCY.Source = 2, ACD); a SERVICE request asks
   for RequestedDecel, and the demand is the largest of the desk's step, precise stopping and the ACD's.
 
 After a run, `judge` decides on plant truth: minimum gap to U1's last wagon, collision (gap ≤ 0),
 red-signal overruns (the front passes a signal showing red), brake applications of the ACD and the
 unnecessary ones.  `railhil reproduce acd campaign FILE` runs a campaign file's points
-(hil.campaign's seeded draws) with prediction on and off and prints the figures.
+(hil.campaign.sweep's seeded draws) with prediction on and off and prints the figures.
 """
 
 from __future__ import annotations
@@ -57,12 +57,12 @@ from firmware_py.acd import (
     braking_distance_m,
     pair_on_sections,
 )
-from hil.codec import Codec
+from hil.can.codec import Codec
 from hil.errors import RailhilError
-from hil.gpsserial import GpsLinkReader, GpsLinkWriter, PtyLink, open_port
-from hil.nmea import DEFAULT_UTC0, ReceivedFix
-from hil.node import Binding, Node
-from hil.plant_node import PlantController
+from hil.links.gpsserial import GpsLinkReader, GpsLinkWriter, PtyLink, open_port
+from hil.links.nmea import DEFAULT_UTC0, ReceivedFix
+from hil.runtime.node import Binding, Node
+from hil.runtime.plant_node import PlantController
 from hil.scenario import Scenario
 from hil.spec_acd import AcdSpec, GpsSpec, RadioSpec
 from plant_sim.geo import TrackGeometry, polyline_from_legs
@@ -197,7 +197,7 @@ class RadioLink:
 
 class CentreModel:
     """The control centre in-process (lockstep): the latest report of each train (step 3), the pairing
-    on each route section (steps 4–5, firmware_py.acd.pair_on_sections, as hil.control_centre), and
+    on each route section (steps 4–5, firmware_py.acd.pair_on_sections, as hil.links.control_centre), and
     what it sends: ("pair", leader) when a train's leader changes, the leader's report to its
     follower (step 6)."""
 
@@ -221,7 +221,7 @@ class CentreModel:
                 if new[train][0] is not None:
                     out.append((train, {"type": "leader_report", **self.latest[new[train][0]]}))
         self.pairs = new
-        # the acknowledgement carries the reporting train's current pair, as hil.control_centre's does:
+        # the acknowledgement carries the reporting train's current pair, as hil.links.control_centre's does:
         # a lost "pair" message heals itself with the next report
         out.append((rep["train"], {"type": "pair", "leader": new.get(rep["train"], (None, None))[0]}))
         follower = new.get(rep["train"], (None, None))[1]
@@ -231,7 +231,7 @@ class CentreModel:
 
 
 class TcpCentre:
-    """The real control centre (hil.control_centre: its own process, its SQLite file) over TCP, for
+    """The real control centre (hil.links.control_centre: its own process, its SQLite file) over TCP, for
     real-time runs: one TrainClient per train (reports acknowledged, resent after a reconnection, so a
     restart of the centre loses none), on an asyncio loop in a thread of the PLANT process.  Radio
     latency and loss are the centre's own (`railhil control-centre --latency-ms --loss`)."""
@@ -240,7 +240,7 @@ class TcpCentre:
         import asyncio
         import threading
 
-        from hil.control_centre import TrainClient
+        from hil.links.control_centre import TrainClient
 
         host, _, port = address.rpartition(":")
         self.loop = asyncio.new_event_loop()
@@ -447,7 +447,7 @@ class _AcdRx(Mapping):
 
 @dataclass
 class GpsInputStats:
-    """What the ACD's GPS input stage did (besides hil.nmea's byte/sentence counters)."""
+    """What the ACD's GPS input stage did (besides hil.links.nmea's byte/sentence counters)."""
 
     fixes_written: int = 0
     corrupted: int = 0           # fixes whose bytes were damaged on the line (injected)
@@ -616,13 +616,13 @@ def _serial_kind(spec: AcdSpec) -> str:
         return spec.gps.serial
     import multiprocessing as mp
 
-    # a real-time run builds each node in its own process named railhil-<node> (hil.realtime)
+    # a real-time run builds each node in its own process named railhil-<node> (hil.runtime.realtime)
     return "pty" if mp.current_process().name == f"railhil-{ACD_NODE}" else "loop"
 
 
 def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
                dbc_name: str = "DBC") -> Node | None:
-    from hil import assembly
+    from hil.runtime import assembly
 
     spec = spec_of(scenario)
     n = scenario.train.cars
@@ -673,7 +673,7 @@ def judge(scenario: Scenario, cols: Mapping[str, np.ndarray], req_t_s: np.ndarra
           req: np.ndarray) -> Judgement:
     """Judge a run from its truth columns (t_s, x_m_1, v_mps_1) and the ACD's Request frames (times
     [s] and values), recomputing U1 and the signals from the scenario."""
-    from hil.plant_node import plant_params
+    from hil.runtime.plant_node import plant_params
 
     spec = spec_of(scenario)
     t = np.asarray(cols["t_s"])
@@ -727,9 +727,9 @@ class RequestLog(can.Listener):
 
 def run_judged(scenario_json: str) -> dict:
     """One lockstep run in this process, no trace file, judged (a campaign worker's job)."""
-    from hil.dbc import load_dbc
-    from hil.lockstep import run_lockstep
-    from hil.run import dbc_path_of
+    from hil.can.dbc import load_dbc
+    from hil.runtime.lockstep import run_lockstep
+    from hil.runtime.run import dbc_path_of
 
     scenario = Scenario.model_validate_json(scenario_json)
     t0 = time.perf_counter()
@@ -747,9 +747,9 @@ def judge_run_dir(run_dir: Path) -> dict:
     (truth.csv) and the ACD's requests in its trace."""
     import json
 
-    from hil.dbc import load_dbc
-    from hil.results import read_signal
-    from hil.run import TRACE_NAME, dbc_path_of
+    from hil.can.dbc import load_dbc
+    from hil.report.kpis import read_signal
+    from hil.runtime.run import TRACE_NAME, dbc_path_of
 
     run_dir = Path(run_dir)
     try:
@@ -772,8 +772,8 @@ def judge_run_dir(run_dir: Path) -> dict:
 
 # --------------------------------------------------------------------------- the randomized campaign
 def campaign_scenarios(path: str | Path) -> list[Scenario]:
-    """The points of a campaign file (hil.campaign: base, [set], [grid], seeded [random])."""
-    from hil.campaign import CampaignError, expand, load_campaign
+    """The points of a campaign file (hil.campaign.sweep: base, [set], [grid], seeded [random])."""
+    from hil.campaign.sweep import CampaignError, expand, load_campaign
 
     try:
         points = expand(load_campaign(path))
@@ -812,7 +812,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     sub.required = True
     c = sub.add_parser("campaign", help="run a campaign file's points with prediction on and off, judged "
                                         "on plant truth")
-    c.add_argument("campaign", type=Path, help="campaign TOML (hil.campaign format) over an ACD scenario")
+    c.add_argument("campaign", type=Path, help="campaign TOML (hil.campaign.sweep) over an ACD scenario")
     c.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     c.add_argument("--prediction", choices=("both", "on", "off"), default="both",
                    help="run the points with the ACD's prediction on, off, or both (default both)")

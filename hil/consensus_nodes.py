@@ -1,5 +1,5 @@
 """The nodes of seed 003's consensus-braking study:
-hil.assembly hands a scenario with a [consensus] section to this module.
+hil.runtime.assembly hands a scenario with a [consensus] section to this module.
 
 `node_names` gets the foundation's node list (PLANT first) and returns this study's: PLANT (the
 seed-003 plant, plant_sim/consensus.py), BCU (the virtual leader of eq. (9)) and BECU1..n (the consensus
@@ -32,11 +32,11 @@ from firmware_py.consensus import (
     VirtualLeader,
     VirtualLeaderParams,
 )
-from hil.busload import declared_bitrate, frame_bits
-from hil.codec import Codec
+from hil.can.busload import declared_bitrate, frame_bits
+from hil.can.codec import Codec
 from hil.errors import BindingError, ScenarioError
-from hil.node import Binding, Node
-from hil.plant_node import build_track
+from hil.runtime.node import Binding, Node
+from hil.runtime.plant_node import build_track
 from hil.scenario import Scenario
 from plant_sim.consensus import (
     ConsensusForces,
@@ -47,7 +47,7 @@ from plant_sim.consensus import (
 )
 from plant_sim.params import TrainParams
 
-STANDSTILL_MPS = 0.01         # every car slower than this counts as standing still (as hil.plant_node)
+STANDSTILL_MPS = 0.01         # every car slower than this is standing still (hil.runtime.plant_node)
 DEFAULT_BITRATE = 500_000     # bit/s when neither the scenario nor the DBC gives one
 
 

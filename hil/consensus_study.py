@@ -13,7 +13,8 @@ Settings, all in lockstep with the real nodes, frames and codec:
 Cycle sweep: case 1 at cycles 1-10 ms (DBC cycle times of BECUn_CONS and PLANT_CONS_CARn replaced in a
 copy of the DBC) in every setting, and case 3 (the hardest: every car skids, then regains its braking force
 at once) in the can setting over its first CASE3_SWEEP_S.  Latency sweep: the paper and can settings with
-extra delay on every BECUn_CONS frame (`[messages.BECUn_CONS] delay_min_us = delay_max_us`, hil/release.py).
+extra delay on every BECUn_CONS frame (`[messages.BECUn_CONS] delay_min_us = delay_max_us`,
+hil/runtime/release.py).
 
 Figures per run (like Figs. 3-17 of seed 003): speeds, coupler displacements, tracking errors and the
 observer's estimate for car 2 against the plant's φ₂/m₂.  Definitions used in the tables:
@@ -42,8 +43,9 @@ import can
 import numpy as np
 
 from hil.errors import RailhilError, ScenarioError
+from hil.resources import scenarios_dir
 
-SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
+SCENARIOS = scenarios_dir()
 CASES = (1, 2, 3)
 TOLS_MPS = (1.0 / 3.6, 0.1 / 3.6)   # convergence tolerances on |v_i − v*|: 1 km/h and 0.1 km/h (chosen)
 OBS_TOL = 0.1                  # observer tolerance on |φ̂ − φ/m| [m/s²] (chosen)
@@ -94,7 +96,7 @@ def _scenario(job: Job):
 
 def _database(cycle_ms: int | None):
     """The project DBC, with the consensus loop's frames at `cycle_ms` when given (in a copy)."""
-    from hil.dbc import load_dbc
+    from hil.can.dbc import load_dbc
     db = load_dbc()
     if cycle_ms is not None:
         db = copy.deepcopy(db)
@@ -134,9 +136,9 @@ def _settle_time(t: np.ndarray, ok: np.ndarray, start: float, end: float) -> flo
 
 def run_job(job: Job) -> dict:
     """Run one job in lockstep and reduce it to the study's figures (and decimated series)."""
-    from hil.busload import declared_bitrate, static_load
-    from hil.codec import Codec
-    from hil.lockstep import run_lockstep
+    from hil.can.busload import declared_bitrate, static_load
+    from hil.can.codec import Codec
+    from hil.runtime.lockstep import run_lockstep
     sc = _scenario(job)
     cycle = job.cycle_ms if job.cycle_ms is not None else (1 if job.setting == "paper" else None)
     db = _database(cycle)

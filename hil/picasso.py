@@ -31,9 +31,10 @@ import numpy as np
 
 from firmware_py.preview import RefParams, delta_star, reference
 from hil.errors import RailhilError
+from hil.resources import data_root
 from plant_sim.picasso import PicassoParams, Rail, simulate
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = data_root()          # the shipped scenarios/ (hil.resources)
 BASE_SCENARIO = ROOT / "scenarios" / "picasso_dp.toml"
 DEFAULT_PROFILE = "picasso1000"
 
@@ -77,7 +78,7 @@ def case_sets(c: Case) -> list[str]:
 def run_case(c: Case, with_truth: bool = False) -> dict:
     """The lockstep run of a case over CAN (no trace file): stopping distance S [m], time [s], and the
     normalised tracking-error norm n_e of §3.2 (with the truth columns when asked)."""
-    from hil.lockstep import run_lockstep
+    from hil.runtime.lockstep import run_lockstep
     from hil.scenario import load_scenario
 
     scenario = load_scenario(BASE_SCENARIO, sets=case_sets(c))
@@ -98,8 +99,8 @@ def run_case(c: Case, with_truth: bool = False) -> dict:
 @functools.cache
 def _db_codec():
     """The project DBC and its codec, built once per process (the codec compiles a function per frame)."""
-    from hil.codec import Codec
-    from hil.dbc import load_dbc
+    from hil.can.codec import Codec
+    from hil.can.dbc import load_dbc
     db = load_dbc()
     return db, Codec(db)
 
@@ -123,7 +124,7 @@ def run_full(method: str = "Bd", sets: tuple[str, ...] = ()) -> dict:
     per car, and the α the slip loops achieve (`achieved_alpha`), from the truth and the BECUs' frames."""
     import can
 
-    from hil.lockstep import run_lockstep
+    from hil.runtime.lockstep import run_lockstep
     from hil.scenario import load_scenario
 
     scenario = load_scenario(FULL_SCENARIO, sets=[f"preview.method={method}", *sets])

@@ -1,8 +1,8 @@
 """The nodes of seed 000's slip-reference study:
-hil.assembly hands a scenario with a [preview] section to this module.
+hil.runtime.assembly hands a scenario with a [preview] section to this module.
 
 `node_names` gets the foundation's node list (PLANT first) and returns this study's; `build_node`
-returns the study's own node for `name`, or None to let hil.assembly build the foundation's.
+returns the study's own node for `name`, or None to let hil.runtime.assembly build the foundation's.
 
 Paper mode: PLANT = the reduced model of eqs. (1)-(4) (plant_sim.picasso) stepping with the Σ_i° it
 receives in BECUi_SLIP_REF (held between frames), sending the train state (PLANT_TRAIN) and each
@@ -24,10 +24,11 @@ from cantools.database.can import Database
 
 from firmware_py.preview import EstimatorParams, PreviewBecu, RefParams
 from firmware_py.slipctl import SlipBecu, SlipCtlParams
-from hil.codec import Codec
+from hil.can.codec import Codec
 from hil.errors import ScenarioError
-from hil.node import Binding, Node
-from hil.plant_node import TRUTH_PERIOD_US, PlantController, build_track
+from hil.resources import data_root
+from hil.runtime.node import Binding, Node
+from hil.runtime.plant_node import TRUTH_PERIOD_US, PlantController, build_track
 from hil.scenario import Scenario
 from plant_sim.adhesion import mu_scalar, slip_ratio_scalar
 from plant_sim.errors import PlantConfigError
@@ -44,10 +45,10 @@ from plant_sim.picasso import (
 from plant_sim.plant import Plant
 from plant_sim.track import Track
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = data_root()          # the shipped scenarios/ (hil.resources)
 PROFILES_DIR = ROOT / "scenarios" / "profiles"
 PLANT_OFFSET_US = 0
-BECU_OFFSET_US = 3_000           # + 500 µs per car, as the foundation's BECUs (hil.assembly)
+BECU_OFFSET_US = 3_000           # + 500 µs per car, as the foundation's BECUs (hil.runtime.assembly)
 
 
 # ------------------------------------------------------------------------------------ θ(x) tables
@@ -180,7 +181,7 @@ class PicassoPlantController:
 
 # ------------------------------------------------------------------------------------ full mode
 class FullPlantController(PlantController):
-    """The foundation's wheelset plant (hil.plant_node.PlantController) that also sends, every 10 ms,
+    """The foundation's wheelset plant (hil.runtime.plant_node.PlantController) that also sends, every 10 ms,
     the train state (car 1's speed, acceleration, position) and each car's slip ratio, adhesion used and
     oracle σ̄° (PLANT_TRAIN, PLANT_CARi_ADH) for the slip controllers of full mode."""
 
@@ -213,7 +214,7 @@ class FullPlantController(PlantController):
 
 def full_spacing(scenario: Scenario) -> tuple[float, ...]:
     """Δ_i of full mode: the plant's car pitch; `preview.spacing_m` must say the same."""
-    from hil.assembly import scenario_plant_params
+    from hil.runtime.assembly import scenario_plant_params
     pitch = scenario_plant_params(scenario).train.car_pitch_m
     d = tuple(pitch * k for k in range(scenario.train.cars))
     if tuple(scenario.preview.spacing_m) != d[1:]:
@@ -228,7 +229,7 @@ def full_spacing(scenario: Scenario) -> tuple[float, ...]:
 
 def slipctl_params(scenario: Scenario, car: int) -> SlipCtlParams:
     """The slip controller of car `car` (1-based), commissioned with the plant's car and brake."""
-    from hil.assembly import scenario_plant_params
+    from hil.runtime.assembly import scenario_plant_params
     pp = scenario_plant_params(scenario)
     b = pp.brake
     pv = scenario.preview
@@ -243,7 +244,7 @@ def slipctl_params(scenario: Scenario, car: int) -> SlipCtlParams:
 
 
 def build_full_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_name: str) -> Node | None:
-    from hil.assembly import scenario_plant_params
+    from hil.runtime.assembly import scenario_plant_params
     pv = scenario.preview
     spacing = full_spacing(scenario)
     n = len(spacing)

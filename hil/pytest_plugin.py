@@ -20,7 +20,7 @@ The fixture ``hil_run`` is a callable that runs a scenario and returns a `HilRun
   python-can bus, `bus` its configuration, e.g. ``{"interface": "socketcan", "channel": "vcan0"}``;
   default udp_multicast on a group of its own). Lockstep runs are cached for the test session: tests
   asking for the same scenario and overrides share one run.
-* `HilRun`: ``kpis`` (kpis.json: definitions in hil.results.compute_kpis), ``out_dir`` (the run folder
+* `HilRun`: ``kpis`` (kpis.json: definitions in hil.report.kpis.compute_kpis), ``out_dir`` (the run folder
   with trace.blf and report.html), ``signal("MESSAGE.Signal")`` (decoded from the trace with the DBC; time
   in simulated seconds from the start of the run), ``truth("v_mps_1")`` (the plant's ground truth
   columns of truth.csv).
@@ -312,11 +312,11 @@ class HilRun:
 
     def signals(self, *names: str) -> dict[str, Signal]:
         """Several "MESSAGE.Signal" names decoded in one pass over the trace (time: simulated s)."""
-        from hil.codec import Codec
-        from hil.dbc import load_dbc
+        from hil.can.codec import Codec
+        from hil.can.dbc import load_dbc
         from hil.errors import BindingError
-        from hil.results import read_signals
-        from hil.run import dbc_path_of
+        from hil.report.kpis import read_signals
+        from hil.runtime.run import dbc_path_of
 
         todo = [n for n in names if n not in self._signals]
         if todo:
@@ -347,7 +347,7 @@ class HilRun:
     def truth(self, column: str) -> Signal:
         """A column of the plant's ground truth (truth.csv), e.g. v_mps_1, x_m_1, p_Pa_3, slip_speed_mps_2."""
         if self._truth is None:
-            from hil.results import read_truth_csv
+            from hil.report.kpis import read_truth_csv
 
             self._truth = read_truth_csv(self.out_dir / "truth.csv")
         if column not in self._truth:
@@ -386,11 +386,11 @@ def run_hil(scenario, out_dir: Path, overrides: dict | None = None, mode: str = 
         raise ValueError(f"mode = {mode!r}: expected one of {', '.join(MODES)}")
     sc = resolve_scenario(scenario, overrides, search)
     if mode == "lockstep":
-        from hil.run import run_scenario_lockstep
+        from hil.runtime.run import run_scenario_lockstep
 
         report = run_scenario_lockstep(sc, Path(out_dir))
     else:
-        from hil.realtime import run_scenario_realtime
+        from hil.runtime.realtime import run_scenario_realtime
 
         report = run_scenario_realtime(sc, Path(out_dir), dict(bus or {}))
     return HilRun(Path(out_dir), mode, report.kpis, sc)

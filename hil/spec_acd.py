@@ -1,7 +1,7 @@
 """The scenario section [acd]: seed 002, the anti-collision device, a
 leader train, signals and the radio link.
 
-Its presence in a scenario makes hil.assembly hand the run's nodes to hil/acd_nodes.py.
+Its presence in a scenario makes hil.runtime.assembly hand the run's nodes to hil/acd_nodes.py.
 
 Positions along the track are track positions s [m] (the plant's x axis: length along the track
 polyline `[acd.track]` from its first point); times are s of simulated time.  The own train (U2, the
@@ -14,7 +14,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from hil.specbase import Strict
+from hil.scenario.base import Strict
 
 Seconds = Annotated[float, Field(ge=0, le=3600)]
 
@@ -113,7 +113,7 @@ class RadioSpec(Strict):
 
 
 class GpsSpec(Strict):
-    """The own train's GPS receiver (plant_sim.gps) and its serial line to the ACD (hil.gpsserial)."""
+    """The own train's GPS receiver (plant_sim.gps) and its serial line to the ACD (hil.links.gpsserial)."""
 
     rate_hz: Annotated[float, Field(ge=1, le=10, description="fix rate [Hz]")] = 1.0
     protocol: Literal["nmea", "binary"] = Field("nmea", description="NMEA RMC+GGA or the framed binary")

@@ -1,6 +1,6 @@
 """The scenario section [consensus]: seed 003: observer-driven consensus braking.
 
-Its presence in a scenario makes hil.assembly hand the run's nodes to hil/consensus_nodes.py: the
+Its presence in a scenario makes hil.runtime.assembly hand the run's nodes to hil/consensus_nodes.py: the
 seed-003 plant (force-actuated cars, plant_sim/consensus.py), the BCU as virtual leader and one
 consensus BECU per car (firmware_py/consensus.py).  Masses and the number of cars come from [train]
 (masses_kg); the defaults here are Table 2 of seed 003.
@@ -12,7 +12,7 @@ from typing import Annotated
 
 from pydantic import Field, model_validator
 
-from hil.specbase import Strict
+from hil.scenario.base import Strict
 
 #: Table 2 of seed 003
 TABLE2_SPEEDS_KMH = [88.0, 93.0, 87.0, 89.0, 92.0, 95.5]

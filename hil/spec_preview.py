@@ -1,6 +1,6 @@
 """The scenario section [preview]: seed 000 (Picasso et al.): slip-reference generators with preview.
 
-Its presence in a scenario makes hil.assembly hand the run's nodes to hil/preview_nodes.py.
+Its presence in a scenario makes hil.runtime.assembly hand the run's nodes to hil/preview_nodes.py.
 
 Paper mode (`mode = "paper"`): the PLANT node is the reduced model of eqs. (1)-(4)
 (plant_sim.picasso), one braking car per [train] car, car k at `spacing_m[k-2]` metres behind car 1;
@@ -18,7 +18,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from hil.specbase import Strict
+from hil.scenario.base import Strict
 
 
 class PreviewSpec(Strict):

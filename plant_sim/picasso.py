@@ -172,7 +172,7 @@ class ReducedTrain:
 
 
 class PicassoTruth:
-    """The reduced model's ground truth at a fixed period, in the columns hil.results reads
+    """The reduced model's ground truth at a fixed period, in the columns hil.report.kpis reads
     (`x_m_k, v_mps_k, a_mps2_k, slip_speed_mps_k, slip_ratio_k, wsp_valve_k, p_Pa_k`, `coupler_dl_m_k`,
     zeros where the reduced model has no such quantity) plus `sigma_ref_k` (Σ_k° applied), `sigma_opt_k`
     (true σ°(x_k, v)) and `mu_k` (adhesion used).  Plain lists: it pickles."""

@@ -13,7 +13,7 @@ DEFAULT = ROOT / "scenarios" / "default.toml"
 @pytest.fixture(scope="session")
 def default_lockstep(tmp_path_factory):
     """The default scenario run in lockstep with its own seed; returns the RunReport."""
-    from hil.run import run_scenario_lockstep
+    from hil.runtime.run import run_scenario_lockstep
     from hil.scenario import load_scenario
 
     out = tmp_path_factory.mktemp("default-lockstep")

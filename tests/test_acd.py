@@ -31,7 +31,7 @@ from firmware_py.acd import (
     pair_on_sections,
     required_decel_mps2,
 )
-from hil.node import Binding, RxTable
+from hil.runtime.node import Binding, RxTable
 from plant_sim import geo
 
 DBC = Path(__file__).resolve().parents[1] / "dbc" / "train_brake.dbc"

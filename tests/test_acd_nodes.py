@@ -26,7 +26,7 @@ from hil.acd_nodes import (
     section_of,
 )
 from hil.errors import ScenarioError
-from hil.node import RxTable
+from hil.runtime.node import RxTable
 from hil.scenario import load_scenario
 from hil.spec_acd import AcdSpec, RadioSpec
 from plant_sim.errors import PlantConfigError

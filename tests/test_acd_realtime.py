@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from hil.acd_nodes import judge_run_dir
-from hil.control_centre import stored_reports
+from hil.links.control_centre import stored_reports
 
 pytestmark = [pytest.mark.realtime, pytest.mark.slow]
 
@@ -28,7 +28,7 @@ WAIT_S = 120.0
 
 def start_centre(db: Path, port: int) -> tuple[subprocess.Popen, int]:
     """The control centre as its own process; returns it and its port once it listens."""
-    proc = subprocess.Popen([sys.executable, "-m", "hil.control_centre", "--db", str(db), "--port",
+    proc = subprocess.Popen([sys.executable, "-m", "hil.links.control_centre", "--db", str(db), "--port",
                              str(port)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     line = proc.stdout.readline()                     # blocks until it listens (or dies)
     m = re.match(r"listening on 127\.0\.0\.1:(\d+)", line)

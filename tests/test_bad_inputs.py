@@ -39,8 +39,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pydantic import BaseModel
 
-from hil.codec import Codec
-from hil.dbc import DEFAULT_DBC, load_dbc
+from hil.can.codec import Codec
+from hil.can.dbc import DEFAULT_DBC, load_dbc
 from hil.errors import ScenarioError
 
 CORPUS = ROOT.parent / "shared" / "corpus"
@@ -290,7 +290,7 @@ def replay_shows(key: str):
     return check
 
 
-SCENARIO_PY = "hil/scenario.py (not this helper's file)"
+SCENARIO_PY = "hil/scenario/model.py (not this helper's file)"
 DBC_CASES = [
     ("dbc_missing", lambda b: ("missing.dbc", "no such DBC file")),
     ("dbc_empty", lambda b: ("empty.dbc", "empty file", "expected a DBC")),
@@ -499,18 +499,19 @@ def small_scenario(tmp_path_factory):
 
 
 def becu1(scenario, controller=None, safe: dict | None = None):
-    """The BECU1 node of the scenario as hil.assembly builds it, optionally with another controller and
+    """The BECU1 node of the scenario as hil.runtime.assembly builds it, optionally with another controller
+    and
     safe outputs."""
-    from hil.assembly import build_node
-    from hil.node import Node
+    from hil.runtime.assembly import build_node
+    from hil.runtime.node import Node
 
     db = load_dbc()
     codec = Codec(db)
     node = build_node("BECU1", scenario, db, codec)
     if controller is None and safe is None:
         return node, codec
-    from hil.assembly import becu_messages
-    from hil.node import Binding
+    from hil.runtime.assembly import becu_messages
+    from hil.runtime.node import Binding
 
     ctrl = controller or node.controller
     rx, tx = becu_messages(1)
@@ -636,13 +637,13 @@ FAULT_WINDOWS_US = {"raise": (300_000, 350_000), "nan": (400_000, 450_000), "ran
 
 @pytest.fixture(scope="module")
 def faulty_run(small_scenario, tmp_path_factory):
-    """A 1 s lockstep run (public API: hil.run.run_scenario_lockstep) whose BECU1 controller raises,
+    """A 1 s lockstep run (public API: hil.runtime.run.run_scenario_lockstep) whose BECU1 controller raises,
     returns NaN and returns an out-of-range pressure, each in its own window: the fault is injected by
-    wrapping the real controller that hil.assembly builds; bus, trace and DBC are the real ones."""
-    import hil.lockstep
-    from hil.run import run_scenario_lockstep
+    wrapping the real controller that hil.runtime.assembly builds; bus, trace and DBC are the real ones."""
+    import hil.runtime.lockstep
+    from hil.runtime.run import run_scenario_lockstep
 
-    real_build = hil.lockstep.build_node
+    real_build = hil.runtime.lockstep.build_node
     injected: dict[str, Faulty] = {}
 
     def build_node(name, *args, **kwargs):
@@ -656,7 +657,7 @@ def faulty_run(small_scenario, tmp_path_factory):
 
     out = tmp_path_factory.mktemp("faulty-run") / "run"
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(hil.lockstep, "build_node", build_node)
+        mp.setattr(hil.runtime.lockstep, "build_node", build_node)
         report = run_scenario_lockstep(small_scenario, out)
     return report, injected
 

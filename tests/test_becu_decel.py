@@ -13,8 +13,8 @@ import pytest
 
 from firmware_py.becu import Becu, BecuParams, Wsp, WspParams, wsp_transition
 from firmware_py.pi import PIParams
-from hil.assembly import becu_params
 from hil.errors import ScenarioError
+from hil.runtime.assembly import becu_params
 from hil.scenario import load_scenario, parse_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

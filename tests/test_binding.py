@@ -2,10 +2,10 @@
 
 import pytest
 
-from hil.codec import Codec
-from hil.dbc import load_dbc
+from hil.can.codec import Codec
+from hil.can.dbc import load_dbc
 from hil.errors import BindingError
-from hil.node import Binding, Node
+from hil.runtime.node import Binding, Node
 
 DB = load_dbc()
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import cantools
 import pytest
 
-from hil.busload import (
+from hil.can.busload import (
     BusLoad,
     frame_bits,
     functions_of,

@@ -6,7 +6,7 @@ from conftest import DEFAULT
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.bustiming import (
+from hil.can.bustiming import (
     BitTimedBus,
     Pending,
     arbitration_key,
@@ -15,7 +15,7 @@ from hil.bustiming import (
     frame_duration_bits,
     stuff_bits,
 )
-from hil.run import run_scenario_lockstep
+from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario
 
 std_ids = st.integers(0, 0x7FF)

@@ -13,7 +13,7 @@ import shutil
 import pytest
 from conftest import ROOT, assert_one_line_error, railhil
 
-from hil.campaign import (
+from hil.campaign.sweep import (
     CampaignError,
     draw,
     expand,

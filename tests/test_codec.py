@@ -1,4 +1,4 @@
-"""hil.codec against cantools: the fast path must give cantools' values and bytes, for train_brake.dbc
+"""hil.can.codec against cantools: the fast path must give cantools' values and bytes, for train_brake.dbc
 and for every DBC of the external corpus cantools can load (property tests, hypothesis).
 
 The corpus lives outside the repository; RAILHIL_CORPUS points to it
@@ -20,7 +20,7 @@ from cantools.database.errors import DecodeError, EncodeError
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from hil.codec import Codec, FrameCodec, FrameError
+from hil.can.codec import Codec, FrameCodec, FrameError
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN_DBC = ROOT / "dbc" / "train_brake.dbc"

@@ -128,7 +128,7 @@ def test_delayed_loop_poles_hand_values(lam_t, radius):
 
 def test_scenario_gains_are_inside_the_sampled_stability_region():
     # the scenarios' loop_gain at their DBC cycle gives λT = (6 α1 + k) s T = loop_gain / 2 < 1
-    from hil.dbc import load_dbc
+    from hil.can.dbc import load_dbc
     sc = load_scenario(CASE1)
     period_us = int(load_dbc().get_message_by_name("BECU1_CONS").cycle_time) * 1000
     c = sc.consensus
@@ -198,7 +198,7 @@ def test_observer_tracks_a_sinusoid_with_quantised_speed():
 
 # ----------------------------------------------------------------------------------- the BECU's step
 class FakeRx(dict):
-    """Latest-value table as hil.node.RxTable gives it (value and age)."""
+    """Latest-value table as hil.runtime.node.RxTable gives it (value and age)."""
 
     def __init__(self, values, ages=None):
         super().__init__(values)
@@ -351,10 +351,10 @@ def test_becus_run_on_the_sample_of_their_cycle(tmp_path):
     # the loop's frames, bcu_offset_us) — a BECU that ran early would send the previous cycle's Sample
     import can
 
-    from hil.codec import Codec
+    from hil.can.codec import Codec
+    from hil.can.dbc import load_dbc
     from hil.consensus_nodes import bcu_offset_us, becu_offset_us
-    from hil.dbc import load_dbc
-    from hil.lockstep import run_lockstep
+    from hil.runtime.lockstep import run_lockstep
     sc = load_scenario(CASE1, sets=["max_duration_s=0.1"])
     db = load_dbc()
     codec = Codec(db)
@@ -386,9 +386,9 @@ def test_plant_step_must_divide_the_sensor_cycle(tmp_path, capsys):
 
 
 def test_plant_step_sets_the_truth_resolution():
-    from hil.codec import Codec
-    from hil.dbc import load_dbc
-    from hil.lockstep import run_lockstep
+    from hil.can.codec import Codec
+    from hil.can.dbc import load_dbc
+    from hil.runtime.lockstep import run_lockstep
     sc = load_scenario(CASE1, sets=["max_duration_s=0.02", "consensus.plant_step_us=500"])
     db = load_dbc()
     out = run_lockstep(sc, db, Codec(db), None)

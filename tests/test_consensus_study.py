@@ -36,7 +36,7 @@ def test_sweep_reductions():
 
 
 def test_latency_is_injected_through_the_message_delays():
-    # 3 ms of extra delay on every BECUn_CONS frame (hil/release.py) moves the t0 transient beyond the
+    # 3 ms of extra delay on every BECUn_CONS frame (hil/runtime/release.py) moves the t0 transient beyond the
     # undelayed run's: the relative displacement grows (the paper's law has no delay margin at 1 ms)
     base = run_job(Job("a", 1, True, "paper", horizon_s=0.1, series=False))
     late = run_job(Job("b", 1, True, "paper", delay_ms=3.0, horizon_s=0.1, series=False))

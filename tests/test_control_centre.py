@@ -1,4 +1,4 @@
-"""The control centre (hil.control_centre), seed 002 steps 3–6: real TCP sockets on 127.0.0.1 (port 0),
+"""The control centre (hil.links.control_centre), seed 002 steps 3–6: real TCP sockets on 127.0.0.1 (port 0),
 a real SQLite file, the server in-process and as its own OS process killed and restarted.  Waits are on
 events with timeouts (TrainClient.wait_for), never sleeps."""
 
@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from hil.cli import control_centre as cli
-from hil.control_centre import (
+from hil.links.control_centre import (
     ControlCentre,
     ControlCentreError,
     LinkConfig,
@@ -212,7 +212,7 @@ def test_injected_loss_is_applied_counted_and_repaired_by_resending(tmp_path):
 
 async def start_process(db: Path, port: int) -> tuple[asyncio.subprocess.Process, int]:
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "hil.control_centre", "--db", str(db), "--port", str(port),
+        sys.executable, "-m", "hil.links.control_centre", "--db", str(db), "--port", str(port),
         cwd=ROOT, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
     line = (await asyncio.wait_for(proc.stdout.readline(), WAIT_S)).decode()
     m = re.fullmatch(r"listening on 127\.0\.0\.1:(\d+) \(database .+\)\n", line)
@@ -290,7 +290,8 @@ def test_bad_options_and_files_give_one_line_and_exit_2(tmp_path, capsys):
 
 
 def test_bad_input_as_a_process_has_no_traceback(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "hil.control_centre", "--db", str(tmp_path / "x" / "y"),
+    proc = subprocess.run([sys.executable, "-m", "hil.links.control_centre", "--db",
+                           str(tmp_path / "x" / "y"),
                            "--port", "0"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "--db" in proc.stderr
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from hil.busload import declared_bitrate
-from hil.dbc import DEFAULT_DBC, load_dbc
+from hil.can.busload import declared_bitrate
+from hil.can.dbc import DEFAULT_DBC, load_dbc
 from hil.errors import DbcError
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -259,8 +259,8 @@ def test_becu_applies_phi_to_the_force_part(phi, emergency, factor):
 # ----------------------------------------------------------------------------------- the line test, HIL
 @pytest.fixture(scope="module")
 def line_test(tmp_path_factory):
-    from hil.results import compare_seed004
-    from hil.run import run_scenario_lockstep
+    from hil.report.kpis import compare_seed004
+    from hil.runtime.run import run_scenario_lockstep
     from hil.scenario import load_scenario
 
     out = {}
@@ -274,8 +274,8 @@ def line_test(tmp_path_factory):
 
 
 def test_line_test_closed_loop_holds_the_band_open_loop_does_not(line_test):
-    from hil.dbc import load_dbc
-    from hil.results import _feedback_signals, bcu_engagement_s, read_truth_csv, seed004_kpis
+    from hil.can.dbc import load_dbc
+    from hil.report.kpis import _feedback_signals, bcu_engagement_s, read_truth_csv, seed004_kpis
 
     runs, png = line_test
     (s_closed, closed), (s_open, opened) = runs[True], runs[False]
@@ -311,7 +311,7 @@ def test_line_test_closed_loop_holds_the_band_open_loop_does_not(line_test):
 def test_line_test_slope_estimate_on_can(line_test):
     """The 5 ‰ ramp starts 60 m ahead of the front car; the rear car (125 m behind it) never reaches it
     before the stop, so the train's mean slope under the two accelerometers ends at 2.5 ‰."""
-    from hil.results import _feedback_signals
+    from hil.report.kpis import _feedback_signals
 
     runs, _ = line_test
     scenario, closed = runs[True]

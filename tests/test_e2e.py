@@ -1,4 +1,4 @@
-"""AUTOSAR E2E Profile 1 and 2 (hil/e2e.py): published vectors, real VW MQB frames, the receiver state
+"""AUTOSAR E2E Profile 1 and 2 (hil/can/e2e.py): published vectors, real VW MQB frames, the receiver state
 machine as keyword tables, hypothesis properties, and fuzzed frames through decode + E2E + SecOC.
 
 Every vector names its source.  The corpus DBC lives outside the repository; RAILHIL_CORPUS points
@@ -18,9 +18,9 @@ from cantools.autosar.end_to_end import compute_profile2_crc
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.codec import Codec, FrameError
-from hil.dbc import load_dbc
-from hil.e2e import (
+from hil.can.codec import Codec, FrameError
+from hil.can.dbc import load_dbc
+from hil.can.e2e import (
     CheckState,
     DataIdMode,
     E2EConfigError,
@@ -36,8 +36,8 @@ from hil.e2e import (
     map_status_to_sm,
     protect,
 )
+from hil.can.secoc import AUTH_BYTES, Reason, SecOcReceiver, SecOcSender
 from hil.errors import RailhilError
-from hil.secoc import AUTH_BYTES, Reason, SecOcReceiver, SecOcSender
 
 CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
 VW_MQB_DBC = CORPUS / "opendbc" / "opendbc" / "dbc" / "vw_mqb.dbc"   # commaai/opendbc @ 7343a66d4621

@@ -4,7 +4,7 @@ command), on plant truth."""
 import numpy as np
 from conftest import DEFAULT
 
-from hil.run import run_scenario_lockstep
+from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario, parse_scenario
 
 T0 = 5.0

@@ -1,4 +1,4 @@
-"""hil.fastdecode, the fast path of `railhil trace decode`, writes byte for byte what the per-frame path
+"""hil.trace.fastdecode, the fast path of `railhil trace decode`, writes byte for byte what the per-frame path
 writes (``hil.cli.trace.decode.decode(..., fast=False)``): stdout in the three formats, the summary on
 stderr, and the TraceError of a bad trace after the same frames.  On every corpus trace, on traces of
 every corpus DBC and of generated DBCs (Intel and Motorola, signed, IEEE float, scale and offset,
@@ -24,14 +24,14 @@ from cantools.database.conversion import BaseConversion
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-import hil.fastdecode as fastdecode
+import hil.trace.fastdecode as fastdecode
+from hil.can.codec import Codec
+from hil.can.dbc import load_dbc
 from hil.cli.trace.decode import decode, decoded_rows, row_texts, select
-from hil.codec import Codec
-from hil.dbc import load_dbc
 from hil.errors import DbcError
-from hil.fastdecode import BlockDecoder
-from hil.tracecolumns import BLOCK_FRAMES, FrameBlock
-from hil.traceio import TraceError
+from hil.trace.columns import BLOCK_FRAMES, FrameBlock
+from hil.trace.fastdecode import BlockDecoder
+from hil.trace.readers import TraceError
 
 ROOT = Path(__file__).resolve().parents[1]
 CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
@@ -264,7 +264,7 @@ def generated_dbc(draw) -> str:
             n = draw(st.sampled_from([32, 64])) if is_float else draw(st.integers(1, 64))
             if n > 8 * length:
                 continue
-            shift = draw(st.integers(0, 8 * length - n))  # the LSB in the payload as one integer (hil.codec)
+            shift = draw(st.integers(0, 8 * length - n))  # the payload's LSB as one integer (hil.can.codec)
             bits = ((1 << n) - 1) << shift
             if big:
                 bits = int.from_bytes(bits.to_bytes(length, "big"), "little")

@@ -10,9 +10,9 @@ import sys
 import pytest
 from conftest import DEFAULT, ROOT
 
-from hil.dbc import load_dbc
-from hil.faultmatrix import _pressures, _run, run_cell, safety_messages
-from hil.faults import MESSAGE_THREATS
+from hil.can.dbc import load_dbc
+from hil.safety.injection import MESSAGE_THREATS
+from hil.safety.threat_matrix import _pressures, _run, run_cell, safety_messages
 from hil.scenario import load_scenario, parse_scenario
 
 SPEED_KMH = 30.0

@@ -64,7 +64,7 @@ def _current() -> tuple[str, dict]:
     """Run the default scenario now: (trace sha256, the golden subset of its KPIs)."""
     root = Path(__file__).resolve().parents[1]
     sys.path.insert(0, str(root))
-    from hil.run import run_scenario_lockstep
+    from hil.runtime.run import run_scenario_lockstep
     from hil.scenario import load_scenario
 
     with tempfile.TemporaryDirectory() as tmp:

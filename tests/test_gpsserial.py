@@ -1,4 +1,5 @@
-"""hil.gpsserial: GPS fixes over pyserial — loop:// (lockstep) and a real pseudo-terminal pair (real time).
+"""hil.links.gpsserial: GPS fixes over pyserial — loop:// (lockstep) and a real pseudo-terminal pair
+(real time).
 Waits are on the port with a timeout, never sleeps."""
 
 from __future__ import annotations
@@ -8,7 +9,7 @@ import os
 import pytest
 
 from hil.errors import RailhilError, SerialLinkError
-from hil.gpsserial import GpsLinkReader, GpsLinkWriter, PtyLink, line_time_us, open_port
+from hil.links.gpsserial import GpsLinkReader, GpsLinkWriter, PtyLink, line_time_us, open_port
 from plant_sim.gps import GpsModel, GpsParams
 
 N_FIXES = 40

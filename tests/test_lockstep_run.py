@@ -7,8 +7,8 @@ import cantools
 import pytest
 from conftest import DEFAULT
 
-from hil.dbc import DEFAULT_DBC
-from hil.run import run_scenario_lockstep
+from hil.can.dbc import DEFAULT_DBC
+from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario
 
 

@@ -1,4 +1,4 @@
-"""hil.nmea: NMEA 0183 RMC/GGA and the framed binary fix, written and read back; streaming readers that
+"""hil.links.nmea: NMEA 0183 RMC/GGA and the framed binary fix, written and read back; streaming readers that
 count every byte of any input and never raise."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from cobs import cobs
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.nmea import (
+from hil.links.nmea import (
     BIN_FIX,
     BIN_TYPE_FIX,
     DEFAULT_UTC0,

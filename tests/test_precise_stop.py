@@ -123,7 +123,7 @@ def test_odometer_anchor_on_a_balise_removes_the_drift():
 
 
 def test_balise_reader_interpolates_the_passage_and_reports_the_last_balise():
-    from hil.plant_node import BaliseReader
+    from hil.runtime.plant_node import BaliseReader
 
     btm = BaliseReader((-10.0, 100.0, 100.5, 300.0), x0_m=0.0)  # the one behind the start is not reported
     out: dict[str, float] = {}
@@ -219,7 +219,7 @@ def randomized_sets(method: str, k: int, distance_m: float | None, balises: bool
 
 def run_one(args: tuple[str, int, float | None, str]) -> dict:
     """One lockstep run in a worker process: its precise-stop KPIs."""
-    from hil.run import run_scenario_lockstep
+    from hil.runtime.run import run_scenario_lockstep
     from hil.scenario import load_scenario
 
     label, k, distance_m, out = args

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from conftest import DEFAULT, ROOT
 
-from hil.dbc import load_dbc
+from hil.can.dbc import load_dbc
 
 pytestmark = pytest.mark.realtime
 
@@ -73,7 +73,8 @@ def realtime_held(out) -> bool:
 @contextmanager
 def excused_unless_realtime_held(out):
     """A closed-loop check (periods, stopping distance, reaction times) that fails on a run which did not
-    hold real time (kpis.json "realtime", hil.realtime.realtime_verdict: a node more than 50 ms behind or
+    hold real time (kpis.json "realtime", hil.runtime.outcome.realtime_verdict: a node more than 50 ms behind
+    or
     skipping cycles, the machine stalled) is skipped with that reason, not failed: its figures are not the
     controllers'.  On a run that held real time the failure stands."""
     try:
@@ -128,11 +129,11 @@ def test_trace_holds_every_node_at_its_cycle_times(realtime_run):
 
 
 def test_timing_gives_a_verdict_for_every_cyclic_frame(realtime_run):
-    from hil.timing import analyse, frame_arrays
-    from hil.traceio import open_trace
+    from hil.trace.readers import open_trace
+    from hil.trace.timing import analyse, frame_arrays
 
     out, _ = realtime_run
-    from hil.busload import with_functions
+    from hil.can.busload import with_functions
 
     report = analyse(frame_arrays(open_trace(out / "trace.blf")), with_functions(load_dbc(), []),
                      bitrate_bps=500_000, ignore=["*7_*", "*8_*"])      # the base train's frames, 6 cars
@@ -156,7 +157,7 @@ def wait_for_frames(start_line: str, count: int, timeout_s: float = 30.0,
                     until_s: float | None = None) -> int:
     """Join the run's own multicast group and block until `count` frames went by (or time out); with
     `until_s`, go on receiving until that many seconds after the call (the run's clock starts 0.3 s after
-    its start line, hil.realtime.START_MARGIN_S) - a time in the run that does not depend on how many
+    its start line, hil.runtime.realtime.START_MARGIN_S) - a time in the run that does not depend on how many
     frames a test process starved of CPU manages to read."""
     import time
 
@@ -400,11 +401,12 @@ def test_node_processes_stop_when_the_runner_is_killed(tmp_path):
 
 def test_the_recorder_asks_the_kernel_for_a_large_receive_buffer():
     """At 100 % load of a 1 Mbit/s bus (8,500 frames/s) a recorder descheduled for a few ms would overflow
-    the kernel's default 208 KiB; hil.realtime asks for RECORDER_RCVBUF_BYTES (capped by rmem_max unless
+    the kernel's default 208 KiB; hil.runtime.realtime asks for RECORDER_RCVBUF_BYTES (capped by rmem_max
+    unless
     the process may force it)."""
     import socket
 
-    from hil.realtime import RECORDER_RCVBUF_BYTES, enlarge_receive_buffer
+    from hil.runtime.realtime import RECORDER_RCVBUF_BYTES, enlarge_receive_buffer
 
     bus = can.Bus(interface="udp_multicast", channel="239.255.77.77", port=41877)
     try:
@@ -423,7 +425,7 @@ def test_the_run_ends_at_the_last_truth_sample_of_any_plant():
     the real-time runner reads the end of the run from either (it used to fail on the second)."""
     from types import SimpleNamespace
 
-    from hil.realtime import truth_end_us
+    from hil.runtime.realtime import truth_end_us
     from plant_sim.picasso import PicassoTruth
 
     assert truth_end_us(SimpleNamespace(t_us=[0, 10_000, 20_000])) == 20_000

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from conftest import DEFAULT
 
-from hil.dbc import DEFAULT_DBC
+from hil.can.dbc import DEFAULT_DBC
 from hil.errors import ScenarioError
-from hil.release import NodeRelease, dbc_node_timing
-from hil.run import run_scenario_lockstep
+from hil.runtime.release import NodeRelease, dbc_node_timing
+from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario, parse_scenario
 
 BECU1_CMD = 0x031

@@ -1,4 +1,4 @@
-"""The HTML reports (hil.report_html): every run folder gets report.html with verdicts, KPIs, the plot
+"""The HTML reports (hil.report.html): every run folder gets report.html with verdicts, KPIs, the plot
 embedded, timing, faults and what reproduces the run (run.json); `railhil report` rebuilds it; a
 campaign folder gets its table and plots; the page renders with its plots in a headless browser."""
 
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from conftest import ROOT, assert_one_line_error, railhil
 
-from hil.dbc import DEFAULT_DBC
+from hil.can.dbc import DEFAULT_DBC
 
 
 class Page(HTMLParser):
@@ -90,7 +90,7 @@ def test_run_json_records_what_reproduces_the_run(default_lockstep):
 
 
 def test_git_commit_is_read_from_the_git_directory(tmp_path):
-    from hil.report_html import git_commit
+    from hil.report.html import git_commit
 
     sha = "0123456789abcdef0123456789abcdef01234567"
     (tmp_path / "repo" / ".git" / "refs" / "heads").mkdir(parents=True)
@@ -125,8 +125,8 @@ def test_late_frames_are_informational_in_real_time_and_a_stall_fails_the_real_t
     """E2E NONEWDATA (a frame 1.5 of its cycles late) is timing, not a protection error: informational in
     real time (every `make run` has some), a failure in lockstep without faults; a run that did not hold
     real time fails its own check."""
-    from hil.realtime import realtime_verdict
-    from hil.report_html import run_verdicts
+    from hil.report.html import run_verdicts
+    from hil.runtime.outcome import realtime_verdict
 
     def verdicts(mode, lag_us, missed=0):
         stats = {"PLANT": {"max_lag_us": lag_us, "missed_cycles": 0},
@@ -157,7 +157,7 @@ def test_report_bad_folders_are_one_line_errors(tmp_path, capsys):
 
 
 def test_campaign_folder_gets_its_report(tmp_path):
-    from hil.campaign import load_campaign, run_campaign, write_plots, write_table
+    from hil.campaign.sweep import load_campaign, run_campaign, write_plots, write_table
 
     spec = tmp_path / "c.toml"
     spec.write_text(f'base = "{ROOT / "scenarios" / "stop_30kmh.toml"}"\nname = "tiny"\n'
@@ -175,7 +175,7 @@ def test_campaign_folder_gets_its_report(tmp_path):
     assert page.cells.count("ok") == len(result.results) == 2
     rebuilt = tmp_path / "out" / "again.html"
     report.rename(rebuilt)
-    from hil.report_html import write_report
+    from hil.report.html import write_report
 
     assert write_report(tmp_path / "out") == report           # from results.csv alone
     assert Page(report.read_text()).cells.count("ok") == 2

@@ -1,5 +1,5 @@
-"""hil.rta: the revised CAN response-time analysis of Davis et al. 2007 against hand-worked cases, against
-the project's bit-timed bus (hil.bustiming) as an oracle, and by its properties; messages from the DBC;
+"""hil.can.rta: the revised CAN response-time analysis of Davis et al. 2007 against hand-worked cases, against
+the project's bit-timed bus (hil.can.bustiming) as an oracle, and by its properties; messages from the DBC;
 the response estimate from frame timestamps."""
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.busload import frame_bits, static_load, with_functions
-from hil.bustiming import BitTimedBus, Pending
-from hil.dbc import load_dbc
+from hil.can.busload import frame_bits, static_load, with_functions
+from hil.can.bustiming import BitTimedBus, Pending
+from hil.can.dbc import load_dbc
+from hil.can.rta import RtaError, RtaMessage, analyse, measured_response, messages_from_dbc, priority_key
 from hil.errors import RailhilError
-from hil.rta import RtaError, RtaMessage, analyse, measured_response, messages_from_dbc, priority_key
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN_DBC = ROOT / "dbc" / "train_brake.dbc"
@@ -31,7 +31,7 @@ def msg(name: str, frame_id: int, period_us: int, dlc: int = 8, deadline_us: int
 
 def simulate(messages: list[RtaMessage], bitrate: int, phases_us: list[int], horizon_us: int,
              jitter_seed: int | None = None) -> dict[str, int]:
-    """Worst response [ns] of each message on hil.bustiming's bus (worst-case stuffing, one node per
+    """Worst response [ns] of each message on hil.can.bustiming's bus (worst-case stuffing, one node per
     message), instance k released at phase + k·T (+ U(0, J) queuing delay when jitter_seed is given);
     the response runs from the release, jitter included, to the end of the frame."""
     bus = BitTimedBus(bitrate, len(messages), stuffing="worst")
@@ -226,7 +226,7 @@ def test_bound_is_at_least_jitter_blocking_and_transmission(spec):
 @settings(max_examples=40, deadline=None)
 @given(message_sets, st.randoms(use_true_random=False), st.booleans())
 def test_the_bus_never_exceeds_the_bound(spec, rnd, synchronous):
-    """hil.bustiming's arbitration, random phases (or all at once), random queuing jitter in [0, J]:
+    """hil.can.bustiming's arbitration, random phases (or all at once), random queuing jitter in [0, J]:
     no response ever exceeds the bound."""
     ms = build(spec)
     rep = analyse(ms, 250_000)
@@ -253,7 +253,8 @@ def test_critical_instant_reaches_the_bound():
 
 
 def test_train_dbc_all_schedulable():
-    """The base train's frames (8 cars; the optional functions' frames left out: hil.busload.with_functions,
+    """The base train's frames (8 cars; the optional functions' frames left out:
+    hil.can.busload.with_functions,
     what `railhil timing --rta` analyses by default)."""
     db = with_functions(load_dbc(TRAIN_DBC), [])
     ms = messages_from_dbc(db)

@@ -4,9 +4,9 @@ worst-case response time exceeds its bound, with and without release jitter."""
 import pytest
 from conftest import DEFAULT
 
-from hil.dbc import DEFAULT_DBC, load_dbc
-from hil.rta import analyse, messages_from_dbc
-from hil.run import run_scenario_lockstep
+from hil.can.dbc import DEFAULT_DBC, load_dbc
+from hil.can.rta import analyse, messages_from_dbc
+from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario, parse_scenario
 
 

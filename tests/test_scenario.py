@@ -39,7 +39,7 @@ def test_bad_scenarios_give_one_line_naming_key_and_value(tmp_path, text, needle
 
 
 def test_rail_condition_as_a_table_reaches_the_plant(tmp_path):
-    from hil.plant_node import build_track
+    from hil.runtime.plant_node import build_track
     from plant_sim.params import RAIL_CONDITIONS
 
     dry, wet = RAIL_CONDITIONS["dry"], RAIL_CONDITIONS["wet"]

@@ -1,4 +1,4 @@
-"""SecOC profile 1 style authentication (hil/secoc.py): the AES-CMAC against the published RFC 4493 /
+"""SecOC profile 1 style authentication (hil/can/secoc.py): the AES-CMAC against the published RFC 4493 /
 NIST SP 800-38B examples, the frame layout, freshness rebuild edge cases, replay and rogue frames."""
 
 from __future__ import annotations
@@ -9,8 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.errors import RailhilError
-from hil.secoc import (
+from hil.can.secoc import (
     AUTH_BYTES,
     Reason,
     SecOcError,
@@ -22,6 +21,7 @@ from hil.secoc import (
     key_from_hex,
     rebuild_freshness,
 )
+from hil.errors import RailhilError
 
 # RFC 4493 "The AES-CMAC Algorithm" §4 test vectors = NIST SP 800-38B Appendix D.1 (AES-128) examples.
 RFC4493_KEY = bytes.fromhex("2b7e151628aed2a6abf7158809cf4f3c")
@@ -262,7 +262,7 @@ def test_sender_counter_exhausted():
                           st.binary(min_size=0, max_size=8), st.sampled_from([True, False])),
                 min_size=1, max_size=12))
 def test_the_shared_mac_of_senders_and_receivers_is_always_the_fresh_cmac(frames):
-    """Senders and receivers of one (key, data id) share the last MAC they computed (hil.secoc): whatever
+    """Senders and receivers of one (key, data id) share the last MAC they computed (hil.can.secoc): whatever
     the interleaving of keys, data ids and payloads, every trailer is the one a fresh CMAC gives, and a
     receiver with another key never takes the memo of the sender's."""
     senders: dict[tuple[bytes, int], SecOcSender] = {}

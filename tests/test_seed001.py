@@ -1,6 +1,7 @@
 """Issue #4's acceptance (seed 001, Danielson & Di Cairano, ACC 2020, Figs. 8-9), checked on the KPIs of
-lockstep runs through the public API (hil.run.run_scenario_lockstep -> kpis.json "seed001", computed by
-hil.results.seed001_kpis from the plant's truth), plus a table test of those KPIs on a synthetic run with
+lockstep runs through the public API (hil.runtime.run.run_scenario_lockstep -> kpis.json "seed001",
+computed by
+hil.report.kpis.seed001_kpis from the plant's truth), plus a table test of those KPIs on a synthetic run with
 closed-form answers.
 
 The runs: scenarios/rg_low_adhesion.toml (Fig. 8, r⁰ = 0.25 g on f_max = 0.2 M g, 30 s) and
@@ -17,14 +18,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hil.results import (
+from hil.report.kpis import (
     G_MPS2,
     PAPER_FIG8_MEAN_ERROR_G,
     PAPER_FIG8_SS_ERROR_G,
     SETTLE_BAND,
     seed001_kpis,
 )
-from hil.run import run_scenario_lockstep
+from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario, parse_scenario
 from plant_sim.adhesion import mu_slip_speed_scalar
 

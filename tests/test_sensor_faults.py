@@ -2,7 +2,7 @@
 `stuck`), detected and excluded by the BECU (SpeedSensorFault, AccelSensorFault) and the BCU
 (CarsImplausible), without releasing a brake; and no false detection in the fault-free scenarios.
 
-Lockstep runs through the public API (hil.run) on the real DBC; what the ECUs concluded is read back
+Lockstep runs through the public API (hil.runtime.run) on the real DBC; what the ECUs concluded is read back
 from the run's BLF trace with python-can's reader and decoded by cantools; what the brakes did comes
 from the plant's truth.
 """
@@ -26,11 +26,11 @@ from firmware_py.becu import (
     speed_sensor_check,
     vent_watchdog,
 )
-from hil.dbc import load_dbc
-from hil.e2e import Status
-from hil.node import StuckSignal
-from hil.plant_node import SensorFault, faulty_reading
-from hil.run import run_scenario_lockstep
+from hil.can.dbc import load_dbc
+from hil.can.e2e import Status
+from hil.runtime.node import StuckSignal
+from hil.runtime.plant_node import SensorFault, faulty_reading
+from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario, parse_scenario
 
 STOP_30 = ROOT / "scenarios" / "stop_30kmh.toml"

@@ -1,4 +1,4 @@
-"""hil.timing and `railhil timing`: cycle-time verdicts and measured bus load on synthetic BLF traces
+"""hil.trace.timing and `railhil timing`: cycle-time verdicts and measured bus load on synthetic BLF traces
 written with python-can, on a corpus trace without a DBC, and on a short lockstep run."""
 
 from __future__ import annotations
@@ -12,10 +12,11 @@ import can
 import numpy as np
 import pytest
 
-from hil.busload import with_functions
+from hil.can.busload import with_functions
+from hil.can.dbc import load_dbc
 from hil.cli.main import main
-from hil.dbc import load_dbc
-from hil.timing import (
+from hil.trace.readers import open_trace
+from hil.trace.timing import (
     analyse,
     analyse_chains,
     bus_load,
@@ -24,7 +25,6 @@ from hil.timing import (
     parse_chain,
     period_histogram,
 )
-from hil.traceio import open_trace
 
 ROOT = Path(__file__).resolve().parents[1]
 CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
@@ -296,8 +296,8 @@ def test_periods_without_dbc_issue_1256(capsys):
 
 
 def test_lockstep_run_passes(tmp_path):
-    from hil.busload import train_frame_ids
-    from hil.run import TRACE_NAME, run_scenario_lockstep
+    from hil.can.busload import train_frame_ids
+    from hil.runtime.run import TRACE_NAME, run_scenario_lockstep
     from hil.scenario import load_scenario
 
     scenario = load_scenario(ROOT / "scenarios" / "default.toml").model_copy(update={"max_duration_s": 3.0})
@@ -316,7 +316,7 @@ def test_lockstep_run_passes(tmp_path):
 
 def test_cli_on_a_lockstep_run_passes_when_unsent_frames_are_ignored(tmp_path, capsys):
     from hil.cli.main import main
-    from hil.run import TRACE_NAME, run_scenario_lockstep
+    from hil.runtime.run import TRACE_NAME, run_scenario_lockstep
     from hil.scenario import load_scenario
 
     scenario = load_scenario(ROOT / "scenarios" / "default.toml").model_copy(update={"max_duration_s": 2.0})
@@ -352,7 +352,7 @@ def test_million_frames_analysed_fast():
     trace file is python-can's reader, about 6 µs a frame, and is not timed here)."""
     import time
 
-    from hil.timing import KIND_DATA, FrameArrays
+    from hil.trace.timing import KIND_DATA, FrameArrays
 
     n, n_ids = 1_000_000, 100
     ids = np.tile(np.arange(0x100, 0x100 + n_ids), n // n_ids)
@@ -573,7 +573,7 @@ def test_no_trace_errors(dbc, capsys, argv, words):
 
 
 def test_rta_alone_on_the_train_dbc(tmp_path, capsys):
-    from hil.busload import static_load
+    from hil.can.busload import static_load
 
     db_path = ROOT / "dbc" / "train_brake.dbc"
     db = with_functions(load_dbc(db_path), [])      # by default the base train's frames only

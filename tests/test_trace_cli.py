@@ -20,7 +20,7 @@ import pytest
 from can.io.player import MESSAGE_READERS
 from conftest import assert_one_line_error, railhil
 
-from hil.run import run_scenario_lockstep
+from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -17,12 +17,12 @@ import matplotlib.image
 import pytest
 from conftest import assert_one_line_error, railhil
 
+from hil.can.codec import Codec
+from hil.can.dbc import load_dbc
 from hil.cli.trace import plot
-from hil.codec import Codec
-from hil.dbc import load_dbc
-from hil.run import run_scenario_lockstep
+from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario
-from hil.traceio import open_trace
+from hil.trace.readers import open_trace
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN_DBC = ROOT / "dbc" / "train_brake.dbc"

@@ -1,4 +1,4 @@
-"""hil.tracecolumns: ``read_columns(p)`` equals ``frame_arrays(open_trace(p))`` column by column, on
+"""hil.trace.columns: ``read_columns(p)`` equals ``frame_arrays(open_trace(p))`` column by column, on
 every BLF of the corpus, on BLFs written by python-can's BLFWriter (standard, extended, remote, error
 and CAN FD frames, objects split across containers, padded objects, v2 object headers, 10 µs
 timestamps), and gives the same one-line TraceError on a broken file.
@@ -20,8 +20,7 @@ from can.io import blf
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hil.timing import FrameArrays, frame_arrays
-from hil.tracecolumns import (
+from hil.trace.columns import (
     BATCH_BYTES,
     BLOCK_FRAMES,
     BlfColumnReader,
@@ -32,7 +31,8 @@ from hil.tracecolumns import (
     read_columns,
     read_trace_columns,
 )
-from hil.traceio import CandumpReader, TraceError, open_trace
+from hil.trace.readers import CandumpReader, TraceError, open_trace
+from hil.trace.timing import FrameArrays, frame_arrays
 
 CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
 CORPUS_BLFS = sorted(p for p in (CORPUS.rglob("*") if CORPUS.is_dir() else ())
@@ -442,7 +442,7 @@ def test_read_blf_columns_does_not_close_the_reader(tmp_path):
     reader.stop()
 
 
-# --- hil.traceio.CandumpReader: python-can's candump -L reader, common lines by one regex ----------
+# --- hil.trace.readers.CandumpReader: python-can's candump -L reader, common lines by one regex ----------
 
 
 def message_fields(m: can.Message) -> tuple:
@@ -499,7 +499,7 @@ def test_candump_reader_on_the_corpus_logs():
         assert ours == python_can_outcome(can.CanutilsLogReader, text), path
 
 
-# --- FrameBlocks: frames with their data bytes, for `trace decode` (hil.fastdecode) ----------------
+# --- FrameBlocks: frames with their data bytes, for `trace decode` (hil.trace.fastdecode) ----------------
 
 
 def frame_fields(m: can.Message) -> tuple:

@@ -48,7 +48,7 @@ def e2e(comment_what: str) -> list[Sig]:
 
 
 def secoc(what: str) -> list[Sig]:
-    """SecOC profile 1 trailer (hil/secoc.py): bytes 0-3 are the authentic part, E2E-protected."""
+    """SecOC profile 1 trailer (hil/can/secoc.py): bytes 0-3 are the authentic part, E2E-protected."""
     return [
         Sig("SecOCFreshness", 32, 8, maximum=255,
             comment=f"8 LSB of the freshness counter of {what} (filled by the sender)"),

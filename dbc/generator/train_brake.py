@@ -13,11 +13,11 @@ Conventions
 - Safety frames (emergency, demands, pressure commands) have the lowest identifiers and carry
   `CHECKSUM` (byte 0) and `COUNTER` (low nibble of byte 1): the AUTOSAR E2E profile 1 layout.  The
   message attributes `E2EProfile` ("P01") and `E2EDataID` (the frame id: unique on this bus, data id
-  mode BOTH) tell the node runtime to protect and check them (hil/e2e.py).
+  mode BOTH) tell the node runtime to protect and check them (hil/can/e2e.py).
 - The brake demand, the pressure commands and the emergency frame (whose EmergencyActive = 0
   releases) are authenticated,
   SecOC profile 1: bytes 0-3 are the E2E-protected authentic part, `SecOCFreshness` (byte 4) and
-  `SecOCMAC` (bytes 5-7) the trailer; attribute `SecOCDataID` names the data id (hil/secoc.py).
+  `SecOCMAC` (bytes 5-7) the trailer; attribute `SecOCDataID` names the data id (hil/can/secoc.py).
 - Names: message `<SENDER>_<WHAT>`, per-car messages `<SENDER><n>_<WHAT>` / `PLANT_CAR<n>_<WHAT>`,
   signals CamelCase with no car index, so a binding can substitute the index.
 """

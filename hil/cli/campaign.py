@@ -1,6 +1,6 @@
 """`railhil campaign FILE.toml` — a base scenario swept over a grid and a seeded random sample, run in
 lockstep through local worker processes (`--jobs N`) or a Dask distributed cluster (`--dask ADDRESS`);
-resumable.  File format and definitions in hil.campaign.
+resumable.  File format and definitions in hil.campaign.sweep.
 
 Writes results.csv (results.parquet with pyarrow), plot_<key>.png and one run folder per point under
 the output folder, prints a short table.  Exit 0 when every point ran, 1 when some failed (each is
@@ -51,7 +51,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def _list(points, out: Path) -> int:
-    from hil.campaign import _read_cache, shown
+    from hil.campaign.sweep import _read_cache, shown
 
     for p in points:
         cached = _read_cache(out / "points" / p.key[:16], p.key) is not None
@@ -64,7 +64,7 @@ def _list(points, out: Path) -> int:
 def campaign(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hil.campaign import (
+    from hil.campaign.sweep import (
         check_positive,
         executor_for,
         expand,
@@ -77,7 +77,7 @@ def campaign(args: argparse.Namespace) -> int:
 
     check_positive("--jobs", args.jobs)
     if args.dask_timeout <= 0:
-        from hil.campaign import CampaignError
+        from hil.campaign.sweep import CampaignError
 
         raise CampaignError(f"--dask-timeout {args.dask_timeout}: expected a positive number of seconds")
     spec = load_campaign(args.campaign)

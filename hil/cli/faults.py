@@ -1,5 +1,5 @@
 """`railhil faults matrix SCENARIO` — every EN 50159 threat on every safety frame, in lockstep: what
-the receivers detected and what happened to the train.  Definitions in hil.faultmatrix.
+the receivers detected and what happened to the train.  Definitions in hil.safety.threat_matrix.
 
 Writes matrix.md (a Markdown table) and matrix.json to the output folder and prints the table.
 Exit 0 when every threat was detected within 3 cycles by every receiver and no outcome was unsafe
@@ -71,7 +71,7 @@ def _row(c) -> dict:
 def markdown(cells, baseline: dict, scenario_name: str) -> str:
     lines = [f"# Threat matrix: {scenario_name}", "",
              f"Fault-free stopping distance {baseline['stopping_distance_m']:.2f} m. "
-             "Definitions: hil/faultmatrix.py.", "",
+             "Definitions: hil/safety/threat_matrix.py.", "",
              "| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     for c in cells:
         r = _row(c)
@@ -85,10 +85,10 @@ def markdown(cells, baseline: dict, scenario_name: str) -> str:
 def matrix(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hil.dbc import load_dbc
-    from hil.faultmatrix import as_rows, run_matrix, safety_messages
-    from hil.faults import MESSAGE_THREATS
-    from hil.results import check_out_dir
+    from hil.can.dbc import load_dbc
+    from hil.report.kpis import check_out_dir
+    from hil.safety.injection import MESSAGE_THREATS
+    from hil.safety.threat_matrix import as_rows, run_matrix, safety_messages
     from hil.scenario import load_scenario
 
     if args.jobs < 1:

@@ -4,7 +4,7 @@ A run folder (it has run.json, kpis.json, plot.png) gets report.html with the sc
 KPIs, the plots, timing and faults and what reproduces the run; a campaign folder (it has results.csv)
 gets the results table and the summary plots.  `railhil run` and `railhil campaign` write these pages
 already; this command rebuilds them, e.g. for folders of an older railhil.  Definitions in
-hil.report_html.
+hil.report.html.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def report(args: argparse.Namespace) -> int:
-    from hil.report_html import write_report
+    from hil.report.html import write_report
 
     for folder in args.folders:
         print(write_report(folder))

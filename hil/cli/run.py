@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = args.out or Path("runs") / f"{scenario.name}-{mode}-{stamp}"
     if mode == "realtime":
-        from hil.realtime import run_scenario_realtime
+        from hil.runtime.realtime import run_scenario_realtime
 
         try:
             progress = Progress(not args.quiet and sys.stderr.isatty(), "realtime", scenario.max_duration_s)
@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
             mode = "lockstep"
             out = args.out or Path("runs") / f"{scenario.name}-{mode}-{stamp}"
     if mode == "lockstep":
-        from hil.run import run_scenario_lockstep
+        from hil.runtime.run import run_scenario_lockstep
 
         progress = Progress(not args.quiet and sys.stderr.isatty(), "lockstep", scenario.max_duration_s)
         try:

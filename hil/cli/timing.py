@@ -1,16 +1,16 @@
 """`railhil timing TRACE --dbc DBC` — do the cyclic frames of a trace keep their DBC cycle times?
 
 One row per cyclic DBC message (GenMsgCycleTime > 0): count, period mean / σ / p99 / max [ms], late,
-missed and burst periods, and a verdict PASS / FAIL / MISSING (defined in hil.timing); then the
+missed and burst periods, and a verdict PASS / FAIL / MISSING (defined in hil.trace.timing); then the
 bus load the trace put on the bus.  Exit 0 when every message PASSes, 1 when any is FAIL or
 MISSING (a verdict, not an error), 2 for bad input; a trace damaged part-way (a corrupt line, a BLF
 file cut short) gives the report of the frames before the damage, then the error, exit 2.
 ``--periods-only`` needs no DBC: the periods of every id of the trace, no verdict.
 
-``--rta``: the worst-case response time of every cyclic message from the DBC alone (hil.rta, Davis
+``--rta``: the worst-case response time of every cyclic message from the DBC alone (hil.can.rta, Davis
 et al. 2007) — with no trace, the analysis only (exit 0 when every message is schedulable); with a
 trace, also the response each message shows in it (FAIL when above its bound).  ``--chain``:
-cause -> effect latencies (hil.timing.analyse_chains), with a verdict under ``--chain-max-ms``.
+cause -> effect latencies (hil.trace.timing.analyse_chains), with a verdict under ``--chain-max-ms``.
 ``--histogram NAME``: the periods of NAME as text bars (the JSON output has every histogram).
 """
 
@@ -28,12 +28,14 @@ import can
 import numpy as np
 from cantools.database.can import Database
 
-from hil.busload import declared_bitrate, with_functions
+from hil.can.busload import declared_bitrate, with_functions
+from hil.can.dbc import closest, load_dbc
+from hil.can.rta import RtaReport, messages_from_dbc
+from hil.can.rta import analyse as rta_analyse
 from hil.cli.trace import Output, id_text, notice_skipped, num
-from hil.dbc import closest, load_dbc
-from hil.rta import RtaReport, messages_from_dbc
-from hil.rta import analyse as rta_analyse
-from hil.timing import (
+from hil.trace.columns import read_trace_columns
+from hil.trace.readers import Salvage, TraceError, open_trace
+from hil.trace.timing import (
     MEASURE_SLACK_US,
     BusLoadMeasured,
     Chain,
@@ -57,8 +59,6 @@ from hil.timing import (
     rta_against_trace,
     rta_check,
 )
-from hil.tracecolumns import read_trace_columns
-from hil.traceio import Salvage, TraceError, open_trace
 
 FORMAT_CHOICES = ("table", "json", "junit")
 SUITE = "railhil.timing"
@@ -147,7 +147,7 @@ def parse_overrides(items: list[str], names: list[str]) -> dict[str, float]:
 
 
 def parse_jitters(items: list[str]) -> dict[str, int]:
-    """--jitter NAME=US items; the names are checked against the DBC by hil.rta.messages_from_dbc."""
+    """--jitter NAME=US items; the names are checked against the DBC by hil.can.rta.messages_from_dbc."""
     out = {}
     for item in items:
         name, sep, value = item.partition("=")
@@ -532,7 +532,7 @@ def trace_report(args: argparse.Namespace, trace_name: str) -> tuple[str, int, T
     notice_skipped(trace)
     report = analyse(arrays, db, args.tolerance, overrides, bitrate, args.window, ignore=args.ignore)
     rta = rta_against_trace(arrays, rta_report) if rta_report is not None else ()
-    end_s = float(arrays.t.max()) if len(arrays) else 0.0  # the end of the trace, as hil.timing.analyse
+    end_s = float(arrays.t.max()) if len(arrays) else 0.0  # the end of the trace, as hil.trace.timing.analyse
     chain_results = analyse_chains(kept, chains, end_s, args.chain_max_ms) if chains else ()
     ok = (report.ok and all(c.verdict == "PASS" for c in rta)
           and all(r.verdict != "FAIL" for r in chain_results))

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 import can
 from cantools.database.can import Signal
 
-from hil.codec import Codec, FrameCodec
-from hil.dbc import closest
+from hil.can.codec import Codec, FrameCodec
+from hil.can.dbc import closest
 from hil.errors import RailhilError
-from hil.traceio import Trace, id_text
+from hil.trace.readers import Trace, id_text
 
 __all__ = [
     "Output", "SignalRef", "TraceArgError", "check_window", "id_text", "jsonable", "kind_of", "lookup",

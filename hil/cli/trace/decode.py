@@ -2,7 +2,7 @@
 
 Two paths write the same bytes: the per-frame path (``decoded_rows`` and ``row_texts``: one Row per
 python-can Message), the reference; and the fast path that ``run`` takes, a block of frames at a time
-(``hil.tracecolumns.BlockReader`` reads them, ``hil.fastdecode.BlockDecoder`` decodes and writes
+(``hil.trace.columns.BlockReader`` reads them, ``hil.trace.fastdecode.BlockDecoder`` decodes and writes
 them, and hands the frames it does not take -- remote, error, multiplexed, too short -- to the
 per-frame path, in their place).  tests/test_fastdecode.py holds the two to the same output.
 """
@@ -20,6 +20,8 @@ from pathlib import Path
 
 import can
 
+from hil.can.codec import Codec
+from hil.can.dbc import closest, load_dbc
 from hil.cli.trace.common import (
     Output,
     TraceArgError,
@@ -31,11 +33,9 @@ from hil.cli.trace.common import (
     notice_skipped,
     parse_id,
 )
-from hil.codec import Codec
-from hil.dbc import closest, load_dbc
-from hil.fastdecode import BlockDecoder
-from hil.tracecolumns import BLOCK_FRAMES, BlockReader
-from hil.traceio import open_trace
+from hil.trace.columns import BLOCK_FRAMES, BlockReader
+from hil.trace.fastdecode import BlockDecoder
+from hil.trace.readers import open_trace
 
 FORMAT_CHOICES = ("table", "csv", "jsonl")
 
@@ -202,8 +202,8 @@ def decode(trace: str | Path, codec: Codec, sel: Selection, fmt: str, start: flo
            dbc_name: str, fast: bool = True, block_frames: int = BLOCK_FRAMES) -> int:
     """Write the decoded frames of `trace` to stdout in `fmt`, the summary to stderr.
 
-    `fast` (the default): a block of up to `block_frames` frames at a time (hil.tracecolumns reads
-    them, hil.fastdecode decodes and writes them, the per-frame path below takes the frames it does
+    `fast` (the default): a block of up to `block_frames` frames at a time (hil.trace.columns reads
+    them, hil.trace.fastdecode decodes and writes them, the per-frame path below takes the frames it does
     not); `fast` False: the per-frame path for every frame -- the reference that
     tests/test_fastdecode.py holds the fast path to, byte for byte.
     """

@@ -34,6 +34,8 @@ from pathlib import Path
 
 import can
 
+from hil.can.codec import Codec, FrameCodec
+from hil.can.dbc import load_dbc
 from hil.cli.trace.common import (
     Output,
     TraceArgError,
@@ -45,9 +47,7 @@ from hil.cli.trace.common import (
     num,
     resolve_signal,
 )
-from hil.codec import Codec, FrameCodec
-from hil.dbc import load_dbc
-from hil.traceio import open_trace
+from hil.trace.readers import open_trace
 
 FORMAT_CHOICES = ("table", "json")
 

@@ -24,10 +24,10 @@ from pathlib import Path
 import can
 import numpy as np
 
+from hil.can.codec import Codec
+from hil.can.dbc import load_dbc
 from hil.cli.trace.common import SignalRef, TraceArgError, check_window, notice_skipped, resolve_signal
-from hil.codec import Codec
-from hil.dbc import load_dbc
-from hil.traceio import open_trace
+from hil.trace.readers import open_trace
 
 SUFFIXES = (".png", ".html")
 EPOCH_LIKE_S = 1e8      # a first timestamp beyond this (1973-03-03 as a Unix time) is absolute

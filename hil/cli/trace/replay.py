@@ -52,7 +52,7 @@ import numpy as np
 
 from hil.cli.trace.common import Output, TraceArgError, check_window, notice_skipped, parse_id
 from hil.errors import BusError
-from hil.traceio import Salvage, open_trace
+from hil.trace.readers import Salvage, open_trace
 
 DEFAULT_INTERFACE = "udp_multicast"
 SEND_TIMEOUT_S = 0.01      # bus.send waits at most this long for room in the transmit buffer
@@ -137,7 +137,7 @@ def bus_config(args: argparse.Namespace) -> dict:
         if not configured:
             cfg["interface"] = DEFAULT_INTERFACE
     if cfg.get("interface") == "socketcan" and not cfg.get("channel"):
-        cfg["channel"] = "vcan0"    # as hil.realtime: the virtual CAN device `make vcan` sets up
+        cfg["channel"] = "vcan0"    # as hil.runtime.realtime: the virtual CAN device `make vcan` sets up
     return cfg
 
 

@@ -13,10 +13,10 @@ from pathlib import Path
 
 import can
 
+from hil.can.codec import Codec
+from hil.can.dbc import load_dbc
 from hil.cli.trace.common import Output, id_text, kind_of, notice_skipped, num
-from hil.codec import Codec
-from hil.dbc import load_dbc
-from hil.traceio import Salvage, open_trace
+from hil.trace.readers import Salvage, open_trace
 
 FORMAT_CHOICES = ("table", "csv", "jsonl")
 

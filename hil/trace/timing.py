@@ -27,7 +27,7 @@ no data frame in the trace is MISSING.  Ids in the trace that the DBC does not h
 they are counted (``unknown``).
 
 Bus load.  Each data frame takes ``frame_bits(dlc, extended)`` bit times with worst-case stuffing
-(Davis et al. 2007, see hil.busload); a remote frame takes the length of a 0-byte data frame;
+(Davis et al. 2007, see hil.can.busload); a remote frame takes the length of a 0-byte data frame;
 error frames are not counted (their length is unknown); CAN FD frames are counted as classic
 frames of at most 8 bytes (an underestimate; ``fd_frames`` says how many).  Average load = all
 bits / (last - first timestamp) / bitrate.  Peak load = the most bits in any sliding window
@@ -41,8 +41,8 @@ Latency chains (``parse_chain``, ``analyse_chains``): cause -> effect latencies 
 changes on different messages, e.g. wheel speed received -> pressure command sent -> cylinder
 pressure responding; definitions in ``analyse_chains``.
 
-Response-time analysis against a trace (``rta_against_trace``): hil.rta's worst-case bound of each
-cyclic message next to the response the trace shows (hil.rta.measured_response); FAIL when the
+Response-time analysis against a trace (``rta_against_trace``): hil.can.rta's worst-case bound of each
+cyclic message next to the response the trace shows (hil.can.rta.measured_response); FAIL when the
 measurement exceeds the bound.
 """
 
@@ -57,11 +57,11 @@ import can
 import numpy as np
 from cantools.database.can import Database, Message
 
-from hil.busload import frame_bits
-from hil.codec import FrameCodec
-from hil.dbc import closest
+from hil.can.busload import frame_bits
+from hil.can.codec import FrameCodec
+from hil.can.dbc import closest
+from hil.can.rta import MeasuredResponse, RtaReport, RtaResult, measured_response
 from hil.errors import RailhilError
-from hil.rta import MeasuredResponse, RtaReport, RtaResult, measured_response
 
 __all__ = [
     "BusLoadMeasured", "Chain", "ChainLink", "ChainResult", "FrameArrays", "LatencyStats", "MessageTiming",
@@ -632,7 +632,7 @@ def rta_check(result: RtaResult, measured: MeasuredResponse | None = None) -> Rt
 
 
 def rta_against_trace(arrays: FrameArrays, report: RtaReport) -> tuple[RtaCheck, ...]:
-    """Every message of `report` with its measured response (hil.rta.measured_response) on the data
+    """Every message of `report` with its measured response (hil.can.rta.measured_response) on the data
     frames of its id in `arrays`; None where the trace has fewer than two of them."""
     data = arrays.kind == KIND_DATA
     out = []

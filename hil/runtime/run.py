@@ -10,12 +10,10 @@ from pathlib import Path
 
 import can
 
-from hil.codec import Codec
-from hil.dbc import DEFAULT_DBC, load_dbc
-from hil.desk import DeskScript
-from hil.lockstep import RunOutcome, prepare_lockstep, run_lockstep
-from hil.report_html import run_metadata, write_run_report
-from hil.results import (
+from hil.can.codec import Codec
+from hil.can.dbc import DEFAULT_DBC, load_dbc
+from hil.report.html import run_metadata, write_run_report
+from hil.report.kpis import (
     check_out_dir,
     compute_kpis,
     plot_run,
@@ -24,6 +22,9 @@ from hil.results import (
     write_kpis,
     write_truth_csv,
 )
+from hil.runtime.desk import DeskScript
+from hil.runtime.lockstep import prepare_lockstep, run_lockstep
+from hil.runtime.outcome import RunOutcome, realtime_verdict
 from hil.scenario import Scenario
 
 TRACE_NAME = "trace.blf"
@@ -95,7 +96,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
                         outcome.frames_by_node, recorded, outcome.frames_in_flight,
                         outcome.frames_overwritten, outcome.frames_faulted)
     if "seed004" in kpis:            # seed 004: judged from the BCU's own engagement, read from the trace
-        from hil.results import _feedback_signals, bcu_engagement_s, seed004_kpis
+        from hil.report.kpis import _feedback_signals, bcu_engagement_s, seed004_kpis
         signals = _feedback_signals(scenario, trace, outcome.end_us / 1e6, trace_t0_s, trace_speed)
         engaged_s = bcu_engagement_s(signals)
         if engaged_s is not None:
@@ -122,7 +123,6 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     if flagged or outcome.faults is not None:
         kpis["plausibility_flags"] = flagged       # first time [s] each sensor / car was flagged
     if outcome.mode == "realtime":
-        from hil.realtime import realtime_verdict
         kpis["realtime"] = realtime_verdict(outcome.node_stats)
     kpis["mode"] = outcome.mode
     kpis["seed"] = scenario.seed

@@ -1,13 +1,13 @@
 """One self-contained HTML page per run folder (report.html) and per campaign folder.
 
 A run's page is built from the files of its folder only — run.json, kpis.json and the PNG plots — so
-`railhil report RUN_DIR` rebuilds it at any time and `hil.run.finish_run` writes it after every run
+`railhil report RUN_DIR` rebuilds it at any time and `hil.runtime.run.finish_run` writes it after every run
 (cheap: the plots are already drawn; they are embedded as base64 PNG, so the page needs nothing else,
 no network, no neighbouring file). It shows:
 
 * the scenario (name, description, seed, the full resolved scenario);
 * the verdicts: each check of `run_verdicts` with its value, its criterion and pass / fail;
-* every KPI of kpis.json (definitions in hil.results.compute_kpis);
+* every KPI of kpis.json (definitions in hil.report.kpis.compute_kpis);
 * timing: per message on the bit-timed lockstep bus, frames, worst and mean response time [µs] and
   deadline misses (response longer than the message's cycle time); per node of a real-time run, cycles,
   late cycles (started after their deadline) and missed cycles;
@@ -134,7 +134,8 @@ def run_verdicts(kpis: dict, meta: dict) -> list[Verdict]:
     * no frame lost: every frame sent is in the trace, still queued at the end, or overwritten;
     * no bus deadline miss (bit-timed lockstep bus: response time above the message's cycle time);
     * no node step error (an exception inside a controller's step, answered with safe values);
-    * real time held (hil.realtime.realtime_verdict: no node's cycle more than 50 ms late, none skipped);
+    * real time held (hil.runtime.outcome.realtime_verdict: no node's cycle more than 50 ms late, none
+      skipped);
     * E2E / SecOC: without injected faults, nothing reported by the receivers; with faults, the
       detections are listed (informational); NONEWDATA (a frame 1.5 of its cycles late) is a verdict of
       its own: none in lockstep, informational in real time;
@@ -154,7 +155,7 @@ def run_verdicts(kpis: dict, meta: dict) -> list[Verdict]:
     if meta.get("mode") == "realtime":
         missed, late = _sum_stat(meta, "missed_cycles"), _sum_stat(meta, "late_cycles")
         rt = kpis.get("realtime")
-        if rt:                              # hil.realtime.realtime_verdict
+        if rt:                              # hil.runtime.outcome.realtime_verdict
             worst = rt["worst_node"]
             out.append(Verdict("real time held", f"{worst} up to {rt['max_lag_ms'][worst]:g} ms late, "
                                f"{missed} cycles skipped",
@@ -164,7 +165,7 @@ def run_verdicts(kpis: dict, meta: dict) -> list[Verdict]:
         out.append(Verdict("real-time cycles late", str(late), "(informational)", None))
     events = kpis.get("protection_events") or {}
     # NONEWDATA is timing, not protection: a receiver's cycle found no frame 1.5 cycles after the last one
-    # (hil.node): on a real-time bus every late frame counts, so there it is informational
+    # (hil.runtime.node): on a real-time bus every late frame counts, so there it is informational
     late_frames = events.get("NONEWDATA", 0)
     seen = {k: v for k, v in events.items() if k != "NONEWDATA"}
     detected = ", ".join(f"{k} {v}" for k, v in seen.items()) or "none"

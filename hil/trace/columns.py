@@ -1,13 +1,13 @@
 """A trace as numpy columns, fast: BLF read with python-can's format code, and candump text parsed in
 bulk, into columns without a ``can.Message`` per frame.
 
-``read_columns(path)`` gives the same ``hil.timing.FrameArrays`` as
+``read_columns(path)`` gives the same ``hil.trace.timing.FrameArrays`` as
 ``frame_arrays(open_trace(path))``, column by column and bit for bit, and the same ``TraceError``
 for a file that cannot be read.  Only a BLF file (``.blf``, also ``.blf.gz``) takes the fast path;
 every other format, and stdin, goes through python-can's reader and ``frame_arrays``.
 
 ``BlockReader(path)`` gives the frames with their data bytes, for decoding (``trace decode``,
-``hil.fastdecode``), as ``FrameBlock`` columns of up to ``BLOCK_FRAMES`` frames: BLF through the
+``hil.trace.fastdecode``), as ``FrameBlock`` columns of up to ``BLOCK_FRAMES`` frames: BLF through the
 reader below with the data bytes (``BlfColumnReader(..., payload=True)``), candump -L text (.log,
 .log.gz, stdin) through ``parse_candump`` a batch of lines at a time (numpy over the whole text;
 every line it does not take goes to python-can's parser, in its place), every other format through
@@ -62,12 +62,12 @@ import numpy as np
 from can.io import blf
 from can.util import dlc2len
 
-from hil.traceio import STDIN, Salvage, Trace, TraceError, open_trace
+from hil.trace.readers import STDIN, Salvage, Trace, TraceError, open_trace
 
 if TYPE_CHECKING:
-    from hil.timing import FrameArrays
+    from hil.trace.timing import FrameArrays
 
-# hil.timing (and the RTA and bus-load modules it imports) is imported where FrameArrays are made:
+# hil.trace.timing (and the RTA and bus-load modules it imports) is imported where FrameArrays are made:
 # `trace decode` reads FrameBlocks and starts faster without it.
 
 __all__ = ["BLOCK_FRAMES", "BlfColumnReader", "BlockReader", "FrameBlock", "NotFast", "parse_candump",
@@ -184,7 +184,7 @@ DTYPES = {"t": np.float64, "arbitration_id": np.int64, "extended": bool, "dlc": 
 
 def _columns(layout: _Layout, raw, start_timestamp: float) -> dict[str, np.ndarray]:
     """The FrameArrays columns of objects of one layout, from their raw fields (mapping name -> array)."""
-    from hil.timing import KIND_DATA, KIND_ERROR, KIND_REMOTE
+    from hil.trace.timing import KIND_DATA, KIND_ERROR, KIND_REMOTE
     ident = raw["id"].astype(np.int64)
     n = len(ident)
     ts = raw["ts"]
@@ -290,7 +290,7 @@ class BlfColumnReader:
         self.steps = 0  # python-level steps of the object chain (see _chain)
 
     def read(self) -> FrameArrays:
-        from hil.timing import FrameArrays
+        from hil.trace.timing import FrameArrays
 
         chunks = self.read_chunks()
         return FrameArrays(**{c: np.concatenate([ch[c] for ch in chunks]).astype(DTYPES[c], copy=False)
@@ -453,7 +453,7 @@ class BlfColumnReader:
             self.gathered += len(at)
         columns = _columns(layout, raw, self.start_timestamp)
         if self.payload:
-            from hil.timing import KIND_REMOTE
+            from hil.trace.timing import KIND_REMOTE
 
             columns["length"], columns["payload"] = _payload(layout, u8, at, columns["kind"] == KIND_REMOTE)
         return columns
@@ -484,7 +484,7 @@ def read_trace_columns(path: str | pathlib.Path, salvage: bool = False) -> tuple
     TraceError that reading the frames raises (a corrupt line, a cut file) is not raised but kept in
     the Trace's ``error``, and the columns are those of the frames read before it: for a tool that
     reports what was read, then the error.  An error of opening the file is raised either way."""
-    from hil.timing import frame_arrays
+    from hil.trace.timing import frame_arrays
 
     trace = open_trace(path)
     arrays = None
@@ -515,7 +515,7 @@ def read_columns(path: str | pathlib.Path) -> FrameArrays:
     return read_trace_columns(path)[0]
 
 
-# --- frames with their data, in blocks, for decoding (hil.fastdecode) -----------------------------
+# --- frames with their data, in blocks, for decoding (hil.trace.fastdecode) -----------------------------
 
 BLOCK_FRAMES = 65_536  # frames per FrameBlock: large enough that the per-block numpy steps cost little
 
@@ -643,7 +643,7 @@ def parse_candump(text: str) -> tuple[FrameBlock, np.ndarray]:
 
     `text` is whole lines (each ends in a newline, but maybe the last).  Returns a block of one row
     per line and the mask of the lines parsed; the rows of the other lines hold nothing of use.  A
-    line is parsed here when it is exactly what ``hil.traceio.CandumpReader`` parses with its regular
+    line is parsed here when it is exactly what ``hil.trace.readers.CandumpReader`` parses with its regular
     expression -- ``(seconds) channel ID#HEXDATA`` with an optional `` R``/`` T``, single spaces, a 3-
     or 8-digit id without the error flag, whole data bytes, nothing before or after -- and its row
     holds the very values of python-can's Message: timestamp = float(seconds), arbitration_id =
@@ -871,7 +871,7 @@ class BlockReader:
             return None
         finally:
             self.trace.close()
-        from hil.timing import KIND_ERROR, KIND_REMOTE
+        from hil.trace.timing import KIND_ERROR, KIND_REMOTE
 
         blocks: list[FrameBlock] = []
         group: list[FrameBlock] = []  # consecutive pieces of chunks, up to max_frames rows together

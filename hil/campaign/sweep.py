@@ -218,7 +218,7 @@ def draw(kind: str, args: list, seed: int, key: str, n: int) -> list:
 
 
 def _dbc_digest(scenario: Scenario) -> str:
-    from hil.run import dbc_path_of
+    from hil.runtime.run import dbc_path_of
 
     path = dbc_path_of(scenario)
     try:
@@ -298,7 +298,7 @@ def run_point(scenario_json: str, run_dir: str) -> dict:
     "kpis": ..., "wall_s": ...} or {"status": "failed", "error": "Type: message", "wall_s": ...}."""
     t0 = time.perf_counter()
     try:
-        from hil.run import run_scenario_lockstep
+        from hil.runtime.run import run_scenario_lockstep
 
         report = run_scenario_lockstep(Scenario.model_validate_json(scenario_json), Path(run_dir))
         if report.outcome.reason == "interrupted":       # a cut-short run is no result to cache
@@ -389,7 +389,7 @@ def run_campaign(campaign: Campaign, out_dir: Path, executor: Executor | None = 
     """Run every point not already cached in `out_dir`, through `executor` (None: in this process).
     Cached points are reported first (progress too).  Ctrl-C stops the campaign, keeps every finished
     point cached and returns the result so far with `interrupted` set."""
-    from hil.results import check_out_dir
+    from hil.report.kpis import check_out_dir
 
     t0 = time.perf_counter()
     out_dir = check_out_dir(out_dir)
@@ -504,8 +504,8 @@ def write_table(result: CampaignResult) -> list[Path]:
 def write_plots(result: CampaignResult) -> list[Path]:
     """plot_<key>.png per numeric swept key: each of the campaign's plot KPIs (those the runs have)
     against that key, one dot per finished point, and the mean per value for a grid key; then the
-    campaign's report.html (hil.report_html: the results table and these plots, one self-contained page)."""
-    from hil.report_html import write_campaign_report
+    campaign's report.html (hil.report.html: the results table and these plots, one self-contained page)."""
+    from hil.report.html import write_campaign_report
 
     files = _summary_plots(result)
     return files + [write_campaign_report(result.out_dir, rows(result), result.campaign.name,

@@ -30,12 +30,12 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from cantools.database.can import Database
 
-from hil.codec import Codec
-from hil.dbc import load_dbc
-from hil.desk import DeskScript
-from hil.faults import MESSAGE_THREATS
-from hil.node import e2e_config
-from hil.results import compute_kpis
+from hil.can.codec import Codec
+from hil.can.dbc import load_dbc
+from hil.report.kpis import compute_kpis
+from hil.runtime.desk import DeskScript
+from hil.runtime.node import e2e_config
+from hil.safety.injection import MESSAGE_THREATS
 from hil.scenario import Scenario, parse_scenario
 
 __all__ = ["Cell", "run_cell", "run_matrix", "safety_messages"]
@@ -70,7 +70,7 @@ class Cell:
 
 def safety_messages(scenario: Scenario, db: Database) -> list[str]:
     """E2E-protected messages that some node of the scenario sends and another receives."""
-    from hil.assembly import build_node, node_names
+    from hil.runtime.assembly import build_node, node_names
 
     codec = Codec(db)
     nodes = [build_node(n, scenario, db, codec) for n in node_names(scenario)]
@@ -80,7 +80,7 @@ def safety_messages(scenario: Scenario, db: Database) -> list[str]:
 
 
 def _receivers(scenario: Scenario, db: Database, message: str) -> tuple[str, ...]:
-    from hil.assembly import build_node, node_names
+    from hil.runtime.assembly import build_node, node_names
 
     codec = Codec(db)
     fid = db.get_message_by_name(message).frame_id
@@ -102,7 +102,7 @@ def fault_for(scenario: Scenario, db: Database, message: str, threat: str) -> di
 
 
 def _run(scenario: Scenario) -> tuple:
-    from hil.lockstep import run_lockstep
+    from hil.runtime.lockstep import run_lockstep
 
     db = load_dbc(scenario.dbc) if scenario.dbc else load_dbc()
     outcome = run_lockstep(scenario, db, Codec(db), writer=None)

@@ -25,7 +25,7 @@ SENSOR_FIELDS = (("AxleSpeed", "axle_speed_rad_s"), ("CylPressure", "cyl_pressur
 
 @dataclass
 class SensorFault:
-    """A failed sensor of one car (hil.faults `sensor`), applied to the reading the plant reports.
+    """A failed sensor of one car (hil.safety.injection `sensor`), applied to the reading the plant reports.
 
     mode "stuck": in [start_us, end_us) the reading is `value`, or, when `value` is None, the last
     reading before start_us.  mode "bias": `value` (the sensor's SI unit: rad/s, Pa, m/s²) is added
@@ -234,7 +234,7 @@ class PlantController:
             self.outputs += BaliseReader.OUTPUTS
 
     def add_sensor_fault(self, fault: SensorFault) -> None:
-        """A failed sensor (hil.faults `sensor`): applied to the readings this node sends."""
+        """A failed sensor (hil.safety.injection `sensor`): applied to the readings this node sends."""
         self.sensor_faults.append(fault)
 
     def _apply_sensor_faults(self, now_us: int, out: dict[str, float]) -> None:

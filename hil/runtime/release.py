@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 from cantools.database.can import Database
 
-from hil.dbc import closest
+from hil.can.dbc import closest
 from hil.errors import ScenarioError
 from hil.scenario import MessageTiming, NodeTiming, Scenario
 

@@ -1,6 +1,6 @@
 """The bit-timed CAN bus of lockstep mode: frame durations, arbitration and per-node transmit queues.
 
-Pure logic, no I/O: `hil.lockstep` drives it from its event schedule.  Times are integer nanoseconds.
+Pure logic, no I/O: `hil.runtime.lockstep` drives it from its event schedule.  Times are integer nanoseconds.
 
 Frame duration (classic CAN, ISO 11898-1 frame layout), in bit times, interframe space included:
 
@@ -29,7 +29,7 @@ from __future__ import annotations
 import heapq
 from dataclasses import dataclass, field
 
-from hil.busload import frame_bits
+from hil.can.busload import frame_bits
 
 __all__ = ["STUFFING_MODES", "BitTimedBus", "FrameBits", "Pending", "arbitration_key", "crc15",
            "exact_frame_bits", "frame_duration_bits", "stuff_bits"]
@@ -218,7 +218,7 @@ class MessageBusStats:
 
 @dataclass
 class BitTimedBus:
-    """Transmit queues, arbitration and frame timing; `hil.lockstep` calls enqueue/arbitrate."""
+    """Transmit queues, arbitration and frame timing; `hil.runtime.lockstep` calls enqueue/arbitrate."""
 
     bitrate_bps: int
     n_nodes: int

@@ -8,7 +8,7 @@ queues its ready frames in priority order and always offers its highest-priority
 message m is sent periodically (or sporadically, at least T_m apart) with queuing jitter J_m; no
 errors on the bus; every frame has its worst-case number of stuff bits.  Symbols (times in µs):
 
-* C_m    transmission time: ``hil.busload.frame_bits(dlc, extended)`` bit times (worst-case stuffing,
+* C_m    transmission time: ``hil.can.busload.frame_bits(dlc, extended)`` bit times (worst-case stuffing,
          3-bit interframe space included, the paper's frame-length equation) x τ_bit = 1 / bitrate
 * B_m    blocking: the longest frame of lower priority, which may just have started        (eq. 5)
 * t_m    priority level-m busy period:  t = B_m + Σ_{k ∈ hep(m)} ⌈(t + J_k) / T_k⌉ C_k,
@@ -27,7 +27,7 @@ R_m is unbounded: ``math.inf``, not schedulable.  Arithmetic is exact: times are
 1 / (bitrate x 10^6) s (1 µs = bitrate units, one bit time = 10^6 units), so no ceiling is ever off
 by a rounding error.
 
-Priority: the arbitration field as the bus compares it (``hil.bustiming.arbitration_key``): the 11
+Priority: the arbitration field as the bus compares it (``hil.can.bustiming.arbitration_key``): the 11
 base id bits first, then an 11-bit data frame's dominant RTR/IDE bits beat a 29-bit frame's
 recessive SRR/IDE bits, then the 18 extension bits.  So 0x100 (11-bit) beats every 29-bit id whose
 11 base bits are 0x100, and 29-bit 0x00CC0001 (base 0x033) beats 11-bit 0x123.  Two messages with
@@ -46,9 +46,9 @@ from fractions import Fraction
 import numpy as np
 from cantools.database.can import Database
 
-from hil.busload import frame_bits
-from hil.bustiming import arbitration_key
-from hil.dbc import closest
+from hil.can.busload import frame_bits
+from hil.can.bustiming import arbitration_key
+from hil.can.dbc import closest
 from hil.errors import DbcError, RailhilError
 
 __all__ = [
@@ -233,7 +233,7 @@ def messages_from_dbc(db: Database, jitter_us: Mapping[str, int] | None = None) 
     T = the cycle time, D = T.  Queuing jitter J of a message: `jitter_us[name]` when given (µs); else
     from its (first) sender node's CANdb++ attributes ``CANoeJitterMin`` / ``CANoeJitterMax`` when
     the node has both: J = (max - min) / 100 x T, rounded to the µs.  CANoe gives these in percent of
-    the timer interval (the same reading as hil.release), and the interval of a message's timer is
+    the timer interval (the same reading as hil.runtime.release), and the interval of a message's timer is
     its cycle time; the width of the interval is what delays a release beyond its earliest time.
     Else J = 0.  CAN FD messages are not modelled: an error.  A name in `jitter_us` that is not a
     cyclic message of the DBC is an error (a typo would otherwise be silently ignored).

@@ -61,7 +61,7 @@ from cantools.database.can import Database, Message, Signal
 from cantools.database.conversion import BaseConversion, IdentityConversion, LinearIntegerConversion
 from cantools.database.errors import DecodeError
 
-from hil.dbc import closest
+from hil.can.dbc import closest
 from hil.errors import RailhilError
 
 __all__ = ["Codec", "FrameCodec", "FrameError"]

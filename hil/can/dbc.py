@@ -11,8 +11,9 @@ import cantools
 from cantools.database.can import Database
 
 from hil.errors import DbcError
+from hil.resources import default_dbc
 
-DEFAULT_DBC = Path(__file__).resolve().parents[1] / "dbc" / "train_brake.dbc"
+DEFAULT_DBC = default_dbc()        # dbc/train_brake.dbc, in a checkout or from the wheel (hil.resources)
 _SNIFF_BYTES = 8192  # bytes looked at to tell a binary file from DBC text
 
 

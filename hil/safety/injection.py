@@ -3,7 +3,7 @@ going bus-off, each declared in the scenario with a time window and seeded.
 
 Pure logic: `FaultInjector.on_release` gets every frame a node releases (time, node, frame id,
 payload) and returns what reaches the transmit queues instead, with times; `babble` gives the
-frames a babbling node adds.  `hil.lockstep` calls both.
+frames a babbling node adds.  `hil.runtime.lockstep` calls both.
 
 Threats (EN 50159 §5.1; applied to the frames of `message` released in [from_s, to_s), each with
 `probability`, seeded):
@@ -28,9 +28,9 @@ frame and only plausibility can catch them):
 
 * ``stuck``  — `signal` of `message` is stuck in the sending node's software: at `value` (physical
   units of the DBC signal), or, without `value`, frozen at the last value the node sent before
-  `from_s`.  The node runtime applies it to its outputs before encoding (hil.node), so the E2E CRC
+  `from_s`.  The node runtime applies it to its outputs before encoding (hil.runtime.node), so the E2E CRC
   and the SecOC MAC are computed over the stuck value.
-* ``sensor`` — a sensor of car `car` fails in the plant node (hil.plant_node; plant_sim stays
+* ``sensor`` — a sensor of car `car` fails in the plant node (hil.runtime.plant_node; plant_sim stays
   fault-free physics): `sensor` = "wheel_speed" (AxleSpeed, rad/s), "pressure" (CylPressure, Pa) or
   "accelerometer" (AccelLong, m/s²); `mode` = "stuck" (the reading frozen at its last value before
   `from_s`, or at `value`) or "bias" (`value`, in the sensor's SI unit, added to the reading, which
@@ -42,83 +42,32 @@ frame or reading altered).
 
 from __future__ import annotations
 
-import math
 import random
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated, Literal
 
 from cantools.database.can import Database
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from hil import e2e
-from hil.codec import Codec
-from hil.dbc import closest
+from hil.can import e2e
+from hil.can.codec import Codec
+from hil.can.dbc import closest
 from hil.errors import ScenarioError
+from hil.runtime.node import StuckSignal
+from hil.runtime.node import authentic_length as _authentic_length
+from hil.runtime.node import e2e_config as _e2e_config
+from hil.runtime.plant_node import SensorFault
+from hil.scenario.faults import (
+    FAULT_KINDS,
+    MESSAGE_THREATS,
+    SENSOR_SIGNALS,
+    SOURCE_FAULTS,
+    FaultSpec,
+)
 
 __all__ = ["FAULT_KINDS", "MESSAGE_THREATS", "ROGUE", "SENSOR_SIGNALS", "SOURCE_FAULTS", "FaultInjector",
            "FaultLog", "FaultSpec", "build_injector"]
 
-MESSAGE_THREATS = ("repetition", "deletion", "insertion", "resequencing", "corruption", "delay", "masquerade")
-NODE_FAULTS = ("babbling", "bus_off")
-SOURCE_FAULTS = ("stuck", "sensor")
 ROGUE = -1           # sender index of the attacker's frames (a node of its own on the bus)
-FAULT_KINDS = MESSAGE_THREATS + NODE_FAULTS + SOURCE_FAULTS
-#: sensor name of a `sensor` fault -> the PLANT_CARn_SENSORS signal it produces (SI unit of `value`)
-SENSOR_SIGNALS = {"wheel_speed": "AxleSpeed", "pressure": "CylPressure", "accelerometer": "AccelLong"}
-
-
-class FaultSpec(BaseModel):
-    """One `[[faults]]` entry of a scenario."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-    kind: Literal["repetition", "deletion", "insertion", "resequencing", "corruption", "delay",
-                  "masquerade", "babbling", "bus_off", "stuck", "sensor"]
-    from_s: Annotated[float, Field(ge=0)]
-    to_s: Annotated[float, Field(gt=0)]
-    message: str | None = None              # message threats and stuck: the DBC message
-    node: str | None = None                 # babbling / bus_off: the node
-    probability: Annotated[float, Field(ge=0, le=1)] = 1.0
-    delay_ms: Annotated[float, Field(ge=0, le=10_000)] = 0.0
-    signal: str | None = None               # masquerade / stuck: the signal the rogue frame sets ...
-    value: float | None = None              # ... to this value (stuck / sensor: see the module docstring)
-    frame_id: Annotated[int, Field(ge=0, le=0x7FF)] = 0x000   # babbling: the identifier it floods
-    car: Annotated[int, Field(ge=1, le=8)] | None = None      # sensor: the car (1-based)
-    sensor: Literal["wheel_speed", "pressure", "accelerometer"] | None = None
-    mode: Literal["stuck", "bias"] | None = None              # sensor: stuck reading or added bias
-
-    @model_validator(mode="after")
-    def _consistent(self) -> FaultSpec:
-        if self.value is not None and not math.isfinite(self.value):
-            raise ValueError(f"value {self.value} must be a finite number")
-        if self.to_s <= self.from_s:
-            raise ValueError(f"to_s {self.to_s} must be after from_s {self.from_s}")
-        if self.kind in MESSAGE_THREATS and not self.message:
-            raise ValueError(f"a {self.kind} fault needs 'message', the DBC message it attacks")
-        if self.kind in NODE_FAULTS and not self.node:
-            raise ValueError(f"a {self.kind} fault needs 'node'")
-        if self.kind == "masquerade" and (self.signal is None or self.value is None):
-            raise ValueError("a masquerade fault needs 'signal' and 'value' (what the rogue frame claims)")
-        if self.kind in ("delay",) and self.delay_ms <= 0:
-            raise ValueError("a delay fault needs delay_ms > 0")
-        if self.kind == "stuck" and (not self.message or self.signal is None):
-            raise ValueError("a stuck fault needs 'message' and 'signal' (and optionally 'value'; without it "
-                             "the signal freezes at its last value before from_s)")
-        if self.kind == "sensor":
-            if self.car is None or self.sensor is None or self.mode is None:
-                raise ValueError("a sensor fault needs 'car', 'sensor' (wheel_speed, pressure, "
-                                 "accelerometer) and 'mode' (stuck, bias)")
-            if self.mode == "bias" and self.value is None:
-                raise ValueError("a sensor fault with mode = 'bias' needs 'value', the bias in the sensor's "
-                                 "SI unit (rad/s, Pa, m/s²)")
-        if self.kind in SOURCE_FAULTS and self.probability != 1.0:
-            raise ValueError(f"a {self.kind} fault is not random: 'probability' applies to message "
-                             f"threats only")
-        if self.kind != "sensor" and (self.car, self.sensor, self.mode) != (None, None, None):
-            raise ValueError("'car', 'sensor' and 'mode' belong to sensor faults only")
-        return self
-
 
 @dataclass
 class FaultLog:
@@ -239,8 +188,6 @@ class FaultInjector:
         node that sends its message (`Node.stick`), a `sensor` one in the plant node
         (`PlantController.add_sensor_fault`).  A message no node of the scenario sends cyclically is a
         ScenarioError naming the fault."""
-        from hil.node import StuckSignal  # heavier modules (plant_node imports the scenario: a cycle)
-        from hil.plant_node import SensorFault
         for i, spec in self.sources:
             start_us, end_us = round(spec.from_s * 1e6), round(spec.to_s * 1e6)
             if spec.kind == "stuck":
@@ -281,8 +228,6 @@ def _check_stuck(i: int, f: FaultSpec, msg, e2e_protected: bool, authentic: int)
 
 def build_injector(scenario, db: Database, codec: Codec, node_names_: list[str]) -> FaultInjector | None:
     """The scenario's faults, checked against the DBC and the nodes (one ScenarioError line each)."""
-    from hil.node import authentic_length as _authentic_length  # hil.node is heavier than this module
-    from hil.node import e2e_config as _e2e_config
     if not scenario.faults:
         return None
     names = [m.name for m in db.messages]

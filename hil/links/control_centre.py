@@ -33,7 +33,7 @@ centre → train
                                                         step 6: age [s] the report spent at the centre
     {"type": "error", "error": "…"}                    a line the centre cannot use; the link stays up
 
-`python -m hil.control_centre --db FILE --port 0` (or `railhil control-centre`) serves until SIGINT or
+`python -m hil.links.control_centre --db FILE --port 0` (or `railhil control-centre`) serves until SIGINT or
 SIGTERM; it prints `listening on HOST:PORT (database FILE)` first, and a summary line at the end.
 """
 
@@ -561,7 +561,7 @@ class TrainClient:
 # --- serving from the command line -------------------------------------------------------------------
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The options of `railhil control-centre` and `python -m hil.control_centre`."""
+    """The options of `railhil control-centre` and `python -m hil.links.control_centre`."""
     p.add_argument("--db", type=Path, required=True, metavar="FILE",
                    help="SQLite database file of the reports (created if missing; reused after a restart)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
@@ -610,8 +610,8 @@ def serve(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m hil.control_centre`: errors print one line and exit 2, as `railhil` does."""
-    parser = argparse.ArgumentParser(prog="python -m hil.control_centre",
+    """`python -m hil.links.control_centre`: errors print one line and exit 2, as `railhil` does."""
+    parser = argparse.ArgumentParser(prog="python -m hil.links.control_centre",
                                      description="The control centre of seed 002: trains report, it pairs "
                                                  "follower and leader on a route section and relays.")
     add_arguments(parser)

@@ -39,9 +39,9 @@ from pathlib import Path
 import can
 
 from hil.errors import BusError, NodeDied, RailhilError
-from hil.gctune import LOOP_THRESHOLDS
-from hil.lockstep import RunOutcome
-from hil.plant_node import TruthLog
+from hil.runtime.gctune import LOOP_THRESHOLDS
+from hil.runtime.outcome import RunOutcome
+from hil.runtime.plant_node import TruthLog
 from hil.scenario import Scenario
 
 READY_TIMEOUT_S = 60.0         # processes importing numpy/cantools on a loaded 2-core machine
@@ -53,8 +53,6 @@ OBSERVE_AFTER_DEATH_S = 1.0    # after a node process dies, the others run on th
                                # counted on the plant's clock so a plant lagging under load records it all
 OBSERVE_GRACE_S = 30.0         # ... unless the plant does not get there within this much more wall time
 END_NEVER_US = 2**62           # the plant's end-of-observation time while no node has died
-HELD_MAX_LAG_US = 50_000       # a run held real time when no node's cycle fell more than this behind (the
-                               # 10 ms ECUs' CATCH_UP_CYCLES) and none skipped a cycle (realtime_verdict)
 
 
 def resolve_bus_config(cli: dict, scenario: Scenario) -> dict:
@@ -153,10 +151,10 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
     signal.signal(signal.SIGINT, signal.SIG_IGN)         # the parent coordinates shutdown
     bus = None
     try:
-        from hil.assembly import build_node
-        from hil.codec import Codec
-        from hil.dbc import load_dbc
-        from hil.release import node_release
+        from hil.can.codec import Codec
+        from hil.can.dbc import load_dbc
+        from hil.runtime.assembly import build_node
+        from hil.runtime.release import node_release
         from hil.scenario import Scenario as _Scenario
         from hil.scenario import secoc_keys
 
@@ -164,7 +162,7 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         db = load_dbc(dbc_path)
         codec = Codec(db)
         node = build_node(name, scenario, db, codec, dbc_path)
-        release = node_release(scenario, db, node)       # jitter, drift, start delay (hil.release)
+        release = node_release(scenario, db, node)       # jitter, drift, start delay (hil.runtime.release)
         node.use_keys(secoc_keys(scenario), scenario.secoc.window)
         bus = open_bus(cfg)
         _raise_priority(REALTIME_NICE)
@@ -312,8 +310,8 @@ def truth_end_us(truth) -> int:
 def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                  progress: Callable[[int, dict], None] | None = None) -> tuple[RunOutcome, float]:
     """Run every node in its own process; returns the outcome and the trace's epoch at t0."""
-    from hil.assembly import node_names
-    from hil.results import check_out_dir
+    from hil.report.kpis import check_out_dir
+    from hil.runtime.assembly import node_names
 
     probe = open_bus(cfg)                       # fail early, in the parent, with one clear line
     probe.shutdown()
@@ -448,19 +446,6 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     return outcome, epoch_t0, failure
 
 
-def realtime_verdict(node_stats: dict[str, dict]) -> dict:
-    """Did the run hold real time?  On a machine short of CPU a node starts its cycles late, or skips them,
-    and the plant's sensors go stale: the closed loop is then not that of the controllers at their cycle
-    times, and its figures (stopping distance, reaction times) say so little that they are flagged."""
-    lag = {n: round(s.get("max_lag_us", 0) / 1e3, 1) for n, s in node_stats.items()}
-    missed = {n: s.get("missed_cycles", 0) for n, s in node_stats.items()}
-    held = (all(s.get("max_lag_us", 0) <= HELD_MAX_LAG_US for s in node_stats.values())
-            and not any(missed.values()))
-    worst = max(lag, key=lag.get, default=None)
-    return {"held": held, "max_lag_ms": lag, "missed_cycles": missed, "worst_node": worst,
-            "limit_ms": HELD_MAX_LAG_US / 1e3}
-
-
 def _show_progress(q, progress: Callable[[int, dict], None]) -> None:
     item = None
     while True:
@@ -475,9 +460,9 @@ def _show_progress(q, progress: Callable[[int, dict], None]) -> None:
 
 def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dict,
                           progress: Callable[[int, dict], None] | None = None):
-    from hil.codec import Codec
-    from hil.dbc import load_dbc
-    from hil.run import TRACE_NAME, dbc_path_of, finish_run
+    from hil.can.codec import Codec
+    from hil.can.dbc import load_dbc
+    from hil.runtime.run import TRACE_NAME, dbc_path_of, finish_run
 
     if scenario.faults:                           # not silently dropped: say where they work
         from hil.errors import ScenarioError
@@ -488,8 +473,8 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
     dbc_path = dbc_path_of(scenario)
     db = load_dbc(dbc_path)                       # bad DBC: one line, before any process starts
     codec = Codec(db)
-    from hil.assembly import build_node, node_names
-    from hil.release import node_releases
+    from hil.runtime.assembly import build_node, node_names
+    from hil.runtime.release import node_releases
 
     nodes = [build_node(name, scenario, db, codec, str(dbc_path)) for name in node_names(scenario)]
     node_releases(scenario, db, nodes)            # bad bindings or [nodes.*]: one line, before any process

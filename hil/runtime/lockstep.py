@@ -4,8 +4,8 @@ and seed -> byte-identical trace.
 
 The bus (scenario ``[bus] timing``):
 
-* ``bit`` (default) — hil.bustiming: each node's frames enter its transmit queue when released
-  (hil.release: cycle phase, drift, jitter, extra delay); when the bus is idle the lowest pending
+* ``bit`` (default) — hil.can.bustiming: each node's frames enter its transmit queue when released
+  (hil.runtime.release: cycle phase, drift, jitter, extra delay); when the bus is idle the lowest pending
   identifier wins arbitration and occupies the bus for its frame length at the scenario's bitrate;
   receivers and the trace get the frame at the end of its EOF.
 * ``ideal`` — a frame sent at t is delivered at t (no frame durations, no arbitration).
@@ -21,46 +21,29 @@ from __future__ import annotations
 import heapq
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import can
 from cantools.database.can import Database
 
-from hil.assembly import build_node, node_names
-from hil.busload import declared_bitrate
-from hil.bustiming import BitTimedBus, Pending
-from hil.codec import Codec, FrameCodec
+from hil.can.busload import declared_bitrate
+from hil.can.bustiming import BitTimedBus, Pending
+from hil.can.codec import Codec, FrameCodec
 from hil.errors import ScenarioError
-from hil.faults import ROGUE, build_injector
-from hil.gctune import loop_gc
-from hil.node import Node
-from hil.plant_node import PlantController, TruthLog
-from hil.release import message_delays, node_releases
+from hil.runtime.assembly import build_node, node_names
+from hil.runtime.gctune import loop_gc
+from hil.runtime.node import Node
+from hil.runtime.outcome import RunOutcome
+from hil.runtime.plant_node import PlantController
+from hil.runtime.release import message_delays, node_releases
+from hil.safety.injection import ROGUE, build_injector
 from hil.scenario import Scenario, secoc_keys
 
 Message = can.Message
 DEFAULT_BITRATE = 500_000   # bit/s, when neither the scenario nor the DBC gives one
 DELIVER, CYCLE, RELEASE, ARBITRATE, BABBLE = 0, 1, 2, 3, 4   # event phases: their order at equal times
 NEVER = 1 << 63             # ns: no such event scheduled
-
-
-@dataclass
-class RunOutcome:
-    """What a run produced, in either mode; the results module turns it into files and KPIs."""
-
-    mode: str
-    end_us: int
-    reason: str                               # "standstill" | "max_duration" | "interrupted"
-    truth: TruthLog
-    frames_by_node: dict[str, int]
-    node_stats: dict[str, dict] = field(default_factory=dict)
-    wall_s: float = 0.0
-    bus: dict | None = None                   # bit-timed lockstep bus: load and per-message timing
-    frames_in_flight: int = 0                 # sent, but queued or on the wire when the run ended
-    frames_overwritten: int = 0               # replaced in a transmit queue by a newer instance
-    frames_faulted: int = 0                   # frames added (+) or removed (-) by injected faults
-    faults: dict | None = None                # what the fault injector did: counts and events
 
 
 class RawFrame(NamedTuple):
@@ -153,7 +136,7 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
     plant: PlantController = plant_node.controller
     delivery = LockstepBus(nodes, writer)
     timed = scenario.bus.timing == "bit"
-    rogue = len(nodes)                   # the transmit queue of an attacker's frames (hil.faults)
+    rogue = len(nodes)                   # the transmit queue of an attacker's frames (hil.safety.injection)
     bus = None
     if timed:
         deadlines = {m.frame_id: int(m.cycle_time) * 1_000_000 for m in db.messages if m.cycle_time}

@@ -29,7 +29,7 @@ from datetime import datetime
 import serial
 
 from hil.errors import SerialLinkError
-from hil.nmea import DEFAULT_UTC0, PROTOCOLS, LinkStats, ReceivedFix
+from hil.links.nmea import DEFAULT_UTC0, PROTOCOLS, LinkStats, ReceivedFix
 from plant_sim.gps import GpsFix
 
 BITS_PER_CHAR_8N1 = 10     # start bit + 8 data bits + stop bit

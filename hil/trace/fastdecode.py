@@ -5,9 +5,9 @@ The output is byte for byte what the per-frame path of ``hil.cli.trace.decode`` 
 rows, filters, counts and text in the three formats (tests/test_fastdecode.py compares the two on the
 corpus traces and DBCs, on traces of generated DBCs and on generated candump text).  How:
 
-* Frames come as ``hil.tracecolumns.FrameBlock`` columns (timestamp [s], id, 11/29-bit, remote,
+* Frames come as ``hil.trace.columns.FrameBlock`` columns (timestamp [s], id, 11/29-bit, remote,
   error, DLC, data bytes).  The filters (--start/--end, --id, --message/--signal) are masks over them.
-* Data frames of a DBC message that ``hil.codec`` decodes with its generated shift-and-mask code
+* Data frames of a DBC message that ``hil.can.codec`` decodes with its generated shift-and-mask code
   (``FrameCodec.fallback_reason is None``: not multiplexed, no overlapping signals) and that carry at
   least the message's bytes are decoded here.  A signal's raw bits are a shift and a mask of the
   payload as one integer, little-endian (Intel) or big-endian (Motorola), exactly as the codec takes
@@ -42,9 +42,9 @@ import can
 import numpy as np
 from cantools.database.can import Signal
 
-from hil.codec import Codec, FrameCodec
-from hil.tracecolumns import FrameBlock
-from hil.traceio import id_text
+from hil.can.codec import Codec, FrameCodec
+from hil.trace.columns import FrameBlock
+from hil.trace.readers import id_text
 
 __all__ = ["FORMATS", "BlockDecoder"]
 
@@ -120,7 +120,7 @@ class _SignalPlan:
 
 
 def _shift(signal: Signal, message_length: int) -> int:
-    """The LSB of a signal in the payload integer, as hil.codec numbers it."""
+    """The LSB of a signal in the payload integer, as hil.can.codec numbers it."""
     if signal.byte_order == "big_endian":
         msb = 8 * (signal.start // 8) + (7 - signal.start % 8)  # network bit number of the MSB
         return 8 * message_length - msb - signal.length

@@ -18,7 +18,7 @@ the common line, a classic data frame written as ``(seconds) channel ID#HEXDATA`
 `` R``/`` T``, single spaces, a 3- or 8-digit id without the error flag, whole data bytes, is parsed
 by one regular expression into the very ``can.Message`` python-can makes of it (about 2.5x faster);
 any other line (remote, CAN FD, error frames, other spacing, anything malformed) goes to python-can's
-own parser, so what it yields or raises is python-can's.  A bulk parser (``hil.tracecolumns``) can read
+own parser, so what it yields or raises is python-can's.  A bulk parser (``hil.trace.columns``) can read
 candump text a batch of lines at a time through ``Trace.candump_batches`` and hand every line it does not
 take itself to ``Trace.candump_line``: the frames, the line numbers and the errors stay those of
 iterating the ``Trace``.
@@ -284,7 +284,7 @@ class Trace:
 
     @property
     def reader(self):
-        """python-can's reader of this trace (hil.tracecolumns reads a BLFReader's file itself)."""
+        """python-can's reader of this trace (hil.trace.columns reads a BLFReader's file itself)."""
         return self._reader
 
     def close(self) -> None:
@@ -311,7 +311,7 @@ class Trace:
             self._finish(logger, handler)
         self._check_not_empty()
 
-    # --- candump text a batch of lines at a time (hil.tracecolumns) ------------------------------
+    # --- candump text a batch of lines at a time (hil.trace.columns) ------------------------------
 
     @property
     def is_candump(self) -> bool:

@@ -27,9 +27,9 @@ import can
 import numpy as np
 from cantools.database.can import Database
 
-from hil.codec import Codec
+from hil.can.codec import Codec
 from hil.errors import RailhilError
-from hil.plant_node import STANDSTILL_MPS
+from hil.runtime.plant_node import STANDSTILL_MPS
 from hil.scenario import Scenario
 from plant_sim.adhesion import mu_slip_speed_scalar
 from plant_sim.params import PadParams
@@ -477,7 +477,7 @@ def plot_seed001(scenario: Scenario, cols: dict[str, np.ndarray], path: Path, ti
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hil.dbc import DEFAULT_DBC, load_dbc
+    from hil.can.dbc import DEFAULT_DBC, load_dbc
 
     n = scenario.train.cars
     t = cols["t_s"]
@@ -529,7 +529,7 @@ def _feedback_signals(scenario: Scenario, trace: Path, t_end: float, trace_t0_s:
                       trace_speed: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """TargetDecel and BCU_STATUS's FbState, FrictionPhi, SlopeEst from a run's trace ({} when there is
     none, or it is a real-time trace given without its t0)."""
-    from hil.dbc import DEFAULT_DBC, load_dbc
+    from hil.can.dbc import DEFAULT_DBC, load_dbc
 
     if not trace.exists():
         return {}

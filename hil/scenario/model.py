@@ -17,11 +17,11 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
 from hil.errors import ScenarioError
-from hil.faults import FaultSpec
+from hil.scenario.base import Strict
+from hil.scenario.faults import FaultSpec
 from hil.spec_acd import AcdSpec
 from hil.spec_consensus import ConsensusSpec
 from hil.spec_preview import PreviewSpec
-from hil.specbase import Strict
 
 MAX_CARS = 8
 RAIL_CONDITION_NAMES = ("extra_dry", "dry", "wet", "extra_wet")
@@ -137,7 +137,7 @@ class RealtimeSpec(_Strict):
 class BusSpec(_Strict):
     """The lockstep bus.  Real-time runs get their timing from the real bus instead."""
 
-    # "bit": frame durations, arbitration, transmit queues, delivery at end of frame (hil.bustiming);
+    # "bit": frame durations, arbitration, transmit queues, delivery at end of frame (hil.can.bustiming);
     # "ideal": every frame delivered the instant it is sent (no bus timing at all)
     timing: Literal["bit", "ideal"] = "bit"
     bitrate: Annotated[int, Field(ge=10_000, le=1_000_000)] | None = None   # bit/s; default: DBC Baudrate
@@ -274,7 +274,7 @@ class ReportSpec(_Strict):
     """What the run reports beyond the standard KPIs."""
 
     # the paper figure this scenario redoes: its published numbers are printed next to ours in the run
-    # summary (hil.results); the seed-001 KPIs themselves are computed for every control = "decel" run
+    # summary (hil.report.kpis); the seed-001 KPIs themselves are computed for every control = "decel" run
     paper_figure: Literal["seed001_fig8", "seed001_fig9"] | None = None
     # steady state = the last this many seconds of the braking window (at most its second half) [s]
     steady_state_window_s: Annotated[float, Field(gt=0, le=600)] = 10.0
@@ -283,7 +283,7 @@ class ReportSpec(_Strict):
 class SecOcSpec(_Strict):
     """Keys of the authenticated messages (DBC attribute SecOCDataID): AES-128, 32 hex digits."""
 
-    key: str | None = None                  # every authenticated message; default: hil.node.DEV_SECOC_KEY
+    key: str | None = None       # every authenticated message; default: hil.runtime.node.DEV_SECOC_KEY
     keys: dict[str, str] = Field(default_factory=dict)   # by message name, over `key`
     # freshness acceptance window [frames]: the longest outage a receiver survives (255 frames = 2.55 s
     # at 10 ms); beyond it the 8 transmitted bits cannot tell how many frames were lost
@@ -359,9 +359,9 @@ class Scenario(_Strict):
             raise ValueError(f"becu.slip_max_mps {self.becu.slip_max_mps} must lie below the adhesion peak "
                              f"plant.slip_peak_mps {self.plant.slip_peak_mps} (stable-slip region)")
         return self
-    faults: list[FaultSpec] = Field(default_factory=list)             # hil.faults, lockstep
+    faults: list[FaultSpec] = Field(default_factory=list)    # hil.scenario.faults; injected by hil.safety
     secoc: SecOcSpec = Field(default_factory=SecOcSpec)               # authentication keys
-    # the studies that bring nodes of their own (hil.assembly.studies): absent = not part of this run
+    # the studies that bring nodes of their own (hil.runtime.assembly.studies): absent = not part of this run
     preview: PreviewSpec | None = None        # seed 000: slip references with preview (hil/spec_preview.py)
     consensus: ConsensusSpec | None = None    # seed 003: consensus braking (hil/spec_consensus.py)
     acd: AcdSpec | None = None                # seed 002: anti-collision device (hil/spec_acd.py)

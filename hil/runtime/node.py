@@ -3,7 +3,7 @@
 Received frames are decoded into a latest-value table with reception times (`RxTable`); each cycle
 the node calls `controller.step(now_us, rx)` and encodes the frames that are due at their DBC cycle
 time.  Frames the DBC marks for E2E protection (message attributes `E2EProfile` = P01/P02 and
-`E2EDataID`, see `e2e_config`) are protected by the sender (counter and CRC, hil.e2e) and checked by
+`E2EDataID`, see `e2e_config`) are protected by the sender (counter and CRC, hil.can.e2e) and checked by
 every receiver: a frame whose status is not usable (ERROR, REPEATED, WRONGSEQUENCE, INITIAL) does
 not reach the controller, and the status of each protected message is counted and given to the
 controller each cycle (`RxTable.e2e`).  The same Node runs in lockstep (driven by the
@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 
 from cantools.database.can import Database
 
-from hil import e2e, secoc
-from hil.codec import Codec, FrameCodec, FrameError
-from hil.dbc import closest
+from hil.can import e2e, secoc
+from hil.can.codec import Codec, FrameCodec, FrameError
+from hil.can.dbc import closest
 from hil.errors import BindingError, DbcError
 
 NAN = float("nan")
@@ -67,7 +67,8 @@ class RxTable(Mapping[str, float]):
 
 @dataclass
 class StuckSignal:
-    """A signal stuck in the sending node's software (hil.faults `stuck`): in [start_us, end_us) every
+    """A signal stuck in the sending node's software (hil.safety.injection `stuck`): in [start_us, end_us)
+    every
     frame the node sends carries `value` [DBC physical unit], or, when `value` is None, the last value
     it sent before start_us.  Applied to the frame's values before encoding, so the E2E CRC and the
     SecOC MAC are computed over it (the frame is valid on the bus)."""
@@ -104,7 +105,7 @@ class TxFrame:
     e2e_state: e2e.ProtectState | None = None
     secoc: secoc.SecOcSender | None = None
     authentic: int = 8                     # bytes before the SecOC trailer
-    stuck: list[StuckSignal] = field(default_factory=list)   # injected sender faults (hil.faults)
+    stuck: list[StuckSignal] = field(default_factory=list)   # injected sender faults (hil.safety.injection)
 
 
 def _attribute(msg, name: str):
@@ -333,7 +334,8 @@ class Node:
         self._next_due_us = min((tx.next_due_us for tx in self.tx), default=1 << 62)
 
     def stick(self, message: str, stuck: StuckSignal) -> bool:
-        """Make a signal of a frame this node sends cyclically stuck (hil.faults); False: the node does
+        """Make a signal of a frame this node sends cyclically stuck (hil.safety.injection); False: the node
+        does
         not send `message`."""
         for tx in self.tx:
             if tx.codec.name == message:

@@ -20,11 +20,11 @@ from firmware_py.decel_feedback import FeedbackParams, FrictionSet
 from firmware_py.governor import GovernorParams, governor_params
 from firmware_py.pi import PIParams
 from firmware_py.stopping import StoppingParams
-from hil.codec import Codec
-from hil.desk import DeskScript
+from hil.can.codec import Codec
 from hil.errors import BindingError
-from hil.node import Binding, Node
-from hil.plant_node import PlantController, build_track, plant_params
+from hil.runtime.desk import DeskScript
+from hil.runtime.node import Binding, Node
+from hil.runtime.plant_node import PlantController, build_track, plant_params
 from hil.scenario import Scenario
 from plant_sim.adhesion import mu_slip_speed_scalar, mu_slip_speed_slope_scalar
 from plant_sim.padbench import BenchParams, coefficient_set
@@ -88,7 +88,7 @@ def pad_params(scenario: Scenario) -> PadParams | None:
 
 
 def scenario_plant_params(scenario: Scenario) -> PlantParams:
-    """hil.plant_node.plant_params plus the pad model of seed 004 where the scenario asks for it."""
+    """hil.runtime.plant_node.plant_params plus the pad model of seed 004 where the scenario asks for it."""
     pp = plant_params(scenario)
     pad = pad_params(scenario)
     return pp if pad is None else dataclasses.replace(pp, pad=pad)
@@ -238,7 +238,7 @@ def build_foundation_node(name: str, scenario: Scenario, db: Database, codec: Co
 def safe_outputs(ctrl) -> dict[str, float]:
     """What a node sends in place of an output its controller could not give (step() raised, or the
     value is NaN, infinite or not a number): railway fail-safe, a brake ECU that fails brakes.  A BECU
-    fills its cylinder to p̄; the BCU commands the emergency brake.  Other nodes: 0 (hil.node)."""
+    fills its cylinder to p̄; the BCU commands the emergency brake.  Other nodes: 0 (hil.runtime.node)."""
     if isinstance(ctrl, Becu):
         return {"CylPressureSet": ctrl.p.p_max_Pa, "ValveCmd": 1.0, "WspValve": 0, "InputMissing": 1}
     if isinstance(ctrl, Bcu):

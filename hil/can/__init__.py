@@ -1,0 +1,10 @@
+"""The CAN layer: the DBC, the codec, AUTOSAR E2E and SecOC protection, and the bus's timing.
+
+- `dbc`       loading the DBC (the single source of truth), name lookup with suggestions
+- `codec`     per-message encode/decode, proven equal to cantools
+- `e2e`       AUTOSAR E2E profiles 1 and 2 (counter + CRC)
+- `secoc`     AUTOSAR SecOC profile 1 (AES-CMAC, freshness)
+- `busload`   frame lengths and the static bus load of a DBC
+- `bustiming` the bit-timed lockstep bus: durations, arbitration, transmit queues
+- `rta`       worst-case response-time analysis (Davis et al. 2007)
+"""

@@ -1,0 +1,6 @@
+"""Safety: fault injection (EN 50159 threats, babbling, bus-off, stuck signals, failed sensors) and the
+threat matrix that runs every threat against every protected frame.
+
+- `injection`     the injector the lockstep bus, the nodes and the plant apply
+- `threat_matrix` one lockstep run per (threat, frame), judged on detection and plant truth
+"""
