@@ -4,13 +4,14 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test test-slow fuzz bench lint vcan clean
+.PHONY: run test test-slow fuzz bench lint docs lock vcan clean
 
-$(STAMP): pyproject.toml
+# the versions CI tested come from constraints.txt (make lock writes it)
+$(STAMP): pyproject.toml constraints.txt
 	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'"; exit 2; }
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -c constraints.txt -e '.[test,docs]'
 	touch $(STAMP)
 
 ## make run: the default scenario as a real-time HIL (one OS process per node on udp_multicast)
@@ -42,6 +43,19 @@ fuzz: $(STAMP)
 bench: $(STAMP)
 	$(PY) bench/run_all.py
 
+## make lock: constraints.txt, the dependency versions make installs: resolved by uv (fast, reproducible)
+## from pyproject.toml for Python 3.11, preferring the versions of the current .venv (those the tests passed
+## with). Run it after changing a dependency, then make test, and commit constraints.txt with the change
+lock: $(STAMP)
+	$(PY) -m pip install --quiet uv
+	$(PY) -m pip freeze --exclude-editable | grep -v '^uv==' > $(VENV)/tested.txt
+	$(VENV)/bin/uv pip compile pyproject.toml --extra test --extra docs --python-version 3.11 --no-annotate \
+	  --constraint $(VENV)/tested.txt -o constraints.txt
+
+## make docs: the docs site under docs/ built strictly into site/ (a warning is an error)
+docs: $(STAMP)
+	$(VENV)/bin/mkdocs build --strict
+
 lint: $(STAMP)
 	$(VENV)/bin/ruff check firmware_py plant_sim hil tests bench dbc
 
@@ -54,4 +68,4 @@ vcan:
 	@echo "vcan0 is up: railhil run SCENARIO --realtime --interface socketcan --channel vcan0"
 
 clean:
-	rm -rf $(VENV) runs .pytest_cache
+	rm -rf $(VENV) runs site .pytest_cache

@@ -25,8 +25,8 @@ if str(ROOT) not in sys.path:
 
 from firmware_py.governor import GovernorState, govern, play  # noqa: E402
 from firmware_py.pi import pi_step  # noqa: E402
-from hil.runtime.assembly import becu_params  # noqa: E402
 from hil.scenario import load_scenario  # noqa: E402
+from hil.scenario.params import becu_params  # noqa: E402
 
 CASES = (  # (label, scenario, simulated seconds)
     ("rg_low_adhesion, r0 = 0.25 g", "rg_low_adhesion.toml", 10.0),

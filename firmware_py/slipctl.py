@@ -25,7 +25,7 @@ The torque becomes a cylinder set-point in one of two ways (`SlipCtlParams.brake
 The foundation's wheel-slide protection (firmware_py.becu.wsp_transition) still vents above its slip
 threshold and freezes the integral meanwhile.  The reference the loop tracks is capped at
 (1 + above_own) times the optimum under the car's own wheels (see SlipCtlParams).  Eq. (4)'s α is
-then what this loop achieves: hil measures it (hil.picasso.achieved_alpha).
+then what this loop achieves: hil measures it (hil.studies.preview_slip.reproduce.achieved_alpha).
 
 Pure logic, no I/O, time passed in as integer µs.
 """
@@ -58,7 +58,8 @@ class SlipCtlParams:
     # the loop tracks at most (1 + above_own) times the optimum under the car's own wheels (chosen; None: no
     # cap, the reference as generated): a preview that asks for more slip than the rail under the wheel can
     # take puts the wheel past its adhesion peak, where it is unstable. With the "direction" inverse that
-    # slid into WSP venting; the "model" inverse holds it (hil/preview_nodes.py runs it without the cap)
+    # slid into WSP venting; the "model" inverse holds it (hil/studies/preview_slip/nodes.py runs it without
+    # the cap)
     above_own: float | None = 0.1
     wsp: WspParams = field(default_factory=WspParams)
     cycle_us: int = 10_000

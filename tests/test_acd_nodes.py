@@ -1,5 +1,5 @@
-"""hil.acd_nodes: seed 002's anti-collision device wired into runs — the leader's script, the radio link
-and control centre model, the BCU's reading of ACD_BRAKE_REQ, the ACD node with its GPS serial line
+"""hil.studies.anticollision: seed 002's anti-collision device wired into runs — the leader's script, the
+radio link and control centre model, the BCU's reading of ACD_BRAKE_REQ, the ACD node with its GPS serial line
 (loop:// and a real pty, garbage on the line), the judgement on plant truth, and lockstep runs of the
 three scenarios."""
 
@@ -13,22 +13,19 @@ import pytest
 
 from firmware_py.acd import AcdMode, braking_distance_m
 from firmware_py.bcu import Bcu, BcuParams
-from hil.acd_nodes import (
-    AcdDevice,
-    CentreModel,
-    RadioLink,
-    World,
-    acd_params,
-    geometry,
-    judge,
-    leader_motion,
-    run_judged,
-    section_of,
-)
 from hil.errors import ScenarioError
 from hil.runtime.node import RxTable
 from hil.scenario import load_scenario
-from hil.spec_acd import AcdSpec, RadioSpec
+from hil.studies.anticollision.kpis import judge, run_judged
+from hil.studies.anticollision.nodes import AcdDevice, CentreModel, RadioLink, World
+from hil.studies.anticollision.scenario import (
+    AcdSpec,
+    RadioSpec,
+    acd_params,
+    geometry,
+    leader_motion,
+    section_of,
+)
 from plant_sim.errors import PlantConfigError
 from plant_sim.gps import GpsModel, GpsParams
 from plant_sim.leader import LeaderMotion, SpeedChange
@@ -324,6 +321,6 @@ def test_study_command_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
                        (["campaign", str(tmp_path / "none.toml")], "no such campaign file"),
                        (["campaign", str(ROOT / "campaigns" / "acd_random.toml"), "--jobs", "0"], "--jobs 0"),
                        (["judge", str(tmp_path)], "not a readable run folder")):
-        assert main(["reproduce", "acd", *argv]) == 2
+        assert main(["reproduce", "anticollision", *argv]) == 2
         err = capsys.readouterr().err
         assert err.startswith("error: ") and err.count("\n") == 1 and what in err and "Traceback" not in err

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from hil.acd_nodes import judge_run_dir
 from hil.links.control_centre import stored_reports
+from hil.studies.anticollision.kpis import judge_run_dir
 
 pytestmark = [pytest.mark.realtime, pytest.mark.slow]
 

@@ -1,7 +1,7 @@
 """BECU deceleration control (seed 001 eq. 16), its WSP (§II-C) and the governor in the loop.
 
 Step tests with injected time and signals, the WSP transition table and the scenario keys. The lockstep
-runs of scenarios/rg_*.toml against issue #4's acceptance are in tests/test_seed001.py.
+runs of scenarios/rg_*.toml against issue #4's acceptance are in tests/test_wheel_slip.py.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import pytest
 from firmware_py.becu import Becu, BecuParams, Wsp, WspParams, wsp_transition
 from firmware_py.pi import PIParams
 from hil.errors import ScenarioError
-from hil.runtime.assembly import becu_params
 from hil.scenario import load_scenario, parse_scenario
+from hil.scenario.params import becu_params
 
 ROOT = Path(__file__).resolve().parents[1]
 G = 9.81
@@ -91,9 +91,9 @@ def _scenario(**sections):
 
 
 @pytest.mark.parametrize("sections, match", [
-    (dict(becu={"governor": True}), "governor = true needs control = 'decel'"),
-    (dict(becu={"control": "decel", "governor": True}), "plant.adhesion = 'slip_speed'"),
-    (dict(becu={"control": "decel", "governor": True, "slip_max_mps": 0.2},
+    (dict(wheel_slip={"governor": True}), "governor = true needs becu.control = 'decel'"),
+    (dict(becu={"control": "decel"}, wheel_slip={"governor": True}), "plant.adhesion = 'slip_speed'"),
+    (dict(becu={"control": "decel"}, wheel_slip={"governor": True, "slip_max_mps": 0.2},
           plant={"adhesion": "slip_speed"}), "below the adhesion peak"),
     (dict(bcu={"step_decel_mps2": [0.0, 1.0]}), "needs 8 values"),
     (dict(plant={"pressure_model": "hydraulic"}), "plant.pressure_model"),

@@ -1,4 +1,20 @@
-"""Imports point one way: hil -> firmware_py, plant_sim; never back, never across."""
+"""Imports point one way.
+
+- firmware_py and plant_sim import neither hil nor each other, nor anything that does I/O.
+- Inside hil, the wings form layers and every import points to the same layer or a lower one:
+
+      cli, pytest plugin  →  studies  →  runtime / safety / report / campaign
+                          →  can / trace / scenario / links  →  errors, resources
+
+- No import circles between modules.
+
+Imports are read from the source (AST), at module level and inside functions alike, and a string
+constant that names a hil module (`"hil.cli.run"` in a table that importlib loads) counts as an import
+of it.  The one arrow that points up by design is the scenario's lookup of the study registry by name
+(`ALLOWED_UPWARD`): the foundation knows the studies only through that registry.
+"""
+
+from __future__ import annotations
 
 import ast
 from pathlib import Path
@@ -6,6 +22,157 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+
+#: hil's layers, lowest first: a module belongs to the first prefix it starts with
+LAYERS: list[tuple[str, ...]] = [
+    ("hil.errors", "hil.resources"),
+    ("hil.can", "hil.trace", "hil.scenario", "hil.links"),
+    ("hil.runtime", "hil.safety", "hil.report", "hil.campaign"),
+    ("hil.studies",),
+    ("hil.cli", "hil.pytest_plugin", "hil.__main__", "hil"),
+]
+#: (importer, imported) arrows that point up by design, with the reason
+ALLOWED_UPWARD = {
+    ("hil.scenario.registry", "hil.studies"):
+        "the foundation reads the study registry by name, the way python-can loads its interfaces",
+}
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def all_modules(package: str) -> dict[str, Path]:
+    return {module_name(p): p for p in sorted((ROOT / package).rglob("*.py"))}
+
+
+def imports_of(path: Path, name: str, known: dict[str, Path]) -> set[str]:
+    """The hil, firmware_py and plant_sim modules `path` imports (resolved to modules that exist)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+
+    def add(target: str) -> None:
+        while target and target not in known:          # `from hil.can import codec` -> hil.can.codec
+            target = target.rpartition(".")[0]
+        if target:
+            found.add(target)
+
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                add(alias.name)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[:len(package.split(".")) - node.level + 1]
+                module = ".".join(base + ([node.module] if node.module else []))
+            else:
+                module = node.module or ""
+            for alias in node.names:
+                full = f"{module}.{alias.name}"
+                add(full if full in known else module)
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value in known \
+                and node.value.startswith("hil.") and not name.startswith(node.value + "."):
+            add(node.value)                            # a module named in a table importlib loads (a
+            #                                            module naming its own package is not one)
+    found.discard(name)
+    return found
+
+
+def layer_of(module: str) -> int:
+    for level, prefixes in enumerate(LAYERS):
+        if any(module == p or module.startswith(p + ".") for p in prefixes):
+            return level
+    raise AssertionError(f"{module}: in no layer of tests/test_boundaries.py LAYERS; add its wing there")
+
+
+def hil_graph() -> tuple[dict[str, Path], dict[str, set[str]]]:
+    known = {**all_modules("hil"), **all_modules("firmware_py"), **all_modules("plant_sim")}
+    hil = {m: p for m, p in known.items() if m == "hil" or m.startswith("hil.")}
+    return hil, {m: {t for t in imports_of(p, m, known) if t in hil} for m, p in hil.items()}
+
+
+def upward_imports(hil: dict[str, Path], graph: dict[str, set[str]]) -> list[str]:
+    bad = []
+    for importer, targets in sorted(graph.items()):
+        for target in sorted(targets):
+            if target == "hil" or (importer, target) in ALLOWED_UPWARD:
+                continue
+            if layer_of(target) > layer_of(importer):
+                bad.append(f"{hil[importer].relative_to(ROOT)} imports {hil[target].relative_to(ROOT)} "
+                           f"(layer {layer_of(importer)} -> {layer_of(target)})")
+    return bad
+
+
+def circles(hil: dict[str, Path], graph: dict[str, set[str]]) -> list[str]:
+    """Every import circle, as the files of one arrow in it (Tarjan's strongly connected components)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    out = []
+    for component in found:
+        a = component[0]
+        b = next(t for t in sorted(graph[a]) if t in component)
+        out.append(f"{hil[a].relative_to(ROOT)} imports {hil[b].relative_to(ROOT)}, which leads back to it "
+                   f"(circle: {', '.join(component)})")
+    return out
+
+
+def test_hil_imports_point_down_the_layers():
+    hil, graph = hil_graph()
+    bad = upward_imports(hil, graph)
+    assert not bad, "upward imports:\n" + "\n".join(bad)
+
+
+def test_hil_has_no_import_circles():
+    """The registry lookup (ALLOWED_UPWARD) is a lookup by name at run time, not an import the module
+    needs to load: it is left out of the circle check too."""
+    hil, graph = hil_graph()
+    graph = {m: {t for t in targets if (m, t) not in ALLOWED_UPWARD} for m, targets in graph.items()}
+    bad = circles(hil, graph)
+    assert not bad, "import circles:\n" + "\n".join(bad)
+
+
+def test_the_layer_check_fails_on_an_upward_import_and_on_a_circle():
+    """The checks above are not vacuous: an import of the CLI from the codec and a circle between two
+    modules are both caught, naming the files."""
+    hil, graph = hil_graph()
+    graph = {m: set(t) for m, t in graph.items()}
+    graph["hil.can.codec"].add("hil.cli.main")
+    assert any(b.startswith("hil/can/codec.py imports hil/cli/main.py") for b in upward_imports(hil, graph))
+    graph = {m: set(t) for m, t in hil_graph()[1].items()}
+    graph["hil.can.dbc"].add("hil.can.codec")          # codec imports dbc: now a circle
+    assert any("hil/can/codec.py" in b and "hil/can/dbc.py" in b for b in circles(hil, graph))
 
 
 def imported_top_levels(package: str) -> set[tuple[str, str]]:

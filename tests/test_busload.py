@@ -99,19 +99,19 @@ def test_eight_car_full_load(db) -> None:
     unstuffed = static_load(base, worst_case_stuffing=False)
     assert unstuffed.total == pytest.approx(load.total * 111 / 135)
     # with the anti-collision device: its request (100 ms) and the radio link's three frames (1 s)
-    acd = static_load(with_functions(db, ["seed002_acd"]))
+    acd = static_load(with_functions(db, ["anticollision"]))
     assert acd.bits_per_s - load.bits_per_s == pytest.approx(sum(
-        1000 / m.cycle_time * 135 for m in db.messages if optional_function(m) == "seed002_acd"))
+        1000 / m.cycle_time * 135 for m in db.messages if optional_function(m) == "anticollision"))
 
 
 def test_optional_functions_are_chosen_by_name(db) -> None:
-    assert {"seed000_preview", "seed002_acd", "seed003_consensus", "seed002_precise_stop",
-            "track_balises"} <= set(functions_of(db))
+    assert {"preview_slip", "anticollision", "consensus", "precise_stop",
+            "balises"} <= set(functions_of(db))
     assert with_functions(db, ["all"]) is db
-    stop = with_functions(db, ["seed002_precise_stop"])
+    stop = with_functions(db, ["precise_stop"])
     names = {m.name for m in stop.messages}
     assert "BCU_STOP" in names and "PLANT_BTM" not in names
-    with pytest.raises(DbcError, match="'nope'.*seed003_consensus"):
+    with pytest.raises(DbcError, match="'nope'.*consensus"):
         with_functions(db, ["nope"])
 
 

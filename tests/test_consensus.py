@@ -323,7 +323,7 @@ def test_paper_setting_holds_band_and_converges():
     # the paper's sampling (1 ms) and Table 2 gains on the ideal bus: couplers within ±1 cm on every plant
     # step, every car on v*(t) within 0.1 km/h after 0.3 s (Table 2's initial spread is 8.5 km/h), and
     # BECU2's observer on the plant's φ2/m2 within 0.1 m/s² from about 20 ms on (the paper's figure)
-    from hil.consensus_study import Job, run_job
+    from hil.studies.consensus.reproduce import Job, run_job
     r = run_job(Job("t", 1, True, "paper", horizon_s=0.3, series=False))
     assert r["cycle_ms"] == 1 and r["bus"] == "ideal"
     assert r["holds_1cm"] and r["max_abs_dl_mm"] < 10.0
@@ -336,7 +336,7 @@ def test_can_setting_holds_band_on_the_bit_timed_bus():
     # the scenario as written: the DBC cycle (2 ms) on the bit-timed 1 Mbit/s consensus bus, gains scaled
     # to it.  The t0 transient (neighbours up to 6 km/h apart, couplers at rest) stays within ±1 cm, the
     # cars converge to v*(t) within 0.1 km/h, the bus load stays below 85 % and no frame misses its deadline
-    from hil.consensus_study import Job, run_job
+    from hil.studies.consensus.reproduce import Job, run_job
     r = run_job(Job("t", 1, True, "can", horizon_s=0.5, series=False))
     assert r["cycle_ms"] == 2 and r["bus"] == "bit" and r["bitrate"] == 1_000_000
     assert r["holds_1cm"] and r["max_abs_dl_mm"] < 10.0
@@ -353,8 +353,8 @@ def test_becus_run_on_the_sample_of_their_cycle(tmp_path):
 
     from hil.can.codec import Codec
     from hil.can.dbc import load_dbc
-    from hil.consensus_nodes import bcu_offset_us, becu_offset_us
     from hil.runtime.lockstep import run_lockstep
+    from hil.studies.consensus.nodes import bcu_offset_us, becu_offset_us
     sc = load_scenario(CASE1, sets=["max_duration_s=0.1"])
     db = load_dbc()
     codec = Codec(db)

@@ -1,4 +1,5 @@
-"""`railhil reproduce consensus` (hil/consensus_study.py): a short subset end to end, its reductions, bad
+"""`railhil reproduce consensus` (hil/studies/consensus/reproduce.py): a short subset end to end, its
+reductions, bad
 options; the full study with the paper's acceptance figures is the slow test at the end."""
 
 from __future__ import annotations
@@ -9,7 +10,8 @@ import numpy as np
 import pytest
 
 from hil.cli.main import main
-from hil.consensus_study import Job, _settle_time, first_breaking, run_job, slowest_holding
+from hil.studies.consensus.kpis import settle_time as _settle_time
+from hil.studies.consensus.reproduce import Job, first_breaking, run_job, slowest_holding
 
 
 def test_settle_time_definition():

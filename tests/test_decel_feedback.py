@@ -259,40 +259,41 @@ def test_becu_applies_phi_to_the_force_part(phi, emergency, factor):
 # ----------------------------------------------------------------------------------- the line test, HIL
 @pytest.fixture(scope="module")
 def line_test(tmp_path_factory):
-    from hil.report.kpis import compare_seed004
     from hil.runtime.run import run_scenario_lockstep
     from hil.scenario import load_scenario
+    from hil.studies.decel_feedback.plots import compare_runs
 
     out = {}
     for closed in (True, False):
         scenario = load_scenario(ROOT / "scenarios" / "decel_feedback.toml",
-                                 sets=[f"bcu.decel_feedback={'true' if closed else 'false'}"])
+                                 sets=[f"decel_feedback.closed_loop={'true' if closed else 'false'}"])
         folder = tmp_path_factory.mktemp("closed" if closed else "open")
         out[closed] = (scenario, run_scenario_lockstep(scenario, folder))
-    png = compare_seed004(out[False][1].out_dir, out[True][1].out_dir, out[True][1].out_dir / "compare.png")
+    png = compare_runs(out[False][1].out_dir, out[True][1].out_dir, out[True][1].out_dir / "compare.png")
     return out, png
 
 
 def test_line_test_closed_loop_holds_the_band_open_loop_does_not(line_test):
     from hil.can.dbc import load_dbc
-    from hil.report.kpis import _feedback_signals, bcu_engagement_s, read_truth_csv, seed004_kpis
+    from hil.report.kpis import RunView, read_truth_csv
+    from hil.studies.decel_feedback.kpis import FEEDBACK_SIGNALS, bcu_engagement_s, feedback_kpis
 
     runs, png = line_test
-    (s_closed, closed), (s_open, opened) = runs[True], runs[False]
-    kc, ko = closed.kpis["seed004"], opened.kpis["seed004"]
+    (s_closed, closed), (_, opened) = runs[True], runs[False]
+    kc, ko = closed.kpis["decel_feedback"], opened.kpis["decel_feedback"]
     print(f"\nclosed: {kc}\nopen:   {ko}")
     assert closed.kpis["stopped"] and opened.kpis["stopped"]
     # acceptance: ≥ 95 % of the time within 90-110 % after engagement, closed loop; the same figure open
     assert kc["within_band_after_engagement"] >= 0.95
     assert ko["within_band_after_engagement"] < 0.9 < kc["within_band_after_engagement"]
     # ... and after the BCU's own engagement, read from the trace (BCU_STATUS.FbState)
-    sig = _feedback_signals(s_closed, closed.out_dir / "trace.blf", 60.0, None, 1.0)
+    sig = RunView.from_folder(closed.out_dir).signals(FEEDBACK_SIGNALS)
     engaged = bcu_engagement_s(sig)
     assert engaged is not None and 1.0 < engaged < 4.0
     target = sig["target"]
-    by_bcu = seed004_kpis(s_closed, read_truth_csv(closed.out_dir / "truth.csv"), target, engaged)
+    by_bcu = feedback_kpis(s_closed, read_truth_csv(closed.out_dir / "truth.csv"), target, engaged)
     assert by_bcu["engage_source"] == "BCU" and by_bcu["within_band_after_engagement"] >= 0.95
-    assert bcu_engagement_s(_feedback_signals(s_open, opened.out_dir / "trace.blf", 60.0, None, 1.0)) is None
+    assert bcu_engagement_s(RunView.from_folder(opened.out_dir).signals(FEEDBACK_SIGNALS)) is None
     # WSP never acts on dry rail, in either run
     assert kc["wsp_activations"] == [0] * 6 and ko["wsp_activations"] == [0] * 6
     # the pad friction drifted about ±20 % over the stop
@@ -301,21 +302,23 @@ def test_line_test_closed_loop_holds_the_band_open_loop_does_not(line_test):
     # φ follows the friction: below 1 early (cold disc), above 1 late (low speed)
     phi = sig["phi"][1]
     assert phi.min() < 0.9 and phi.max() > 1.1
-    # plots: the run's (Figs. 19-20 layout) and the side-by-side comparison
-    assert (closed.out_dir / "plot.png").stat().st_size > 10_000 and png.stat().st_size > 10_000
+    # plots: the run's (Figs. 19-20 layout, beside the foundation's plot.png) and the side-by-side comparison
+    assert (closed.out_dir / "decel_feedback.png").stat().st_size > 10_000 and png.stat().st_size > 10_000
+    assert (closed.out_dir / "plot.png").stat().st_size > 10_000
     assert load_dbc().get_message_by_name("BCU_STATUS").get_signal_by_name("FrictionPhi")
     meta = json.loads((closed.out_dir / "run.json").read_text())
-    assert meta["scenario"]["bcu"]["decel_feedback"] is True
+    assert meta["scenario"]["decel_feedback"]["closed_loop"] is True
 
 
 def test_line_test_slope_estimate_on_can(line_test):
     """The 5 ‰ ramp starts 60 m ahead of the front car; the rear car (125 m behind it) never reaches it
     before the stop, so the train's mean slope under the two accelerometers ends at 2.5 ‰."""
-    from hil.report.kpis import _feedback_signals
+    from hil.report.kpis import RunView
+    from hil.studies.decel_feedback.kpis import FEEDBACK_SIGNALS
 
     runs, _ = line_test
     scenario, closed = runs[True]
-    sig = _feedback_signals(scenario, closed.out_dir / "trace.blf", 60.0, None, 1.0)
+    sig = RunView.from_folder(closed.out_dir).signals(FEEDBACK_SIGNALS)
     t, slope = sig["slope"]
     late = (t > 8.0) & (t < 13.0)
     assert abs(np.mean(slope[late]) - 0.0025) < 0.0015

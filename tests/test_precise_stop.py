@@ -11,7 +11,6 @@ judged on the plant's truth.  `make test` runs a few short ones; `make test-slow
 from __future__ import annotations
 
 import math
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -26,14 +25,17 @@ from firmware_py.stopping import (
     search_step,
     stop_state_transition,
 )
-from plant_sim.params import BrakeParams
+from hil.studies.precise_stop.reproduce import (
+    GOAL_P95_M,
+    METHODS,
+    NO_BALISES,
+    run_campaign,
+    table,
+    table_lines,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "scenarios" / "precise_stop.toml"
-METHODS = ("adaptive", "adaptive_diff", "pi")
-GOAL_P95_M = 0.3                 # issue #5: platform-door accuracy for the best method
-PAPER = {"adaptive": "±25–45 m (Fig. 5)", "adaptive_diff": "±2–7 m (Fig. 6)", "pi": "— (not in the paper)",
-         "pi, no balises": "— (not in the paper)"}
 
 S = StopState
 
@@ -196,65 +198,7 @@ def test_differentiation_unit_and_pi_improve_on_the_plain_search():
 
 
 # ------------------------------------------------------------------------- randomized lockstep runs
-#: the platform's balises, metres before the stop point (a pre-announcing one and one just before the
-#: stop, as precision-stopping balise groups are laid; chosen)
-BALISES_BEFORE_M = (200.0, 25.0)
-NO_BALISES = "pi, no balises"      # the PI baseline on the odometer alone (the foundation's reference point)
-
-
-def randomized_sets(method: str, k: int, distance_m: float | None, balises: bool = True) -> list[str]:
-    """`--set` overrides of run k (seeded): mass ±15 %, gradient ±5 ‰, pad friction ±15 % (brake gain),
-    the stop point `distance_m` ahead (None: uniform in 400–1500 m), balises BALISES_BEFORE_M before it."""
-    rng = np.random.default_rng([2, k])               # seed 002, run k: the same for every method
-    mass = 40_000.0 * rng.uniform(0.85, 1.15)
-    permille = rng.uniform(-5.0, 5.0)
-    gain = BrakeParams().alpha_squeeze_Nm_per_Pa * rng.uniform(0.85, 1.15)
-    dist = rng.uniform(400.0, 1500.0) if distance_m is None else distance_m
-    laid = [round(dist - b, 2) for b in BALISES_BEFORE_M] if balises else []
-    return [f"bcu.stopping={method}", f"seed={k}", f"train.mass_kg={mass:.1f}",
-            f"track.gradient=[{{from_m = -500.0, permille = {permille:.3f}}}]",
-            f"plant.brake_gain_Nm_per_Pa={gain:.6f}", f"desk.0.target_stop_m={dist:.2f}",
-            f"track.balises={laid}"]
-
-
-def run_one(args: tuple[str, int, float | None, str]) -> dict:
-    """One lockstep run in a worker process: its precise-stop KPIs."""
-    from hil.runtime.run import run_scenario_lockstep
-    from hil.scenario import load_scenario
-
-    label, k, distance_m, out = args
-    method, balises = ("pi", False) if label == NO_BALISES else (label, True)
-    scenario = load_scenario(SCENARIO, sets=randomized_sets(method, k, distance_m, balises))
-    report = run_scenario_lockstep(scenario, Path(out) / f"{label.replace(', ', '_')}_{k}")
-    return {"method": label, "k": k, **report.kpis["precise_stop"]}
-
-
-def run_campaign(tmp: Path, methods, runs: int, distance_m: float | None) -> list[dict]:
-    jobs = [(m, k, distance_m, str(tmp)) for m in methods for k in range(runs)]
-    with ProcessPoolExecutor(2) as pool:
-        return list(pool.map(run_one, jobs))
-
-
-def table(results: list[dict]) -> dict[str, dict[str, float]]:
-    """Per method: mean, p95 and max |stop error| [m], mean signed error [m] and p95 of the jerk p95."""
-    out = {}
-    for m in dict.fromkeys(r["method"] for r in results):
-        rs = [r for r in results if r["method"] == m]
-        err = np.array([r["stop_error_m"] if r["stop_error_m"] is not None else math.inf for r in rs])
-        jerk = np.array([r["jerk_p95_mps3"] for r in rs])
-        ae = np.abs(err)
-        out[m] = {"runs": len(rs), "mean": float(np.mean(ae)), "p95": float(np.percentile(ae, 95)),
-                  "max": float(np.max(ae)), "bias": float(np.mean(err)),
-                  "jerk_p95": float(np.percentile(jerk, 95))}
-    return out
-
-
-def print_table(t: dict) -> None:
-    print(f"\n{'method':14s} {'runs':>4s} {'mean|e|':>8s} {'p95|e|':>8s} {'max|e|':>8s} {'mean e':>8s} "
-          f"{'jerk p95':>9s}  paper")
-    for m, r in t.items():
-        print(f"{m:14s} {r['runs']:4d} {r['mean']:8.2f} {r['p95']:8.2f} {r['max']:8.2f} {r['bias']:+8.2f} "
-              f"{r['jerk_p95']:9.3f}  {PAPER[m]}")
+# the campaign is the study's reproduction (railhil reproduce precise-stop): the same code runs here
 
 
 @pytest.mark.timeout(900)                 # three lockstep runs on two workers: ~1 min, more on a loaded host
@@ -267,7 +211,7 @@ def test_precise_stop_short_runs_every_method(tmp_path):
     the differentiation unit misses by up to ~33 m in this case, the paper reports ±2–7 m); the PI's bound
     is the odometer's error."""
     results = run_campaign(tmp_path, METHODS, 1, 400.0)
-    print_table(table(results))
+    print("\n" + "\n".join(table_lines(table(results))))
     bound = {"adaptive": 150.0, "adaptive_diff": 50.0, "pi": 1.0}
     for r in results:
         assert r["stopped"] and r["stop_error_m"] is not None
@@ -283,7 +227,7 @@ def test_precise_stop_randomized_campaign(tmp_path):
     (p95 |error| ≤ 0.3 m) for the best method; where it is not met, says so as an expected failure."""
     results = run_campaign(tmp_path, METHODS + (NO_BALISES,), 20, None)
     t = table(results)
-    print_table(t)
+    print("\n" + "\n".join(table_lines(t)))
     assert all(r["stopped"] for r in results)
     best = min(t, key=lambda m: t[m]["p95"])
     assert best == "pi"

@@ -21,7 +21,7 @@ from firmware_py.preview import (
 from hil.runtime.node import RxTable
 from plant_sim.adhesion import mu_scalar
 from plant_sim.params import RAIL_CONDITIONS, AdhesionParams
-from plant_sim.picasso import sigma_opt_bar_scalar
+from plant_sim.reduced_train import sigma_opt_bar_scalar
 
 LN2 = math.log(2.0)
 FAMILY = tuple(RAIL_CONDITIONS[c] for c in ("extra_dry", "dry", "wet", "extra_wet"))

@@ -426,11 +426,11 @@ def test_the_run_ends_at_the_last_truth_sample_of_any_plant():
     from types import SimpleNamespace
 
     from hil.runtime.realtime import truth_end_us
-    from plant_sim.picasso import PicassoTruth
+    from plant_sim.reduced_train import ReducedTrainTruth
 
     assert truth_end_us(SimpleNamespace(t_us=[0, 10_000, 20_000])) == 20_000
     assert truth_end_us(SimpleNamespace(t_us=[])) == 0
-    study = PicassoTruth([0.0, 50.0])
+    study = ReducedTrainTruth([0.0, 50.0])
     assert truth_end_us(study) == 0
     for t in (0.0, 0.01, 15.83):
         study.record(t, 100.0, 10.0, -2.0, (0.01, 0.01), (0.01, 0.01), (0.02, 0.02), (0.1, 0.1))

@@ -39,7 +39,7 @@ def test_bad_scenarios_give_one_line_naming_key_and_value(tmp_path, text, needle
 
 
 def test_rail_condition_as_a_table_reaches_the_plant(tmp_path):
-    from hil.runtime.plant_node import build_track
+    from hil.scenario.params import build_track
     from plant_sim.params import RAIL_CONDITIONS
 
     dry, wet = RAIL_CONDITIONS["dry"], RAIL_CONDITIONS["wet"]
@@ -62,7 +62,7 @@ RG = ROOT / "scenarios" / "rg_low_adhesion.toml"
 
 
 @pytest.mark.parametrize("text, key, value", [
-    ("becu.governor=false", "becu.governor", False),
+    ("wheel_slip.governor=false", "wheel_slip.governor", False),
     ("train.initial_speed_kmh=120", "train.initial_speed_kmh", 120),
     ("becu.control=decel", "becu.control", "decel"),             # not TOML: taken as a string
     ('becu.control="decel"', "becu.control", "decel"),
@@ -77,24 +77,60 @@ def test_set_values_are_toml(text, key, value):
 
 def test_set_overrides_nested_keys_and_validates_them():
     base = load_scenario(RG)
-    sc = load_scenario(RG, sets=["becu.governor=false", "train.initial_speed_kmh=100",
+    sc = load_scenario(RG, sets=["wheel_slip.governor=false", "train.initial_speed_kmh=100",
                                  "nodes.BECU1.drift_ppm=50", "desk.0.at_s=1.5",
-                                 "report.paper_figure=seed001_fig9"])
-    assert base.becu.governor and not sc.becu.governor
+                                 "wheel_slip.paper_figure=fig9"])
+    assert base.wheel_slip.governor and not sc.wheel_slip.governor
     assert sc.train.initial_speed_kmh == 100.0 and sc.nodes["BECU1"].drift_ppm == 50.0
     assert sc.desk[0].at_s == 1.5 and sc.desk[0].brake_step == base.desk[0].brake_step
-    assert sc.becu.model_dump(exclude={"governor"}) == base.becu.model_dump(exclude={"governor"})
+    assert sc.wheel_slip.paper_figure == "fig9"
+    exclude = {"governor", "paper_figure"}
+    assert sc.wheel_slip.model_dump(exclude=exclude) == base.wheel_slip.model_dump(exclude=exclude)
+    assert sc.becu == base.becu
+
+
+def test_keys_of_release_0_1_still_load_with_a_notice(tmp_path):
+    """A study's key that moved into its own section (railhil 0.1's `[becu] governor`, `[bcu] stopping`,
+    `[report] paper_figure`, ...) is read at its new place for one release, with a notice naming both."""
+    from hil.scenario import RailhilDeprecation
+
+    old = tmp_path / "old.toml"
+    old.write_text(RG.read_text().replace("[wheel_slip]", "[report]").replace("governor = true", "")
+                   .replace('paper_figure = "fig8"', 'paper_figure = "seed001_fig8"')
+                   .replace("margin = 0.005", "")
+                   .replace("slip_max_mps = 0.1              # s̄ of eq. (8)", "")
+                   .replace("[becu]", "[becu]\ngovernor = true\nslip_max_mps = 0.1\ngovernor_margin = 0.005"))
+    with pytest.warns(RailhilDeprecation, match="'becu.governor' is now 'wheel_slip.governor'"):
+        sc = load_scenario(old)
+    assert sc.wheel_slip == load_scenario(RG).wheel_slip
+    with pytest.warns(RailhilDeprecation, match="--set bcu.decel_feedback is now --set decel_feedback"):
+        fb = load_scenario(ROOT / "scenarios" / "decel_feedback.toml", sets=["bcu.decel_feedback=false"])
+    assert fb.decel_feedback.closed_loop is False
+    stop = tmp_path / "stop.toml"
+    stop.write_text((ROOT / "scenarios" / "precise_stop.toml").read_text()
+                    .replace("[precise_stop]", "[bcu]").replace("method =", "stopping =")
+                    .replace("planned_decel_mps2", "stop_decel_mps2"))
+    with pytest.warns(RailhilDeprecation, match="'bcu.stopping' is now 'precise_stop.method'"):
+        shipped = load_scenario(ROOT / "scenarios" / "precise_stop.toml")
+        assert load_scenario(stop).precise_stop == shipped.precise_stop
+    unfitted = tmp_path / "unfitted.toml"                   # 0.1's "none": the function is not fitted
+    unfitted.write_text(stop.read_text().replace('stopping = "pi"', 'stopping = "none"')
+                        .replace("stop_decel_mps2 = 0.6", ""))
+    with pytest.warns(RailhilDeprecation):
+        assert load_scenario(unfitted).precise_stop is None
 
 
 @pytest.mark.parametrize("text, needles", [
-    ("becu.govrnor=false", ["becu.govrnor", "not a scenario key", "did you mean 'becu.governor'"]),
+    ("wheel_slip.govrnor=false", ["wheel_slip.govrnor", "not a scenario key",
+                                  "did you mean 'wheel_slip.governor'"]),
     ("bcu.jerk_limit=5", ["bcu.jerk_limit", "did you mean 'bcu.jerk_limit_mps3'"]),
-    ("becu.governor=maybe", ["becu.governor", "'maybe'", "valid boolean", "--set becu.governor"]),
+    ("wheel_slip.governor=maybe", ["wheel_slip.governor", "'maybe'", "valid boolean",
+                                   "--set wheel_slip.governor"]),
     ("becu.control=pid", ["becu.control", "'pid'", "'pressure' or 'decel'"]),
     ("train.cars=12", ["train.cars", "12", "less than or equal to 8"]),
     ("train.cars.x=1", ["train.cars", "is a value"]),
     ("desk.5.at_s=1", ["desk.5", "index below 1"]),
-    ("becu.governor", ["KEY=VALUE"]),
+    ("wheel_slip.governor", ["KEY=VALUE"]),
 ])
 def test_bad_set_is_one_line_naming_the_key(text, needles):
     with pytest.raises(ScenarioError) as err:
@@ -108,8 +144,8 @@ def test_bad_set_is_one_line_naming_the_key(text, needles):
 def test_cli_bad_set_exits_2_with_one_line(capsys, tmp_path):
     from hil.cli.main import main
 
-    code = main(["run", str(RG), "--set", "becu.slip_max=0.2", "--out", str(tmp_path / "run"), "-q"])
+    code = main(["run", str(RG), "--set", "wheel_slip.slip_max=0.2", "--out", str(tmp_path / "run"), "-q"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and err.count("\n") == 0
-    assert err.startswith("error: ") and "did you mean 'becu.slip_max_mps'" in err
+    assert err.startswith("error: ") and "did you mean 'wheel_slip.slip_max_mps'" in err
     assert not (tmp_path / "run").exists()                  # nothing ran

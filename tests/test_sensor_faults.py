@@ -355,7 +355,7 @@ def test_wsp_still_works_on_low_adhesion(tmp_path):
     vents many times, nothing is declared failed, the vent watchdog never fires."""
     base = load_scenario(ROOT / "scenarios" / "rg_low_adhesion.toml")
     scenario = parse_scenario({**base.model_dump(), "max_duration_s": 12.0,
-                               "becu": {**base.becu.model_dump(), "governor": False}})
+                               "wheel_slip": {**base.wheel_slip.model_dump(), "governor": False}})
     report = run_scenario_lockstep(scenario, tmp_path / "run")
     assert_no_detection(report, 1)
     t, sig = decode_trace(report, ["BECU1_STATUS"])["BECU1_STATUS"]

@@ -325,7 +325,7 @@ def test_cli_on_a_lockstep_run_passes_when_unsent_frames_are_ignored(tmp_path, c
     assert main(args) == 1                               # cars 7-8 are MISSING
     capsys.readouterr()
     # the optional functions' frames (ACD, radio, the studies') are out of scope unless --function names them
-    assert main(args + ["--ignore", "*7_*", "--ignore", "*8_*", "--function", "seed002_acd"]) == 1
+    assert main(args + ["--ignore", "*7_*", "--ignore", "*8_*", "--function", "anticollision"]) == 1
     capsys.readouterr()
     ignore = ["--ignore", "*7_*", "--ignore", "*8_*"]
     assert main(args + ignore + ["--format", "json"]) == 0

@@ -25,15 +25,10 @@ Conventions
 from __future__ import annotations
 
 import dataclasses
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))   # the parts beside this script
-
-import acd_frames  # noqa: E402
-import consensus_frames  # noqa: E402
-import preview_frames  # noqa: E402
-from dbcschema import MAX_CARS, Msg, Sig, becus, e2e, secoc  # noqa: E402,F401
+from hil.can.dbcschema import MAX_CARS, Extra, Msg, Sig, becus, e2e, secoc  # noqa: F401
+from hil.scenario.registry import studies
 
 BITRATE_BPS = 500_000
 OUT = Path(__file__).resolve().parents[1] / "train_brake.dbc"
@@ -115,25 +110,14 @@ def messages() -> list[Msg]:
                     signed=True, comment="slip speed estimate s = v - r*omega (seed 001 eq. 2)"),
                 Sig("WspActive", 32, 1, maximum=1,
                     comment="1 = wheel-slide protection is venting or holding"),
-                Sig("GovernorActive", 33, 1, maximum=1, comment="1 = reference governor limits the demand"),
                 Sig("IntegratorSat", 34, 1, maximum=1, comment="1 = a PI integrator is saturated or frozen"),
                 Sig("InputMissing", 35, 1, maximum=1, comment="1 = an input signal is missing or non-finite"),
-                Sig("OptSlipEst", 36, 10, scale=0.0005, maximum=0.5115,
-                    comment="estimated optimal slip ratio sigma^o here (seed 000 eq. 2); 0 = no estimate"),
-                Sig("OptSlipPos", 46, 18, scale=0.1, maximum=26214.3, unit="m",
-                    comment="track position at which OptSlipEst was measured"),
             ]))
     for i in range(1, MAX_CARS + 1):
         msgs.append(Msg(
             0x150 + i, f"BECU{i}_DIAG", f"BECU{i}", ["BCU"], 50,
             f"Car {i}: BECU{i} diagnostics: reference governor (seed 001 eq. 9) and sensor monitoring.",
             [
-                Sig("GovernedDecel", 0, 16, scale=0.001, maximum=65.535, unit="m/s^2",
-                    comment="deceleration reference r the governor lets through (= the demand when off)"),
-                Sig("GovernorMargin", 16, 16, scale=2.0, minimum=-65536.0, maximum=65534.0, unit="N.m",
-                    signed=True, comment="torque ceiling minus the largest predicted brake torque under r"),
-                Sig("GovernorFeasible", 32, 1, maximum=1,
-                    comment="0 = not even r = 0 is admissible: the state left the governor's set"),
                 Sig("SpeedSensorFault", 33, 1, maximum=1,
                     comment="1 = wheel-speed sensor stuck or implausible: excluded, WSP inhibited"),
                 Sig("AccelSensorFault", 34, 1, maximum=1,
@@ -155,37 +139,7 @@ def messages() -> list[Msg]:
                     comment="train speed estimate (max of the plausible cars' estimates)"),
                 Sig("CarsImplausible", 32, 8, maximum=255,
                     comment="bit i-1 set = car i's speed estimate disagrees with the train's: excluded"),
-                # deceleration feedback, seed 004 sec. 5: every 100 ms, the grid of the friction set
-                Sig("FbState", 6, 2, maximum=3,
-                    comment="deceleration feedback (seed 004 sec. 5): OFF no service braking, emergency or "
-                            "not fitted; MONITOR watching actual/target; ENGAGED correcting; HELD released "
-                            "(WSP or band not met), correction kept",
-                    choices={0: "OFF", 1: "MONITOR", 2: "ENGAGED", 3: "HELD"}),
-                # offset 1: raw 0 is phi = 1 (no correction), the value of a BCU without the function
-                Sig("FrictionPhi", 40, 10, scale=0.002, offset=1.0, minimum=0.0, maximum=2.022, signed=True,
-                    comment="pressure correction phi (seed 004 eq. 34, = mu_d/mu_d0): each BECU applies "
-                            "P_c = P_c0/phi above the preload; 1 = no correction"),
-                Sig("SlopeEst", 50, 9, scale=0.00025, minimum=-0.064, maximum=0.06375, signed=True,
-                    comment="track slope tan(theta) under the train (+ uphill) estimated from the front and "
-                            "rear accelerometers and the speed; 0.001 = 1 permille"),
-                Sig("StopState", 59, 2, maximum=3, comment="precise stopping (seed 002): state of the "
-                    "braking-curve follower", choices={0: "OFF", 1: "ARMED", 2: "FOLLOWING", 3: "STOPPED"}),
             ]),
-        Msg(0x161, "BCU_STOP", "BCU", ["DESK"], 100,
-            "Precise stopping (seed 002): where the BCU believes the train is against its target and curve. "
-            "Sent only when the scenario's BCU does precise stopping.",
-            [
-                Sig("DistanceToGo", 0, 24, scale=0.01, minimum=-83886.08, maximum=83886.07, unit="m",
-                    signed=True, comment="target stop point minus the odometer's position of car 1's front"),
-                Sig("RefSpeed", 24, 16, scale=0.01, maximum=655.35, unit="m/s",
-                    comment="the braking curve's speed at this point (0 when not following)"),
-                Sig("StopCommand", 40, 12, scale=0.001, maximum=4.095, unit="m/s^2",
-                    comment="deceleration the stopping controller commands (before the jerk limit)"),
-                Sig("BalisesSeen", 52, 4, maximum=15,
-                    comment="balise passages the odometer has re-anchored on, modulo 16"),
-                Sig("SearchQ", 56, 8, scale=0.5, maximum=127.5, unit="m",
-                    comment="adaptive search: last work function Q = |S - S_th| (saturates; 0 for pi)"),
-            ], function="seed002_precise_stop"),
         Msg(0x120, "PLANT_BTM", "PLANT", ["BCU"], 20,
             "Balise transmission module of car 1: the last fixed balise its antenna (the train's front) "
             "passed. Sent only when the track has balises ([track] balises).",
@@ -197,13 +151,32 @@ def messages() -> list[Msg]:
                 Sig("BaliseCount", 40, 8, maximum=255, comment="balises passed since start, modulo 256"),
                 Sig("BaliseValid", 48, 1, maximum=1, comment="1 once a balise has been passed",
                     choices={0: "NONE", 1: "VALID"}),
-            ], function="track_balises"),
+            ], function="balises"),
     ]
-    # the studies' frames, each in its own file beside this one
-    for part, function in ((acd_frames, "seed002_acd"), (consensus_frames, "seed003_consensus"),
-                           (preview_frames, "seed000_preview")):
-        msgs += [dataclasses.replace(m, function=m.function or function) for m in part.messages()]
+    # each study's DBC part (hil/studies/<name>/frames.py): its own frames, marked with its name
+    # (RailhilFunction), and the signals it adds to the foundation's frames, in registry order
+    by_name = {m.name: m for m in msgs}
+    for study in studies():
+        part = study.part("frames")
+        msgs += [dataclasses.replace(m, function=m.function or study.name) for m in part.messages()]
+        for extra in part.signals():
+            names = ([extra.message.format(i=i) for i in range(1, MAX_CARS + 1)] if "{i}" in extra.message
+                     else [extra.message])
+            for name in names:
+                add_signals(by_name[name], extra)
     return sorted(msgs, key=lambda m: m.frame_id)
+
+
+def add_signals(msg: Msg, extra: Extra) -> None:
+    """Put a study's signals into a foundation message where `extra` says."""
+    names = [s.name for s in msg.signals]
+    if extra.first:
+        at = 0
+    elif extra.after is not None:
+        at = names.index(extra.after) + 1
+    else:
+        at = len(names)
+    msg.signals[at:at] = [dataclasses.replace(s) for s in extra.signals]
 
 
 def _num(x: float) -> str:

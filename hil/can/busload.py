@@ -166,7 +166,7 @@ FUNCTION_ATTRIBUTE = "RailhilFunction"   # DBC message attribute: the optional f
 
 def optional_function(msg) -> str:
     """The optional function a message belongs to (its DBC attribute RailhilFunction, e.g.
-    "seed003_consensus"), or "" for a frame of the train's base functions."""
+    "consensus"), or "" for a frame of the train's base functions."""
     attrs = msg.dbc.attributes if msg.dbc is not None else {}
     attr = attrs.get(FUNCTION_ATTRIBUTE)
     return str(attr.value) if attr is not None and attr.value else ""

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import argparse
 
-HELP = "the seed-002 control centre: pairs follower and leader trains over TCP, reports kept in SQLite"
+HELP = ("the anti-collision control centre: pairs follower and leader trains over TCP, reports kept in "
+        "SQLite")
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:

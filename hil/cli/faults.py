@@ -38,7 +38,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                     "2 s from 2 s after the first brake command. A cell is detected when every "
                     "receiver of the frame reported a non-OK E2E status or a SecOC rejection within 3 "
                     "cycles of the frame; unsafe when the train did not stop or stopped more than "
-                    "5 %% + 1 m beyond the fault-free run; released when a car's cylinder pressure fell "
+                    "5 % + 1 m beyond the fault-free run; released when a car's cylinder pressure fell "
                     "below half of the fault-free value for more than 0.1 s. Exit 0 when every cell is "
                     "detected, safe and not released; 1 otherwise; 2 for bad input.",
     )

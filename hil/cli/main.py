@@ -24,6 +24,9 @@ INTERNAL_ERROR = 1  # exit code of an unexpected exception (bad input exits 2: h
 #: subcommand -> (module with add_subparser(sub) and the run function, its help line in `railhil --help`)
 COMMANDS = {
     "run": ("hil.cli.run", "run a scenario and write its run folder"),
+    "scenarios": ("hil.cli.scenarios", "list the shipped scenarios with their descriptions (run one by name: "
+                  "railhil run NAME)"),
+    "init": ("hil.cli.init", "write an editable copy of a shipped scenario and the DBC into a folder"),
     "trace": ("hil.cli.trace",
               "inspect a recorded CAN trace: statistics, decoding, plots, comparison, replay"),
     "timing": ("hil.cli.timing",
@@ -32,11 +35,11 @@ COMMANDS = {
     "faults": ("hil.cli.faults", "fault injection campaigns: the EN 50159 threat matrix"),
     "campaign": ("hil.cli.campaign", "parameter sweeps of a scenario (grid and seeded random), in parallel "
                  "or on a Dask cluster; resumable"),
-    "reproduce": ("hil.cli.reproduce", "reproduce a paper's simulation campaigns (seed 000 picasso, seed 002 "
-                  "acd, seed 003 consensus) next to its figures"),
+    "reproduce": ("hil.cli.reproduce", "reproduce a paper's simulation campaigns next to its figures (one "
+                  "command per study)"),
     "report": ("hil.cli.report", "write the self-contained HTML report of a run folder or a campaign folder"),
-    "control-centre": ("hil.cli.control_centre", "the seed-002 control centre: pairs follower and leader "
-                       "trains over TCP, reports kept in SQLite"),
+    "control-centre": ("hil.cli.control_centre", "the anti-collision control centre: pairs follower and "
+                       "leader trains over TCP, reports kept in SQLite"),
 }
 
 

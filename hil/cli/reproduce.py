@@ -1,38 +1,43 @@
 """`railhil reproduce STUDY` — run a paper's simulation campaigns in lockstep and print our figures next
 to the paper's, with its plots as PNG.
 
-Each study lives in its own module (``STUDIES``), which gives ``add_arguments(parser)`` for its options
-and ``run(args) -> int`` (exit code); this module only dispatches.
+Every study of the registry (hil/studies/) brings its reproduction (its reproduce.py:
+``add_arguments(parser)`` and ``run(args) -> int``); this module only dispatches.  The names of railhil
+0.1 (hil.cli.aliases.REPRODUCE) still work for one release.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
+import sys
 
-HELP = ("reproduce a paper's simulation campaigns (seed 000 picasso, seed 002 acd, seed 003 consensus) "
-        "next to its figures")
+from hil.cli import aliases
+from hil.scenario.registry import studies
 
-#: study -> (module, one-line description)
-STUDIES = {
-    "picasso": ("hil.picasso", "seed 000: slip references Lf/Bd/Dp with preview, Table 1 and campaigns 2-3"),
-    "acd": ("hil.acd_nodes", "seed 002: anti-collision device, randomized two-train runs with and without "
-                             "prediction, judged on plant truth"),
-    "consensus": ("hil.consensus_study", "seed 003: consensus braking, cases 1-3, cycle and latency sweeps"),
-}
+HELP = "reproduce a paper's simulation campaigns next to its figures (one command per study)"
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("reproduce", help=HELP, description=HELP + ".")
-    studies = p.add_subparsers(dest="study", metavar="STUDY")
-    studies.required = True
-    for name, (module, help_line) in STUDIES.items():
-        sp = studies.add_parser(name, help=help_line, description=help_line + ".")
-        importlib.import_module(module).add_arguments(sp)
-        sp.set_defaults(func=_runner(module))
+    parsers = p.add_subparsers(dest="study", metavar="STUDY")
+    parsers.required = True
+    old = {new: name for name, new in aliases.REPRODUCE.items()}
+    for study in studies():
+        help_line = f"{study.paper.split(':')[0]}: {study.title}"
+        names = [old[study.cli_name]] if study.cli_name in old else []
+        if names:
+            help_line += f" (alias {names[0]}, until railhil {aliases.UNTIL})"
+        sp = parsers.add_parser(study.cli_name, aliases=names, help=help_line,
+                                description=f"{study.title}.  Paper: {study.paper}.")
+        part = study.part("reproduce")
+        part.add_arguments(sp)
+        sp.set_defaults(func=_runner(study))
 
 
-def _runner(module: str):
+def _runner(study):
     def run(args: argparse.Namespace) -> int:
-        return importlib.import_module(module).run(args)
+        if args.study != study.cli_name:
+            aliases.notice(args.study, study.cli_name, "railhil reproduce")
+            sys.stderr.flush()
+        return study.part("reproduce").run(args)
     return run

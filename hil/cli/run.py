@@ -24,7 +24,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                     "Writes trace.blf, truth.csv, kpis.json, plot.png, run.json and report.html (the "
                     "self-contained HTML report) to the run folder and prints a summary.",
     )
-    p.add_argument("scenario", type=Path, help="scenario TOML file, e.g. scenarios/default.toml")
+    p.add_argument("scenario", type=Path,
+                   help="scenario TOML file (e.g. scenarios/default.toml) or the name of a shipped scenario "
+                        "(e.g. default; `railhil scenarios` lists them)")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--lockstep", dest="mode", action="store_const", const="lockstep",
                       help="simulated time in one process (default)")
@@ -35,7 +37,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="override one scenario value (repeatable): a dotted key as in the TOML file and a "
-                        "TOML value, e.g. --set becu.governor=false --set train.initial_speed_kmh=120; "
+                        "TOML value, e.g. --set wheel_slip.governor=false --set train.initial_speed_kmh=120; "
                         "text that is not TOML is taken as a string (--set becu.control=decel). "
                         "Checked like the file: an unknown key or bad value is an error")
     p.add_argument("--out", type=Path, default=None,

@@ -32,6 +32,7 @@ from hil.can.busload import declared_bitrate, with_functions
 from hil.can.dbc import closest, load_dbc
 from hil.can.rta import RtaReport, messages_from_dbc
 from hil.can.rta import analyse as rta_analyse
+from hil.cli.aliases import function_names
 from hil.cli.trace import Output, id_text, notice_skipped, num
 from hil.trace.columns import read_trace_columns
 from hil.trace.readers import Salvage, TraceError, open_trace
@@ -107,7 +108,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                         "utilisation; with a trace also the measured response, FAIL when above the bound")
     p.add_argument("--function", action="append", default=[], metavar="NAME",
                    help="also check the frames of this optional function of the DBC (its messages' "
-                        "RailhilFunction attribute, e.g. seed003_consensus; 'all' for every frame); by "
+                        "RailhilFunction attribute, e.g. consensus; 'all' for every frame); by "
                         "default only the train's base frames are in scope; repeatable")
     p.add_argument("--jitter", action="append", default=[], metavar="NAME=US",
                    help="queuing jitter of one message for --rta, in µs (default: from the sender's "
@@ -492,7 +493,7 @@ def rta_only(args: argparse.Namespace) -> tuple[str, int]:
                           ("--periods-only", args.periods_only), ("--chain-max-ms", args.chain_max_ms)):
         if given:
             raise TimingArgError(f"{option} needs a trace: railhil timing TRACE --dbc DBC {option} ...")
-    db = with_functions(load_dbc(args.dbc), args.function)
+    db = with_functions(load_dbc(args.dbc), function_names(args.function))
     report = rta_messages(db, args, bitrate_of(args, db, "the response-time analysis"))
     checks = tuple(rta_check(r) for r in report.results)
     code = 0 if all(c.verdict == "PASS" for c in checks) else 1
@@ -512,7 +513,7 @@ def trace_report(args: argparse.Namespace, trace_name: str) -> tuple[str, int, T
     if args.dbc is None:
         raise TimingArgError("--dbc DBC is required (or --periods-only for periods without a DBC)")
     check_tolerance(args.tolerance, "--tolerance")
-    db = with_functions(load_dbc(args.dbc), args.function)
+    db = with_functions(load_dbc(args.dbc), function_names(args.function))
     overrides = parse_overrides(args.override, [m.name for m in db.messages])
     bitrate = bitrate_of(args, db, "the bus load")
     chains: list[Chain] = [parse_chain(text, db) for text in args.chain]

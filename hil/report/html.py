@@ -36,6 +36,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 from hil.errors import RailhilError
+from hil.scenario import registry
 
 REPORT_NAME = "report.html"
 #: distributions whose versions go into run.json (and the report): what a reproduction needs to match
@@ -139,7 +140,7 @@ def run_verdicts(kpis: dict, meta: dict) -> list[Verdict]:
     * E2E / SecOC: without injected faults, nothing reported by the receivers; with faults, the
       detections are listed (informational); NONEWDATA (a frame 1.5 of its cycles late) is a verdict of
       its own: none in lockstep, informational in real time;
-    * seed 001 runs: the true slip stayed at or below s̄ at every plant step."""
+    * each study's own checks (hil/studies/<name>/kpis.py `verdicts`), e.g. the governor's slip bound."""
     out = [Verdict("run ended by itself", str(kpis.get("end_reason")), "standstill or max_duration",
                    kpis.get("end_reason") in ("standstill", "max_duration")),
            Verdict("train stopped", str(kpis.get("stopped")), "standstill before the run ended",
@@ -179,11 +180,10 @@ def run_verdicts(kpis: dict, meta: dict) -> list[Verdict]:
         if late_frames:
             detected = ", ".join(f"{k} {v}" for k, v in events.items())
         out.append(Verdict("E2E / SecOC errors reported", detected, "(faults injected: informational)", None))
-    seed001 = kpis.get("seed001") or {}
-    if seed001.get("slip_within_limit") is not None:
-        slips = " ".join(f"{s:.4f}" for s in seed001["max_slip_every_step_mps"])
-        out.append(Verdict("slip ≤ s̄ at every plant step", f"{slips} m/s",
-                           f"≤ {seed001['slip_limit_mps']} m/s", all(seed001["slip_within_limit"])))
+    for study in registry.studies():              # each study's own checks of its KPIs
+        hook = getattr(study.part("kpis"), "verdicts", None) if study.name in kpis else None
+        if hook is not None:
+            out += [Verdict(*v) for v in hook(kpis[study.name])]
     return out
 
 

@@ -38,7 +38,8 @@ from hil.runtime.outcome import RunOutcome
 from hil.runtime.plant_node import PlantController
 from hil.runtime.release import message_delays, node_releases
 from hil.safety.injection import ROGUE, build_injector
-from hil.scenario import Scenario, secoc_keys
+from hil.scenario import Scenario
+from hil.scenario.params import secoc_keys
 
 Message = can.Message
 DEFAULT_BITRATE = 500_000   # bit/s, when neither the scenario nor the DBC gives one

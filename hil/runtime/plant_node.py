@@ -11,11 +11,8 @@ import numpy as np
 from cantools.database.can import Database
 
 from hil.errors import BindingError
-from hil.scenario import Scenario
-from plant_sim.params import AdhesionParams, BrakeParams, PlantParams, SensorParams, TrainParams
 from plant_sim.plant import Plant, TruthSnapshot
 from plant_sim.sensors import quantise
-from plant_sim.track import Track
 
 TRUTH_PERIOD_US = 10_000         # ground truth is sampled every 10 ms
 STANDSTILL_MPS = 0.01            # every car slower than this counts as standing still (chosen)
@@ -54,45 +51,6 @@ def faulty_reading(reading: float, fault: SensorFault, quantum: float, non_negat
         return fault.last if fault.value is None else fault.value
     out = float(quantise(np.asarray(reading + fault.value), quantum))
     return max(out, 0.0) if non_negative else out
-
-
-def build_track(scenario: Scenario) -> Track:
-    t = scenario.track
-    gradient = [(g.from_m, g.permille) for g in t.gradient]
-    curves = [(c.from_m, c.radius_m) for c in t.curves]
-    if t.rail_table is not None:
-        return Track.from_table([r.x_m for r in t.rail_table], [r.theta for r in t.rail_table],
-                                gradient=gradient, curvature=curves)
-    segments = [(s.from_m, s.condition if s.condition is not None else tuple(s.theta), s.transition_m)
-                for s in t.rail]
-    return Track.from_segments(segments, gradient=gradient, curvature=curves)
-
-
-def plant_params(scenario: Scenario) -> PlantParams:
-    """PlantParams of a scenario: plant_sim's defaults, changed only where [train], [plant] or [sensors]
-    say so (so scenarios without those keys run the foundation's plant unchanged)."""
-    t, ps, ss = scenario.train, scenario.plant, scenario.sensors
-    train_kw: dict = {"masses_kg": t.masses()}
-    if t.wheel_inertia_kgm2 is not None:
-        train_kw["wheel_inertia_kgm2"] = t.wheel_inertia_kgm2
-    if not t.running_resistance:
-        train_kw.update(davis_c0_N=0.0, davis_c1_Ns_per_m=0.0, davis_c2_Ns2_per_m2=0.0,
-                        davis_c2_lead_Ns2_per_m2=0.0)
-    brake_kw: dict = {"pressure_model": ps.pressure_model, "tp_s": ps.tp_s}
-    if ps.brake_gain_Nm_per_Pa is not None or ps.brake_preload_Pa is not None or ps.hysteresis_Pa is not None:
-        d = BrakeParams()
-        gain = d.alpha_squeeze_Nm_per_Pa if ps.brake_gain_Nm_per_Pa is None else ps.brake_gain_Nm_per_Pa
-        preload = (-d.beta_squeeze_Nm / d.alpha_squeeze_Nm_per_Pa if ps.brake_preload_Pa is None
-                   else ps.brake_preload_Pa)
-        width = ((d.beta_release_Nm - d.beta_squeeze_Nm) / d.alpha_squeeze_Nm_per_Pa
-                 if ps.hysteresis_Pa is None else ps.hysteresis_Pa)
-        brake_kw.update(alpha_squeeze_Nm_per_Pa=gain, beta_squeeze_Nm=-gain * preload,   # eq. (6), seed 001
-                        alpha_release_Nm_per_Pa=gain, beta_release_Nm=-gain * preload + gain * width)
-    adhesion = (AdhesionParams(slip_speed_peak=(ps.mu_peak, ps.slip_peak_mps)) if ps.adhesion == "slip_speed"
-                else AdhesionParams())
-    sensor_kw = {k: v for k, v in ss.model_dump().items() if v is not None}
-    return PlantParams(train=TrainParams(**train_kw), brake=BrakeParams(**brake_kw), adhesion=adhesion,
-                       sensors=SensorParams(**sensor_kw))
 
 
 class TruthLog:

@@ -156,7 +156,7 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         from hil.runtime.assembly import build_node
         from hil.runtime.release import node_release
         from hil.scenario import Scenario as _Scenario
-        from hil.scenario import secoc_keys
+        from hil.scenario.params import secoc_keys
 
         scenario = _Scenario.model_validate_json(scenario_json)
         db = load_dbc(dbc_path)

@@ -14,14 +14,16 @@ from hil.can.codec import Codec
 from hil.can.dbc import DEFAULT_DBC, load_dbc
 from hil.report.html import run_metadata, write_run_report
 from hil.report.kpis import (
+    RunView,
     check_out_dir,
     compute_kpis,
-    plot_run,
     read_signal,
-    summary_lines,
+    study_kpis,
     write_kpis,
     write_truth_csv,
 )
+from hil.report.plots import plot_run, study_plots
+from hil.report.summary import summary_lines
 from hil.runtime.desk import DeskScript
 from hil.runtime.lockstep import prepare_lockstep, run_lockstep
 from hil.runtime.outcome import RunOutcome, realtime_verdict
@@ -92,15 +94,12 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     *target, recorded = read_signal(trace, db, codec, "BCU_DEMAND", "TargetDecel", t0_s=trace_t0_s,
                                     speed=trace_speed)
     brake_us = DeskScript(scenario.desk).first_brake_us()
-    kpis = compute_kpis(scenario, cols, target, None if brake_us is None else brake_us / 1e6,
-                        outcome.frames_by_node, recorded, outcome.frames_in_flight,
-                        outcome.frames_overwritten, outcome.frames_faulted)
-    if "seed004" in kpis:            # seed 004: judged from the BCU's own engagement, read from the trace
-        from hil.report.kpis import _feedback_signals, bcu_engagement_s, seed004_kpis
-        signals = _feedback_signals(scenario, trace, outcome.end_us / 1e6, trace_t0_s, trace_speed)
-        engaged_s = bcu_engagement_s(signals)
-        if engaged_s is not None:
-            kpis["seed004"] = seed004_kpis(scenario, cols, tuple(target), engaged_at_s=engaged_s)
+    brake_s = None if brake_us is None else brake_us / 1e6
+    kpis = compute_kpis(scenario, cols, target, brake_s, outcome.frames_by_node, recorded,
+                        outcome.frames_in_flight, outcome.frames_overwritten, outcome.frames_faulted)
+    view = RunView.of(scenario, cols, tuple(target), brake_s, out_dir=out_dir, trace=trace, db=db,
+                      codec=codec, trace_t0_s=trace_t0_s, trace_speed=trace_speed, mode=outcome.mode)
+    kpis.update(study_kpis(view))                    # each study's own, under its name
     if outcome.bus is not None:
         worst = max(outcome.bus["messages"].items(), key=lambda kv: kv[1]["response_max_us"],
                     default=(None, {"response_max_us": 0.0}))
@@ -130,9 +129,9 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     kpis["end_reason"] = outcome.reason
     kpis_json = out_dir / "kpis.json"
     write_kpis(kpis, kpis_json)
-    plot = out_dir / "plot.png"
-    plot_run(scenario, cols, plot, f"{scenario.name} ({outcome.mode}, seed {scenario.seed})",
-             trace_t0_s=trace_t0_s, trace_speed=trace_speed)
+    plot = plot_run(scenario, cols, out_dir / "plot.png",
+                    f"{scenario.name} ({outcome.mode}, seed {scenario.seed})")
+    figures = study_plots(view)
     meta = {
         "scenario": scenario.model_dump(mode="json"),
         "mode": outcome.mode,
@@ -151,7 +150,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     run_json = out_dir / "run.json"
     run_json.write_text(json.dumps(meta, indent=2, default=str) + "\n")
     report = write_run_report(out_dir)                           # report.html: one self-contained page
-    return RunReport(out_dir, outcome, kpis, [trace, truth_csv, kpis_json, plot, run_json, report])
+    return RunReport(out_dir, outcome, kpis, [trace, truth_csv, kpis_json, plot, *figures, run_json, report])
 
 
 def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None) -> RunReport:

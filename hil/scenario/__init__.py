@@ -1,10 +1,16 @@
-"""Scenarios: the TOML model, its validation and loading.
+"""Scenarios: the TOML model, its validation and loading, and the parameters a scenario sets.
 
-`load_scenario(path)` reads and validates a file; `parse_scenario(data)` a table; `apply_set` and
-`parse_set` are `railhil run --set KEY=VALUE`.  Every error is one ScenarioError line naming the file,
-the key, the value and what is allowed.
+- `model`    the foundation's sections and `Scenario` (those plus one section per study)
+- `faults`   the `[[faults]]` entries
+- `load`     `load_scenario(path)`, `parse_scenario(data)`, `--set KEY=VALUE`, keys of earlier releases
+- `params`   scenario -> parameters of the plant and the controllers: the one place
+- `registry` the studies as the foundation knows them
+- `base`     the base of every section (unknown keys are errors, values frozen, no NaN)
+
+Every error is one ScenarioError line naming the file, the key, the value and what is allowed.
 """
 
+from hil.scenario.load import RailhilDeprecation, apply_set, load_scenario, parse_scenario, parse_set
 from hil.scenario.model import (
     MAX_CARS,
     RAIL_CONDITION_NAMES,
@@ -20,20 +26,23 @@ from hil.scenario.model import (
     RailRow,
     RailSegment,
     RealtimeSpec,
-    ReportSpec,
-    Scenario,
+    ScenarioBase,
     SecOcSpec,
     SensorSpec,
     TrackSpec,
     TrainSpec,
-    apply_set,
-    load_scenario,
-    parse_scenario,
-    parse_set,
-    secoc_keys,
+    scenario_model,
 )
 
 __all__ = ["MAX_CARS", "RAIL_CONDITION_NAMES", "BcuSpec", "BecuSpec", "BusSpec", "CurvePoint", "DeskEvent",
            "GradientPoint", "MessageTiming", "NodeTiming", "PlantSpec", "RailRow", "RailSegment",
-           "RealtimeSpec", "ReportSpec", "Scenario", "SecOcSpec", "SensorSpec", "TrackSpec", "TrainSpec",
-           "apply_set", "load_scenario", "parse_scenario", "parse_set", "secoc_keys"]
+           "RailhilDeprecation", "RealtimeSpec", "Scenario", "ScenarioBase", "SecOcSpec", "SensorSpec",
+           "TrackSpec", "TrainSpec", "apply_set", "load_scenario", "parse_scenario", "parse_set",
+           "scenario_model"]
+
+
+def __getattr__(name: str):
+    # `Scenario` is built on first use, from the study registry (hil.scenario.model.scenario_model)
+    if name == "Scenario":
+        return scenario_model()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,27 +1,20 @@
-"""Scenario files: TOML, validated at load with pydantic.
+"""The scenario model: every section of a scenario file, validated with pydantic.
 
-A bad key or value gives one ScenarioError line naming the file, the key, the value and what is
-allowed (exit code 2 at the CLI).  The README documents the format; scenarios/default.toml is the
-reference example.
+The foundation's sections are here; each study's section is in its folder (hil/studies/<name>/
+scenario.py) and joins the model through the registry.  Loading and --set are hil.scenario.load;
+docs/scenarios.md documents the format, scenarios/default.toml is the reference example.
 """
 
 from __future__ import annotations
 
-import difflib
-import tomllib
-import types
-import typing
-from pathlib import Path
+import functools
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, create_model, field_validator, model_validator
 
-from hil.errors import ScenarioError
+from hil.scenario import registry
 from hil.scenario.base import Strict
 from hil.scenario.faults import FaultSpec
-from hil.spec_acd import AcdSpec
-from hil.spec_consensus import ConsensusSpec
-from hil.spec_preview import PreviewSpec
 
 MAX_CARS = 8
 RAIL_CONDITION_NAMES = ("extra_dry", "dry", "wet", "extra_wet")
@@ -212,26 +205,11 @@ class SensorSpec(_Strict):
 
 
 class BcuSpec(_Strict):
-    """BCU options: target deceleration of brake steps 0..7 [m/s²], the jerk limit [m/s³], and the
-    deceleration feedback of seed 004 §5."""
+    """BCU options: target deceleration of brake steps 0..7 [m/s²] and the jerk limit [m/s³].  The
+    BCU's optional functions have sections of their own ([decel_feedback], [precise_stop])."""
 
     step_decel_mps2: list[Annotated[float, Field(ge=0, le=20)]] | None = None
     jerk_limit_mps3: Annotated[float, Field(gt=0, le=1000)] | None = None
-    # seed 004 §5: true = closed loop, false = the function monitors only (the open-loop BCU, for
-    # comparison; KPIs and plot as for true), absent = not fitted
-    decel_feedback: bool | None = None
-    # the friction-coefficient set μ(v, t): built from the plant's pad model on the brake-disc bench
-    # ("bench", needs plant.pad_friction) or none (the loop's trim alone)
-    friction_set: Literal["bench", "none"] = "bench"
-    friction_set_fill: Literal["fraction", "time"] = "fraction"   # how untested speed classes are filled
-    feedback_tq_s: Annotated[float, Field(gt=0, le=5)] = 0.1     # T_q of eq. (33) [s]
-    # seed 002: precise stopping at the [[desk]] target_stop_m: "none" (not fitted), the paper's adaptive
-    # search with united attempt and work steps without ("adaptive", Fig. 2) or with the differentiation
-    # unit ("adaptive_diff", Fig. 3), or the modern baseline "pi" (curve tracking, PI + feed-forward)
-    stopping: Literal["none", "adaptive", "adaptive_diff", "pi"] = "none"
-    # the braking curve's planned deceleration a_p [m/s²]: braking starts where a stop at a_p ends at the
-    # target (at once, and harder, when the target is nearer)
-    stop_decel_mps2: Annotated[float, Field(gt=0, le=5)] = 0.6
 
     @field_validator("step_decel_mps2")
     @classmethod
@@ -240,9 +218,14 @@ class BcuSpec(_Strict):
             raise ValueError(f"needs 8 values (steps 0..7) starting with 0.0, got {v}")
         return v
 
+    def full_service_mps2(self) -> float | None:
+        """Step 7's deceleration when the scenario gives the table (None: the BCU's default table)."""
+        return None if self.step_decel_mps2 is None else self.step_decel_mps2[7]
+
 
 class BecuSpec(_Strict):
-    """BECU options: control law (seed 001 eq. 16), WSP thresholds, reference governor (eq. 9)."""
+    """BECU options: control law (seed 001 eq. 16) and WSP thresholds.  The reference governor has a
+    section of its own ([wheel_slip])."""
 
     control: Literal["pressure", "decel"] = "pressure"
     kp_bar_per_g: Annotated[float, Field(ge=0, le=1000)] = 5.0          # K_P of eq. (16)
@@ -254,30 +237,15 @@ class BecuSpec(_Strict):
     wheel_trust_slip_mps: Annotated[float, Field(ge=0, le=10)] | None = None   # speed estimator
     # leaving WSP, the decel PI resumes where it was frozen ("freeze") or from u = 0 ("handover")
     wsp_resume: Literal["freeze", "handover"] = "freeze"
-    governor: bool = False
-    slip_max_mps: Annotated[float, Field(gt=0, le=1)] = 0.1              # s̄ of eq. (8)
-    governor_margin: Annotated[float, Field(ge=0, lt=0.5)] = 0.005       # torque margin, fraction of τ̄
 
     @model_validator(mode="after")
     def _consistent(self) -> BecuSpec:
-        if self.governor and self.control != "decel":
-            raise ValueError("governor = true needs control = 'decel'")
         if (self.wsp_vent_slip_mps is None) != (self.wsp_refill_slip_mps is None):
             raise ValueError("give both wsp_vent_slip_mps and wsp_refill_slip_mps, or neither")
         if self.wsp_vent_slip_mps is not None and self.wsp_refill_slip_mps > self.wsp_vent_slip_mps:
             raise ValueError(f"wsp_refill_slip_mps {self.wsp_refill_slip_mps} is above wsp_vent_slip_mps "
                              f"{self.wsp_vent_slip_mps}")
         return self
-
-
-class ReportSpec(_Strict):
-    """What the run reports beyond the standard KPIs."""
-
-    # the paper figure this scenario redoes: its published numbers are printed next to ours in the run
-    # summary (hil.report.kpis); the seed-001 KPIs themselves are computed for every control = "decel" run
-    paper_figure: Literal["seed001_fig8", "seed001_fig9"] | None = None
-    # steady state = the last this many seconds of the braking window (at most its second half) [s]
-    steady_state_window_s: Annotated[float, Field(gt=0, le=600)] = 10.0
 
 
 class SecOcSpec(_Strict):
@@ -314,7 +282,11 @@ def _check_key(text: str, name: str | None = None) -> None:
         raise ValueError(f"{what} must be 16 bytes as 32 hex digits (AES-128)")
 
 
-class Scenario(_Strict):
+class ScenarioBase(_Strict):
+    """The foundation's part of a scenario.  `Scenario` (below) is this plus one optional section per
+    study, from the registry (hil.scenario.registry): a study is part of a run when its section is
+    present."""
+
     name: str = "unnamed"
     description: str = ""
     seed: int = 0
@@ -332,39 +304,8 @@ class Scenario(_Strict):
     sensors: SensorSpec = Field(default_factory=SensorSpec)
     bcu: BcuSpec = Field(default_factory=BcuSpec)
     becu: BecuSpec = Field(default_factory=BecuSpec)
-    report: ReportSpec = Field(default_factory=ReportSpec)
-
-    @model_validator(mode="after")
-    def _governor_needs_curve(self) -> Scenario:
-        if (self.bcu.decel_feedback is not None and self.bcu.friction_set == "bench"
-                and not self.plant.pad_friction):
-            raise ValueError("bcu.friction_set = 'bench' builds the set from the plant's pad model: it needs "
-                             "plant.pad_friction = true (or bcu.friction_set = 'none')")
-        if self.bcu.stopping != "none" and not any(e.target_stop_m is not None for e in self.desk):
-            raise ValueError(f"bcu.stopping = '{self.bcu.stopping}' needs a [[desk]] event with "
-                             f"target_stop_m (the target stop point, track position [m])")
-        behind = [e.target_stop_m for e in self.desk
-                  if e.target_stop_m is not None and e.target_stop_m <= self.train.start_position_m]
-        if behind:
-            raise ValueError(f"desk target_stop_m {behind[0]} m is not ahead of train.start_position_m "
-                             f"{self.train.start_position_m} m")
-        steps = self.bcu.step_decel_mps2 or [1.0]
-        if self.bcu.stopping != "none" and self.bcu.stop_decel_mps2 > max(steps):
-            raise ValueError(f"bcu.stop_decel_mps2 {self.bcu.stop_decel_mps2} is above the full service "
-                             f"deceleration {max(steps)} m/s² (bcu.step_decel_mps2 step 7)")
-        if self.becu.governor and self.plant.adhesion != "slip_speed":
-            raise ValueError("becu.governor = true needs plant.adhesion = 'slip_speed' (the governor's "
-                             "slip inclusion is built from that curve family)")
-        if self.becu.governor and self.becu.slip_max_mps >= self.plant.slip_peak_mps:
-            raise ValueError(f"becu.slip_max_mps {self.becu.slip_max_mps} must lie below the adhesion peak "
-                             f"plant.slip_peak_mps {self.plant.slip_peak_mps} (stable-slip region)")
-        return self
     faults: list[FaultSpec] = Field(default_factory=list)    # hil.scenario.faults; injected by hil.safety
-    secoc: SecOcSpec = Field(default_factory=SecOcSpec)               # authentication keys
-    # the studies that bring nodes of their own (hil.runtime.assembly.studies): absent = not part of this run
-    preview: PreviewSpec | None = None        # seed 000: slip references with preview (hil/spec_preview.py)
-    consensus: ConsensusSpec | None = None    # seed 003: consensus braking (hil/spec_consensus.py)
-    acd: AcdSpec | None = None                # seed 002: anti-collision device (hil/spec_acd.py)
+    secoc: SecOcSpec = Field(default_factory=SecOcSpec)      # authentication keys
 
     @field_validator("desk")
     @classmethod
@@ -374,185 +315,33 @@ class Scenario(_Strict):
             raise ValueError(f"desk events must be in time order, got at_s {ts}")
         return v
 
-
-def _describe(err: dict) -> str:
-    loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
-    value = err.get("input")
-    if err["type"] == "extra_forbidden":
-        return f"key '{loc}' is not a scenario key{_closest_key(err['loc'])}"
-    if err["type"] == "missing":
-        return f"key '{loc}' is missing"
-    shown = repr(value)
-    if len(shown) > 60:
-        shown = shown[:57] + "..."
-    return f"key '{loc}' = {shown}: {err['msg']}"
-
-
-def _closest_key(loc: tuple) -> str:
-    """'; did you mean ...' for an unknown key at `loc`, from the fields of the model it sits in."""
-    kind, inner = "model", Scenario
-    for part in loc[:-1]:
-        if kind == "model":
-            field = inner.model_fields.get(str(part))
-            if field is None:
-                return ""
-            kind, inner = _unwrap(field.annotation)
-        elif kind in ("dict", "list"):       # part is a name or an index
-            kind, inner = _unwrap(inner)
-        else:
-            return ""
-    if kind != "model":
-        return ""
-    fields = list(inner.model_fields)
-    close = difflib.get_close_matches(str(loc[-1]), fields, n=1, cutoff=0.5)
-    prefix = ".".join(str(p) for p in loc[:-1])
-    if close:
-        return f"; did you mean '{prefix + '.' if prefix else ''}{close[0]}'?"
-    return f"; valid keys here: {', '.join(fields)}"
+    @model_validator(mode="after")
+    def _consistent(self) -> ScenarioBase:
+        behind = [e.target_stop_m for e in self.desk
+                  if e.target_stop_m is not None and e.target_stop_m <= self.train.start_position_m]
+        if behind:
+            raise ValueError(f"desk target_stop_m {behind[0]} m is not ahead of train.start_position_m "
+                             f"{self.train.start_position_m} m")
+        for study in registry.active(self):             # each study checks its section against the rest
+            if study.check is not None:
+                study.check(self)
+        return self
 
 
-def parse_scenario(data: dict, source: str = "<scenario>") -> Scenario:
-    try:
-        return Scenario.model_validate(data)
-    except ValidationError as exc:
-        errors = exc.errors()
-        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
-        raise ScenarioError(f"{source}: {_describe(errors[0])}{more}") from None
+@functools.cache
+def scenario_model() -> type[ScenarioBase]:
+    """The scenario model: ScenarioBase and one optional section per registered study."""
+    sections = {s.section: (s.spec | None, Field(default=None, description=f"{s.title} ({s.paper})"))
+                for s in registry.studies()}
+    model = create_model("Scenario", __base__=ScenarioBase, __module__="hil.scenario", **sections)
+    model.__doc__ = ("A scenario: the foundation's sections (ScenarioBase) and the studies' "
+                     f"({', '.join(sections)}).")
+    return model
 
 
-# ------------------------------------------------------------------------------ --set KEY=VALUE overrides
-def _unwrap(annotation):
-    """The type behind Optional[...] / Annotated[...]: (kind, inner) with kind "model", "dict", "list" or
-    "value"."""
-    while True:
-        origin = typing.get_origin(annotation)
-        if origin is Annotated:
-            annotation = typing.get_args(annotation)[0]
-        elif origin in (typing.Union, types.UnionType):
-            args = [a for a in typing.get_args(annotation) if a is not type(None)]
-            if len(args) != 1:
-                return "value", annotation
-            annotation = args[0]
-        else:
-            break
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return "model", annotation
-    if origin is dict:
-        return "dict", typing.get_args(annotation)[1]
-    if origin is list:
-        return "list", typing.get_args(annotation)[0]
-    return "value", annotation
-
-
-def parse_set(text: str) -> tuple[str, object]:
-    """`KEY=VALUE` of `railhil run --set`: the dotted scenario key and the value parsed as TOML
-    (`true`, `0.25`, `"decel"`, `[0.0, 1.0]`); text that is not a TOML value is taken as a string, so
-    `becu.control=decel` works without shell-quoted quotes."""
-    key, sep, raw = text.partition("=")
-    key, raw = key.strip(), raw.strip()
-    if not sep or not key or not raw:
-        raise ScenarioError(f"--set {text!r}: expected KEY=VALUE with a dotted scenario key, "
-                            f"e.g. becu.governor=false")
-    try:
-        value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
-        value = raw
-    return key, value
-
-
-def apply_set(data: dict, key: str, value: object, source: str) -> None:
-    """Put `value` at the dotted `key` of the raw scenario table `data` (in place), checking every part
-    of the key against the Scenario model: an unknown key is a ScenarioError naming the closest valid
-    one. Lists take an index (`desk.0.at_s`); dicts of models take any name (`nodes.BECU3.drift_ppm`).
-    The value itself is validated with the whole scenario afterwards (parse_scenario)."""
-    parts = key.split(".")
-    kind, inner = "model", Scenario
-    node: object = data
-    for depth, part in enumerate(parts):
-        here = ".".join(parts[:depth + 1])
-        last = depth == len(parts) - 1
-        if kind == "model":
-            fields = inner.model_fields
-            if part not in fields:
-                close = difflib.get_close_matches(part, list(fields), n=1, cutoff=0.5)
-                hint = (f"; did you mean '{'.'.join(parts[:depth] + close)}'?" if close
-                        else f"; valid keys here: {', '.join(fields)}")
-                raise ScenarioError(f"{source}: --set {key}: '{here}' is not a scenario key{hint}")
-            kind, inner = _unwrap(fields[part].annotation)
-        elif kind == "dict":
-            kind, inner = _unwrap(inner)
-        elif kind == "list":
-            items = node
-            if not part.isdigit() or not isinstance(items, list) or int(part) >= len(items):
-                n = len(items) if isinstance(items, list) else 0
-                raise ScenarioError(f"{source}: --set {key}: '{here}' needs an index below {n} of "
-                                    f"the scenario's list '{'.'.join(parts[:depth])}'")
-            if last:
-                items[int(part)] = value
-                return
-            node = items[int(part)]
-            kind, inner = _unwrap(inner)
-            continue
-        else:
-            raise ScenarioError(f"{source}: --set {key}: '{'.'.join(parts[:depth])}' is a value, "
-                                f"it has no key '{part}'")
-        assert isinstance(node, dict)
-        if last:
-            node[part] = value
-            return
-        child = node.get(part)
-        if child is None:
-            child = node[part] = {} if kind in ("model", "dict") else []
-        if kind in ("model", "dict") and not isinstance(child, dict):
-            raise ScenarioError(f"{source}: --set {key}: '{here}' is not a table in the scenario")
-        node = child
-
-
-def load_scenario(path: str | Path, overrides: dict | None = None,
-                  sets: list[str] | tuple[str, ...] = ()) -> Scenario:
-    """Load and validate a scenario file. `overrides` replace top-level keys; `sets` are `railhil run
-    --set KEY=VALUE` texts (dotted keys, TOML values) applied after them, in order."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: no such scenario file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"{path}: cannot read: {exc}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
-    for key, value in (overrides or {}).items():
-        data[key] = value
-    set_keys = []
-    for text in sets:
-        key, value = parse_set(text)
-        apply_set(data, key, value, str(path))
-        set_keys.append(key)
-    try:
-        scenario = parse_scenario(data, str(path))
-    except ScenarioError as exc:
-        given = [k for k in set_keys if f"key '{k}'" in str(exc)]
-        if given:
-            raise ScenarioError(f"{exc} (given by --set {given[-1]}=...)") from None
-        raise
-    if scenario.dbc is not None:
-        dbc_path = (path.parent / scenario.dbc).resolve()
-        scenario = scenario.model_copy(update={"dbc": str(dbc_path)})
-    ref = scenario.preview.rail_profile if scenario.preview is not None else None
-    if ref and ("/" in ref or ref.endswith(".csv")) and not Path(ref).is_absolute() \
-            and (path.parent / ref).is_file():        # a θ(x) table beside the scenario file
-        preview = scenario.preview.model_copy(update={"rail_profile": str((path.parent / ref).resolve())})
-        scenario = scenario.model_copy(update={"preview": preview})
-    return scenario
-
-
-def secoc_keys(scenario: Scenario) -> dict[str, bytes]:
-    """Message name -> AES-128 key from the scenario's [secoc] section; "*" holds `key`, the key of
-    every message not named (absent: the node runtime's development key)."""
-    spec = scenario.secoc
-    out = {name: bytes.fromhex(text) for name, text in spec.keys.items()}
-    if spec.key is not None:
-        out["*"] = bytes.fromhex(spec.key)
-    return out
+def __getattr__(name: str):
+    # `Scenario` is built on first use: its sections come from the study registry, whose packages import
+    # this module's sections (hil.scenario.base) while they load
+    if name == "Scenario":
+        return scenario_model()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

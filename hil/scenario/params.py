@@ -1,0 +1,132 @@
+"""Scenario -> parameters: the one place a scenario becomes the frozen parameter sets of the plant and
+the controllers.
+
+Every value comes from plant_sim's or firmware_py's defaults unless the scenario says otherwise, so a
+scenario without a key runs the foundation's train unchanged.  A study with a section in the scenario
+adds what its section sets: the registry calls its `scenario.bcu_params(scenario, kw)` and
+`scenario.becu_params(scenario, car, kw)` (hil/studies/<name>/scenario.py) on the keyword arguments
+being built here; its own nodes' parameters are in the same file of its folder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING
+
+from firmware_py.bcu import BcuParams
+from firmware_py.becu import BecuParams
+from firmware_py.pi import PIParams
+from hil.scenario import registry
+from plant_sim.params import AdhesionParams, BrakeParams, PadParams, PlantParams, SensorParams, TrainParams
+from plant_sim.track import Track
+
+if TYPE_CHECKING:
+    from hil.scenario.model import ScenarioBase as Scenario
+
+G_MPS2 = 9.81          # bar/g -> Pa per m/s²: 1 bar = 1e5 Pa, g = 9.81 m/s² (seed 001's unit of K_P, K_I)
+
+
+def build_track(scenario: Scenario) -> Track:
+    """The track of [track]: rail conditions (segments or a θ(x) table), gradient and curves."""
+    t = scenario.track
+    gradient = [(g.from_m, g.permille) for g in t.gradient]
+    curves = [(c.from_m, c.radius_m) for c in t.curves]
+    if t.rail_table is not None:
+        return Track.from_table([r.x_m for r in t.rail_table], [r.theta for r in t.rail_table],
+                                gradient=gradient, curvature=curves)
+    segments = [(s.from_m, s.condition if s.condition is not None else tuple(s.theta), s.transition_m)
+                for s in t.rail]
+    return Track.from_segments(segments, gradient=gradient, curvature=curves)
+
+
+def pad_params(scenario: Scenario) -> PadParams | None:
+    """The plant's variable pad friction (seed 004 eqs. (24)-(25)) when [plant] pad_friction = true."""
+    ps = scenario.plant
+    if not ps.pad_friction:
+        return None
+    kw: dict = {"initial_temp_rise_K": ps.disc_temp_rise_K}
+    if ps.pad_speed_amplitude is not None:
+        kw["n_v"] = ps.pad_speed_amplitude
+    if ps.pad_cold_amplitude is not None:
+        kw["n_T"] = ps.pad_cold_amplitude
+    return PadParams(**kw)
+
+
+def plant_params(scenario: Scenario) -> PlantParams:
+    """PlantParams of a scenario: plant_sim's defaults, changed only where [train], [plant] or [sensors]
+    say so."""
+    t, ps, ss = scenario.train, scenario.plant, scenario.sensors
+    train_kw: dict = {"masses_kg": t.masses()}
+    if t.wheel_inertia_kgm2 is not None:
+        train_kw["wheel_inertia_kgm2"] = t.wheel_inertia_kgm2
+    if not t.running_resistance:
+        train_kw.update(davis_c0_N=0.0, davis_c1_Ns_per_m=0.0, davis_c2_Ns2_per_m2=0.0,
+                        davis_c2_lead_Ns2_per_m2=0.0)
+    brake_kw: dict = {"pressure_model": ps.pressure_model, "tp_s": ps.tp_s}
+    if ps.brake_gain_Nm_per_Pa is not None or ps.brake_preload_Pa is not None or ps.hysteresis_Pa is not None:
+        d = BrakeParams()
+        gain = d.alpha_squeeze_Nm_per_Pa if ps.brake_gain_Nm_per_Pa is None else ps.brake_gain_Nm_per_Pa
+        preload = (-d.beta_squeeze_Nm / d.alpha_squeeze_Nm_per_Pa if ps.brake_preload_Pa is None
+                   else ps.brake_preload_Pa)
+        width = ((d.beta_release_Nm - d.beta_squeeze_Nm) / d.alpha_squeeze_Nm_per_Pa
+                 if ps.hysteresis_Pa is None else ps.hysteresis_Pa)
+        brake_kw.update(alpha_squeeze_Nm_per_Pa=gain, beta_squeeze_Nm=-gain * preload,   # eq. (6), seed 001
+                        alpha_release_Nm_per_Pa=gain, beta_release_Nm=-gain * preload + gain * width)
+    adhesion = (AdhesionParams(slip_speed_peak=(ps.mu_peak, ps.slip_peak_mps)) if ps.adhesion == "slip_speed"
+                else AdhesionParams())
+    sensor_kw = {k: v for k, v in ss.model_dump().items() if v is not None}
+    pp = PlantParams(train=TrainParams(**train_kw), brake=BrakeParams(**brake_kw), adhesion=adhesion,
+                     sensors=SensorParams(**sensor_kw))
+    pad = pad_params(scenario)
+    return pp if pad is None else dataclasses.replace(pp, pad=pad)
+
+
+def bcu_params(scenario: Scenario) -> BcuParams:
+    """BcuParams: the scenario's [bcu] step table and jerk limit, then what the active studies add (the
+    deceleration feedback, precise stopping, the anti-collision device's requests)."""
+    kw: dict = {}
+    if scenario.bcu.step_decel_mps2 is not None:
+        kw["step_decel_mps2"] = tuple(scenario.bcu.step_decel_mps2)
+    if scenario.bcu.jerk_limit_mps3 is not None:
+        kw["jerk_limit_mps3"] = scenario.bcu.jerk_limit_mps3
+    registry.call(scenario, "scenario", "bcu_params", kw)
+    return BcuParams(**kw)
+
+
+def step_decel_mps2(scenario: Scenario) -> tuple[float, ...]:
+    """The BCU's target deceleration of brake steps 0..7 [m/s²] (the scenario's table or the default)."""
+    steps = scenario.bcu.step_decel_mps2
+    return tuple(steps) if steps is not None else BcuParams().step_decel_mps2
+
+
+def becu_params(scenario: Scenario, car: int) -> BecuParams:
+    """BecuParams of car `car` (1-based): the foundation's BECU unless [becu] says otherwise, then what
+    the active studies add (the reference governor)."""
+    b = scenario.becu
+    d = BecuParams()
+    kw: dict = {}
+    if not (b.control == "pressure" and b.wsp_vent_slip_mps is None and b.wheel_trust_slip_mps is None):
+        pp = plant_params(scenario)
+        kw = {"control": b.control, "car_mass_kg": pp.train.masses_kg[car - 1], "wsp_resume": b.wsp_resume,
+              "wheel_radius_m": pp.train.wheel_radius_m, "p_max_Pa": pp.brake.p_max_Pa}
+        kw["decel_pi"] = PIParams(kp=b.kp_bar_per_g * 1e5 / G_MPS2, ki=b.ki_bar_per_g_s * 1e5 / G_MPS2,
+                                  out_min=0.0, out_max=pp.brake.p_max_Pa)     # eq. (16), 0 ≤ u ≤ p̄ (5b)
+        if b.wsp_vent_slip_mps is not None:                           # seed 001 §II-C: vent, then track
+            kw["wsp"] = dataclasses.replace(
+                d.wsp, vent_slip_mps=b.wsp_vent_slip_mps, vent_slip_per_speed=0.0,
+                hold_fraction=b.wsp_refill_slip_mps / b.wsp_vent_slip_mps,
+                refill_fraction=b.wsp_refill_slip_mps / b.wsp_vent_slip_mps)
+        if b.wheel_trust_slip_mps is not None:
+            kw["wheel_trust_slip_mps"] = b.wheel_trust_slip_mps
+    registry.call(scenario, "scenario", "becu_params", car, kw)
+    return BecuParams(**kw) if kw else d
+
+
+def secoc_keys(scenario: Scenario) -> dict[str, bytes]:
+    """Message name -> AES-128 key from the scenario's [secoc] section; "*" holds `key`, the key of
+    every message not named (absent: the node runtime's development key)."""
+    spec = scenario.secoc
+    out = {name: bytes.fromhex(text) for name, text in spec.keys.items()}
+    if spec.key is not None:
+        out["*"] = bytes.fromhex(spec.key)
+    return out

@@ -1,0 +1,568 @@
+"""The nodes of the anti-collision device (seed 002), for a scenario with an [acd] section.
+
+`node_names` gets the foundation's node list (PLANT first) and returns this study's; `build_node`
+returns the study's own node for `name`, or None to let hil.runtime.assembly build the foundation's.
+
+What the [acd] section adds to a run (seed 002 §IV–§V, §IX, §X):
+
+- **PLANT** stays the foundation's PlantController (a subclass, `WorldPlant`, with the same truth,
+  standstill and glance) and gets the world around the train (`World`, every `WORLD_TICK_US`):
+  the track in WGS-84 with route sections, the leading train U1 (plant_sim.leader, scripted), the
+  wayside signals with their aspects over time, and the radio link (latency, jitter, loss, outages,
+  `RadioLink`) to the control centre (`CentreModel`: steps 3–6 of the paper, the same pairing
+  function as the TCP service hil.links.control_centre).  The follower's radio box puts what it last got
+  on CAN: RADIO_LEADER_POS/INFO (LeaderId 0: no leader on the section) and RADIO_SIGNAL.  The plant
+  also sends ACD_GNSS_TRUTH: the true antenna position, the feed of the GPS receiver model (in a
+  real HIL, the GNSS simulator's feed from the vehicle model; no such frame exists on a train).
+- **ACD** (`AcdDevice`): the GPS receiver (plant_sim.gps: noise, dropouts, instability) writes NMEA
+  RMC+GGA (or the framed binary) onto a serial line through pyserial — ``loop://`` in lockstep, a
+  real pseudo-terminal pair in real time — and the device reads it back, checksums verified, garbage
+  counted and ignored (hil.links.nmea).  Fixes with a GGA/binary HDOP above `max_hdop` are dropped (the
+  instability episodes report HDOP 4, plant_sim.gps).  The firmware (firmware_py.acd, steps 1–12,
+  with or without §X's prediction) sends ACD_BRAKE_REQ to the BCU.
+- **BCU**: the foundation's Bcu with `BcuParams.acd` (scenario.py's `bcu_params` sets it):
+  an EMERGENCY request is an emergency request (BCU_EMERGENCY.Source = 2, ACD); a SERVICE request asks
+  for RequestedDecel, and the demand is the largest of the desk's step, precise stopping and the ACD's.
+
+After a run, kpis.py judges it on plant truth; reproduce.py runs the randomized campaign.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from cantools.database.can import Database
+
+from firmware_py.acd import (
+    Acd,
+    TrainPosition,
+    pair_on_sections,
+)
+from hil.can.codec import Codec
+from hil.links.gpsserial import GpsLinkReader, GpsLinkWriter, PtyLink, open_port
+from hil.links.nmea import DEFAULT_UTC0, ReceivedFix
+from hil.runtime.node import Binding, Node
+from hil.runtime.plant_node import PlantController
+from hil.scenario import Scenario
+from hil.studies.anticollision.scenario import (
+    AcdSpec,
+    RadioSpec,
+    acd_params,
+    aspect_at,
+    geometry,
+    gps_params,
+    leader_motion,
+    section_of,
+    spec_of,
+    sub_seed,
+)
+from plant_sim.gps import GpsModel, GpsParams
+
+WORLD_TICK_US = 100_000        # the world (U1, signals, radio) advances every 100 ms (chosen: the ACD cycle)
+ACD_OFFSET_US = 7_000          # the ACD's phase in the 10 ms grid, after the BECUs (3.0-6.5 ms) (chosen)
+ACD_NODE = "ACD"
+PASSED_SIGNAL_M = 10.0         # a signal this far behind the own GPS position is passed (chosen: 4 σ of
+#                                the NEO-6's 2.1 m per-axis σ, plant_sim.gps)
+SECTION_SEARCH_M = 500.0       # own position search window around the last one on the track [m] (chosen)
+RADIO_OUT = ("RADIO_LEADER_POS.Latitude", "RADIO_LEADER_POS.Longitude", "RADIO_LEADER_INFO.LeaderId",
+             "RADIO_LEADER_INFO.RouteSection", "RADIO_LEADER_INFO.Speed", "RADIO_LEADER_INFO.TrainLength",
+             "RADIO_LEADER_INFO.AgeOfReport", "RADIO_SIGNAL.SignalId", "RADIO_SIGNAL.Aspect",
+             "RADIO_SIGNAL.SignalPos", "RADIO_SIGNAL.AgeOfAspect")
+TRUTH_OUT = ("ACD_GNSS_TRUTH.TrackPos", "ACD_GNSS_TRUTH.Speed")
+AGE_MAX_S = 25.5               # DBC maximum of AgeOfReport / AgeOfAspect
+
+
+# ----------------------------------------------------------------------------------- the radio link
+class RadioLink:
+    """One hop of the radio (train → centre or centre → train), in simulated time: each message is
+    lost with probability `loss`, or delivered latency + U(0, jitter) after it was sent, in order; a
+    message sent or due inside an outage window is lost.  Seeded: the same draws every run."""
+
+    def __init__(self, spec: RadioSpec, seed: int) -> None:
+        self.spec = spec
+        self.rng = np.random.Generator(np.random.PCG64(seed))
+        self.outages_us = [(round(w.start_s * 1e6), round((w.start_s + w.duration_s) * 1e6))
+                           for w in spec.outages]
+        self.queue: deque[tuple[int, dict]] = deque()
+        self.offered = self.lost = self.delivered = 0
+        self._last_due = 0
+
+    def _out(self, t_us: int) -> bool:
+        return any(a <= t_us < b for a, b in self.outages_us)
+
+    def send(self, t_us: int, msg: dict) -> None:
+        self.offered += 1
+        lost = self.rng.random() < self.spec.loss
+        due = t_us + round((self.spec.latency_s + self.spec.jitter_s * self.rng.random()) * 1e6)
+        if lost or self._out(t_us) or self._out(due):
+            self.lost += 1
+            return
+        self._last_due = max(self._last_due, due)           # in order
+        self.queue.append((self._last_due, msg))
+
+    def receive(self, now_us: int) -> Iterator[dict]:
+        while self.queue and self.queue[0][0] <= now_us:
+            self.delivered += 1
+            yield self.queue.popleft()[1]
+
+
+class CentreModel:
+    """The control centre in-process (lockstep): the latest report of each train (step 3), the pairing
+    on each route section (steps 4–5, firmware_py.acd.pair_on_sections, as hil.links.control_centre), and
+    what it sends: ("pair", leader) when a train's leader changes, the leader's report to its
+    follower (step 6)."""
+
+    def __init__(self) -> None:
+        self.latest: dict[str, dict] = {}
+        self.pairs: dict[str, tuple[str | None, str | None]] = {}
+        self.reports = 0
+
+    def report(self, rep: dict) -> list[tuple[str, dict]]:
+        self.reports += 1
+        old = self.latest.get(rep["train"])
+        if old is not None and old["t"] > rep["t"]:
+            return []                                        # older than what we have
+        self.latest[rep["train"]] = rep
+        new = pair_on_sections(TrainPosition(r["train"], r["lat"], r["lon"], r["section"], r["heading"])
+                               for r in self.latest.values())
+        out = []
+        for train in sorted(new):
+            if new[train][0] != self.pairs.get(train, (None, None))[0]:
+                out.append((train, {"type": "pair", "leader": new[train][0]}))
+                if new[train][0] is not None:
+                    out.append((train, {"type": "leader_report", **self.latest[new[train][0]]}))
+        self.pairs = new
+        # the acknowledgement carries the reporting train's current pair, as hil.links.control_centre's does:
+        # a lost "pair" message heals itself with the next report
+        out.append((rep["train"], {"type": "pair", "leader": new.get(rep["train"], (None, None))[0]}))
+        follower = new.get(rep["train"], (None, None))[1]
+        if follower is not None:
+            out.append((follower, {"type": "leader_report", **rep}))
+        return out
+
+
+class TcpCentre:
+    """The real control centre (hil.links.control_centre: its own process, its SQLite file) over TCP, for
+    real-time runs: one TrainClient per train (reports acknowledged, resent after a reconnection, so a
+    restart of the centre loses none), on an asyncio loop in a thread of the PLANT process.  Radio
+    latency and loss are the centre's own (`railhil control-centre --latency-ms --loss`)."""
+
+    def __init__(self, address: str, trains: list[str]) -> None:
+        import asyncio
+        import threading
+
+        from hil.links.control_centre import TrainClient
+
+        host, _, port = address.rpartition(":")
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, name="acd-radio", daemon=True)
+        self.thread.start()
+        self.clients = {t: TrainClient(t, host, int(port)) for t in trains}
+        self._seen = {t: 0 for t in trains}
+
+        async def start() -> None:
+            for c in self.clients.values():
+                await c.start()
+
+        asyncio.run_coroutine_threadsafe(start(), self.loop).result(timeout=10.0)
+
+    def report(self, rep: dict) -> None:
+        """Queue a train's report (step 3); t [µs] goes out as s."""
+        c = self.clients[rep["train"]]
+        args = (rep["lat"], rep["lon"], rep["speed"], rep["section"], rep["length"], rep["heading"] % 360.0,
+                rep["t"] * 1e-6)
+        self.loop.call_soon_threadsafe(lambda: c.report(*args))
+
+    def messages(self, train: str) -> list[dict]:
+        """What the centre told `train` since the last call: its pair, then the leader reports."""
+        c = self.clients[train]
+        new = c.leader_reports[self._seen[train]:]          # list appends are atomic: a safe snapshot
+        self._seen[train] += len(new)
+        out: list[dict] = [{"type": "pair", "leader": c.leader}]
+        out += [{**m, "type": "leader_report", "t": round(m["t"] * 1e6)} for m in new
+                if m.get("t") is not None]
+        return out
+
+    def close(self) -> None:
+        import asyncio
+
+        async def stop() -> None:
+            for c in self.clients.values():
+                await c.close()
+
+        asyncio.run_coroutine_threadsafe(stop(), self.loop).result(timeout=10.0)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(timeout=5.0)
+
+
+# ----------------------------------------------------------------------------------------- the world
+class World:
+    """U1, the signals, the radio and the control centre, seen from the own train's radio box.
+
+    `step(now_us, front_m, speed_mps)` (every WORLD_TICK_US, with the own train's true front position
+    and speed) returns the radio box's CAN outputs.  Each train reports every `report_period_s`: U1
+    the GPS position of its last wagon (receiver noise, plant_sim.gps), the own train its front (the
+    position its ACD's GPS gives; here the truth: its error does not matter to the pairing).  The
+    wayside sends the aspect of the next signal ahead of the own train on the same period."""
+
+    def __init__(self, spec: AcdSpec, seed: int) -> None:
+        self.spec = spec
+        self.geo = geometry(spec)
+        self.motion = leader_motion(spec)
+        self.me = f"U{spec.train_id}"
+        self.leader_name = None if spec.leader is None else f"U{spec.leader.train_id}"
+        self.up = RadioLink(spec.radio, sub_seed(seed, "radio-up"))
+        self.down = RadioLink(spec.radio, sub_seed(seed, "radio-down"))
+        self.centre = CentreModel()
+        self.tcp: TcpCentre | None = None             # real time with [acd] control_centre: opened at once
+        noise = GpsParams(dropout_rate_per_h=0.0, instability_rate_per_h=0.0) if spec.gps.noise else \
+            GpsParams(horiz_noise_std_m=0.0, speed_noise_std_mps=0.0, dropout_rate_per_h=0.0,
+                      instability_rate_per_h=0.0)
+        self.leader_gps = GpsModel(noise, sub_seed(seed, "leader-gps"))
+        self.period_us = round(spec.radio.report_period_s * 1e6)
+        self.next_report_us = 0
+        self.signals = sorted(spec.signals, key=lambda s: s.position_m)
+        # the radio box's state: what the own train last got
+        self.leader_id = 0
+        self.leader_rep: dict | None = None
+        self.signal_msg: dict | None = None
+        self.out: dict[str, float] = {k: 0.0 for k in RADIO_OUT + TRUTH_OUT}
+
+    def _report(self, train: str, t_us: int, s_m: float, v: float, length: float, noisy: bool) -> dict:
+        lat, lon, heading = self.geo.at(s_m)
+        if noisy:
+            fix = self.leader_gps.fix(t_us, lat, lon, v, heading)
+            lat, lon, v, heading = fix.lat_deg, fix.lon_deg, fix.speed_mps, fix.heading_deg
+        return {"train": train, "t": t_us, "lat": lat, "lon": lon, "speed": v, "heading": heading,
+                "section": section_of(self.spec, s_m), "length": length}
+
+    def next_signal(self, front_m: float):
+        for sig in self.signals:
+            if sig.position_m > front_m:
+                return sig
+        return None
+
+    def _uplink(self, now_us: int, rep: dict) -> None:
+        if self.tcp is None:
+            self.up.send(now_us, rep)
+        elif not self.up._out(now_us):                # a radio outage silences the real link too
+            self.tcp.report(rep)
+
+    def step(self, now_us: int, front_m: float, speed_mps: float) -> dict[str, float]:
+        t_s = now_us / 1e6
+        if self.spec.control_centre is not None and self.tcp is None:
+            trains = [self.me] + ([self.leader_name] if self.motion is not None else [])
+            self.tcp = TcpCentre(self.spec.control_centre, trains)
+        if now_us >= self.next_report_us:
+            self.next_report_us += self.period_us
+            if self.motion is not None:
+                s_l, v_l, _ = self.motion.state(t_s)
+                self._uplink(now_us, self._report(self.leader_name, now_us, s_l, v_l, self.motion.length_m,
+                                                  True))
+            own_len = 1.0   # only the leader's length is used (the follower's is not relayed to anyone)
+            self._uplink(now_us, self._report(self.me, now_us, front_m, speed_mps, own_len, False))
+            sig = self.next_signal(front_m)
+            self.down.send(now_us, {"type": "signal", "t": now_us,
+                                    "id": 0 if sig is None else sig.id,
+                                    "aspect": 0 if sig is None else int(aspect_at(sig, t_s)),
+                                    "pos": 0.0 if sig is None else sig.position_m})
+        for rep in self.up.receive(now_us):
+            for train, msg in self.centre.report(rep):
+                if train == self.me:
+                    self.down.send(now_us, msg)
+        received = list(self.down.receive(now_us))
+        if self.tcp is not None and not self.down._out(now_us):
+            received += self.tcp.messages(self.me)
+        for msg in received:
+            kind = msg["type"]
+            if kind == "pair":
+                self.leader_id = 0 if msg["leader"] is None else int(msg["leader"][1:])
+                if self.leader_rep is not None and self.leader_rep["train"] != msg["leader"]:
+                    self.leader_rep = None                # a report of a train that is not our leader
+            elif kind == "leader_report" and self.leader_id and msg["train"] == f"U{self.leader_id}":
+                if self.leader_rep is None or msg["t"] >= self.leader_rep["t"]:
+                    self.leader_rep = msg
+            elif kind == "signal":
+                self.signal_msg = msg
+        return self.outputs(now_us, front_m, speed_mps)
+
+    def outputs(self, now_us: int, front_m: float, speed_mps: float) -> dict[str, float]:
+        out = self.out
+        rep = self.leader_rep
+        if rep is not None and self.leader_id:
+            out["RADIO_LEADER_POS.Latitude"] = rep["lat"]
+            out["RADIO_LEADER_POS.Longitude"] = rep["lon"]
+            out["RADIO_LEADER_INFO.LeaderId"] = self.leader_id
+            out["RADIO_LEADER_INFO.RouteSection"] = rep["section"]
+            out["RADIO_LEADER_INFO.Speed"] = min(max(rep["speed"], 0.0), 655.35)
+            out["RADIO_LEADER_INFO.TrainLength"] = rep["length"]
+            out["RADIO_LEADER_INFO.AgeOfReport"] = min((now_us - rep["t"]) / 1e6, AGE_MAX_S)
+        else:
+            out["RADIO_LEADER_INFO.LeaderId"] = 0
+        sig = self.signal_msg
+        if sig is not None:
+            out["RADIO_SIGNAL.SignalId"] = sig["id"]
+            out["RADIO_SIGNAL.Aspect"] = sig["aspect"]
+            out["RADIO_SIGNAL.SignalPos"] = sig["pos"]
+            out["RADIO_SIGNAL.AgeOfAspect"] = min((now_us - sig["t"]) / 1e6, AGE_MAX_S)
+        out["ACD_GNSS_TRUTH.TrackPos"] = min(max(front_m, 0.0), 4_294_967.295)
+        out["ACD_GNSS_TRUTH.Speed"] = min(max(speed_mps, 0.0), 655.35)
+        return dict(out)
+
+
+class WorldPlant(PlantController):
+    """The foundation's PlantController plus the world around the train (`World`): same physics,
+    truth, standstill and glance; its extra outputs are the radio box's and the GNSS feed's frames."""
+
+    def __init__(self, plant, n_cars: int, db: Database, dbc_name: str, world: World) -> None:
+        super().__init__(plant, n_cars, db, dbc_name)
+        self.world = world
+        self.outputs = tuple(self.outputs) + RADIO_OUT + TRUTH_OUT
+        self.half_car_m = plant.params.train.car_pitch_m / 2.0     # antenna at the front of car 1
+        self.next_world_us = 0
+
+    def step(self, now_us: int, rx) -> dict[str, float]:
+        out = super().step(now_us, rx)
+        if now_us >= self.next_world_us:
+            self.next_world_us += WORLD_TICK_US
+            snap = self.plant.snapshot()                           # after this step's integration
+            out.update(self.world.step(now_us, snap.x[0] + self.half_car_m, snap.v[0]))
+        return out
+
+
+# ------------------------------------------------------------------------------------------- the ACD
+class _AcdRx(Mapping):
+    """The node's RxTable plus the device's own inputs (Acd.LOCAL_INPUTS)."""
+
+    def __init__(self, rx: Mapping[str, float], local: dict[str, float]) -> None:
+        self.rx, self.local = rx, local
+
+    def __getitem__(self, key: str) -> float:
+        return self.local[key] if key in self.local else self.rx[key]
+
+    def __iter__(self):
+        return iter(self.rx)
+
+    def __len__(self) -> int:
+        return len(self.rx)
+
+    def get(self, key, default=None):
+        if key in self.local:
+            return self.local[key]
+        return self.rx.get(key, default)
+
+    def age_us(self, name: str, now_us: int):
+        age = getattr(self.rx, "age_us", None)
+        return None if age is None else age(name, now_us)
+
+
+@dataclass
+class GpsInputStats:
+    """What the ACD's GPS input stage did (besides hil.links.nmea's byte/sentence counters)."""
+
+    fixes_written: int = 0
+    corrupted: int = 0           # fixes whose bytes were damaged on the line (injected)
+    accepted: int = 0            # epochs taken as the own position
+    no_fix: int = 0              # epochs the receiver reported without a fix
+    high_hdop: int = 0           # epochs dropped for HDOP > max_hdop (instability)
+    unmatched: int = 0           # RMC whose GGA never came (damaged): dropped
+
+
+class AcdDevice:
+    """The ACD node's controller: GPS receiver model → serial line → NMEA/binary reader → firmware Acd.
+
+    step(now_us, rx) -> ACD_BRAKE_REQ signals.  Inputs: the radio frames, RADIO_SIGNAL's id and
+    position, ACD_GNSS_TRUTH (for the receiver model only; the firmware sees the serial line)."""
+
+    OUTPUTS = Acd.OUTPUTS
+    SIGNAL = ("RADIO_SIGNAL.SignalId", "RADIO_SIGNAL.SignalPos")
+
+    def __init__(self, spec: AcdSpec, seed: int, serial: str = "loop") -> None:
+        self.spec = spec
+        self.geo = geometry(spec)
+        self.acd = Acd(acd_params(spec))
+        self.inputs = tuple(Acd.INPUTS) + self.SIGNAL + TRUTH_OUT
+        self.outputs = self.OUTPUTS
+        self.gps = GpsModel(gps_params(spec.gps), sub_seed(seed, "own-gps"))
+        self.fix_period_us = self.gps.p.period_us
+        self.next_fix_us = 0
+        self.serial = serial
+        self.rng = np.random.Generator(np.random.PCG64(sub_seed(seed, "serial-garbage")))
+        self.stats = GpsInputStats()
+        self.link: PtyLink | None = None
+        self.writer: GpsLinkWriter | None = None
+        self.reader: GpsLinkReader | None = None
+        self.fix: tuple[float, float, float, int] | None = None     # lat, lon, speed, t_us of the fix
+        self.own_s: float | None = None
+        self._pending: ReceivedFix | None = None
+        self._signal_cache: tuple[float, float, float] | None = None
+        self.report: dict = {}       # the GPS line's figures, refreshed every epoch (run.json node_stats)
+
+    # the serial line -----------------------------------------------------------------------------
+    def open(self) -> None:
+        """Open the line: pyserial loop:// (lockstep) or a real pseudo-terminal pair (real time)."""
+        proto = self.spec.gps.protocol
+        if self.serial == "pty":
+            self.link = PtyLink()
+            self.writer = GpsLinkWriter(self.link.device, proto)
+            self.reader = GpsLinkReader(self.link.port, proto)
+        else:
+            port = open_port("loop://")
+            self.writer, self.reader = GpsLinkWriter(port, proto), GpsLinkReader(port, proto)
+        self.report.update(serial=self.serial, protocol=proto,
+                           port=self.link.port_name if self.link is not None else "loop://")
+
+    def _refresh_report(self) -> None:
+        self.report.update(vars(self.stats), line=self.reader.stats.summary(),
+                           bytes_dropped=self.writer.bytes_dropped)
+
+    def close(self) -> None:
+        if self.reader is not None:
+            self.reader.close()
+        if self.link is not None:
+            self.link.close()
+        elif self.reader is not None:
+            self.reader.port.close()
+
+    def _damage(self, data: bytes) -> bytes:
+        """A fix's bytes as a noisy line delivers them, with probability garbage_per_fix: one byte
+        changed (bad checksum/CRC), cut short (truncated), or random bytes in front (noise)."""
+        rng = self.rng                       # the same draws for every fix: reproducible
+        u, kind, where, nbytes = rng.random(), rng.integers(3), rng.random(), rng.integers(1, 40)
+        noise = self.rng.integers(0, 256, size=40, dtype=np.uint8).tobytes()[:nbytes]
+        if u >= self.spec.gps.garbage_per_fix:
+            return data
+        self.stats.corrupted += 1
+        k = 1 + int(where * (len(data) - 4))
+        if kind == 0:
+            return data[:k] + bytes([data[k] ^ 0x5A]) + data[k + 1:]
+        if kind == 1:
+            return data[:k] + data[min(len(data), k + 10 + int(nbytes)):]
+        return noise + data
+
+    def _receiver(self, now_us: int, rx: Mapping[str, float]) -> None:
+        """The GPS module: a fix at every epoch due, from the true antenna position, onto the line."""
+        s_true, v_true = rx[TRUTH_OUT[0]], rx[TRUTH_OUT[1]]
+        age = getattr(rx, "age_us", lambda *_: 0)(TRUTH_OUT[0], now_us)
+        while self.next_fix_us <= now_us:
+            t_fix = self.next_fix_us
+            self.next_fix_us += self.fix_period_us
+            if not (s_true == s_true and v_true == v_true) or age is None:
+                continue                                  # no truth yet (the first frames)
+            s = s_true + v_true * (t_fix - (now_us - age)) * 1e-6    # the truth moved on since its frame
+            lat, lon, heading = self.geo.at(s)
+            fix = self.gps.fix(t_fix, lat, lon, v_true, heading)
+            self.stats.fixes_written += 1
+            self.writer.write_bytes(self._damage(self.writer.encoder.encode(fix)))
+
+    def _take(self, f: ReceivedFix) -> None:
+        """An epoch's position accepted as the own fix (step 1-2)."""
+        t_us = f.sim_time_us(DEFAULT_UTC0)
+        if t_us is None:
+            return
+        self.fix = (f.lat_deg, f.lon_deg, f.speed_mps, t_us)
+        self.stats.accepted += 1
+        lo = None if self.own_s is None else (self.own_s - SECTION_SEARCH_M, self.own_s + SECTION_SEARCH_M)
+        self.own_s = self.geo.locate(f.lat_deg, f.lon_deg, lo)[0]
+
+    def _epoch(self, rmc: ReceivedFix, gga: ReceivedFix | None) -> None:
+        if not rmc.valid or (gga is not None and gga.quality == 0):
+            self.stats.no_fix += 1
+        elif gga is not None and not gga.hdop <= self.spec.gps.max_hdop:
+            self.stats.high_hdop += 1
+        else:
+            self._take(rmc)
+
+    def _read(self) -> None:
+        for f in self.reader.poll():
+            if f.source == "BIN":
+                self._epoch(f, f)
+            elif f.source == "RMC":
+                if self._pending is not None:
+                    self.stats.unmatched += 1             # its GGA was damaged: not judged, dropped
+                self._pending = f
+            elif f.source == "GGA":
+                rmc, self._pending = self._pending, None
+                if rmc is not None and rmc.tod_s == f.tod_s:
+                    self._epoch(rmc, f)
+                elif rmc is not None:
+                    self.stats.unmatched += 1
+
+    def _signal(self, rx: Mapping[str, float]) -> tuple[float, float]:
+        sid, pos = rx[self.SIGNAL[0]], rx[self.SIGNAL[1]]
+        if not (sid == sid and pos == pos) or round(sid) == 0:
+            return math.nan, math.nan
+        if self.own_s is not None and self.own_s - pos > PASSED_SIGNAL_M:
+            return math.nan, math.nan                     # behind us: passed
+        if self._signal_cache is None or self._signal_cache[0] != pos:
+            lat, lon, _ = self.geo.at(pos)
+            self._signal_cache = (pos, lat, lon)
+        return self._signal_cache[1], self._signal_cache[2]
+
+    def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
+        if self.writer is None:
+            self.open()
+        written = self.stats.fixes_written
+        self._receiver(now_us, rx)
+        self._read()
+        if self.stats.fixes_written != written:
+            self._refresh_report()
+        local: dict[str, float] = {"OwnFixValid": 0.0}
+        if self.fix is not None:
+            lat, lon, speed, t_us = self.fix
+            local.update(OwnLatitude=lat, OwnLongitude=lon, OwnSpeed=speed, OwnFixValid=1.0,
+                         OwnFixAge=(now_us - t_us) * 1e-6)
+        local["OwnRouteSection"] = math.nan if self.own_s is None else section_of(self.spec, self.own_s)
+        local["SignalLatitude"], local["SignalLongitude"] = self._signal(rx)
+        return self.acd.step(now_us, _AcdRx(rx, local))
+
+
+# --------------------------------------------------------------------------------------- the nodes
+def node_names(scenario: Scenario, names: list[str]) -> list[str]:
+    return names if ACD_NODE in names else names + [ACD_NODE]
+
+
+def _serial_kind(spec: AcdSpec) -> str:
+    if spec.gps.serial != "auto":
+        return spec.gps.serial
+    import multiprocessing as mp
+
+    # a real-time run builds each node in its own process named railhil-<node> (hil.runtime.realtime)
+    return "pty" if mp.current_process().name == f"railhil-{ACD_NODE}" else "loop"
+
+
+def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
+               dbc_name: str = "DBC") -> Node | None:
+    from hil.runtime import assembly
+
+    spec = spec_of(scenario)
+    n = scenario.train.cars
+    if name == "PLANT":
+        plant = assembly.build_plant(scenario)
+        ctrl = WorldPlant(plant, n, db, dbc_name, World(spec, scenario.seed))
+        rx_msgs = [f"BECU{i}_PRESS_CMD" for i in range(1, n + 1)]
+        tx_msgs = [f"PLANT_CAR{i}_SENSORS" for i in range(1, n + 1)] + [
+            "RADIO_LEADER_POS", "RADIO_LEADER_INFO", "RADIO_SIGNAL", "ACD_GNSS_TRUTH"]
+        period, offset = plant.params.dt_us, assembly.PLANT_OFFSET_US
+    elif name == ACD_NODE:
+        ctrl = AcdDevice(spec, scenario.seed, _serial_kind(spec))
+        rx_msgs = ["RADIO_LEADER_POS", "RADIO_LEADER_INFO", "RADIO_SIGNAL", "ACD_GNSS_TRUTH"]
+        tx_msgs = ["ACD_BRAKE_REQ"]
+        period, offset = ctrl.acd.p.cycle_us, ACD_OFFSET_US
+    else:
+        return None
+    binding = Binding.build(db, name, ctrl.inputs, ctrl.outputs, rx_msgs, tx_msgs, dbc_name)
+    node = Node(name, ctrl, binding, codec, db, period_us=period, offset_us=offset,
+                safe_outputs=assembly.safe_outputs(ctrl))
+    if isinstance(ctrl, AcdDevice):
+        node.stats.gps_line = ctrl.report        # lands in RunOutcome.node_stats and run.json
+    return node
+
+
+def bcu_messages(scenario: Scenario, rx: list[str], tx: list[str]) -> None:
+    """The BCU receives the ACD's brake requests."""
+    rx.append("ACD_BRAKE_REQ")

@@ -1,0 +1,23 @@
+"""The node bindings of precise stopping (seed 002): it runs inside the foundation BCU.
+
+It adds no node; the BCU it is fitted to (scenario.py `bcu_params`) receives the desk's target stop point
+(DESK_TARGET) and, on a track with balises, car 1's balise reader (PLANT_BTM), and sends where it believes
+the train is against its target and curve (BCU_STOP, frames.py).
+"""
+
+from __future__ import annotations
+
+
+def node_names(scenario, names: list[str]) -> list[str]:
+    """The foundation's nodes, unchanged."""
+    return names
+
+
+def build_node(name, scenario, db, codec, dbc_name="DBC"):
+    """None: every node is the foundation's."""
+    return None
+
+
+def bcu_messages(scenario, rx: list[str], tx: list[str]) -> None:
+    rx += ["DESK_TARGET"] + (["PLANT_BTM"] if scenario.track.balises else [])
+    tx.append("BCU_STOP")

@@ -1,0 +1,72 @@
+"""The scenario section [precise_stop] (seed 002 §VII: stopping at the desk's target point) and the
+stopping function's parameters it sets in the BCU.
+
+    [precise_stop]
+    method = "pi"               # "adaptive" (Fig. 2), "adaptive_diff" (Fig. 3: with the differentiation
+                                # unit) or "pi" (the modern baseline: curve tracking, PI + feed-forward)
+    planned_decel_mps2 = 0.6    # the braking curve's planned deceleration a_p [m/s²]
+
+The target stop point is a `[[desk]]` event's `target_stop_m`; `[track] balises` re-anchor the BCU's
+odometer.  Braking starts where a stop at a_p ends at the target (at once, and harder, when it is nearer).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING, Annotated, Literal
+
+from pydantic import Field
+
+from firmware_py.stopping import StoppingParams
+from hil.scenario.base import Strict
+from hil.scenario.params import step_decel_mps2
+
+if TYPE_CHECKING:
+    from hil.scenario.model import ScenarioBase as Scenario
+
+
+class PreciseStopSpec(Strict):
+    """[precise_stop] of a scenario file."""
+
+    method: Literal["adaptive", "adaptive_diff", "pi"] = Field(
+        "pi", description="the paper's adaptive search without (adaptive, Fig. 2) or with the "
+                          "differentiation unit (adaptive_diff, Fig. 3), or the modern baseline pi (curve "
+                          "tracking, PI + feed-forward)")
+    planned_decel_mps2: Annotated[float, Field(
+        gt=0, le=5, description="the braking curve's planned deceleration a_p [m/s²]")] = 0.6
+
+
+def check(scenario: Scenario) -> None:
+    ps = scenario.precise_stop
+    if not any(e.target_stop_m is not None for e in scenario.desk):
+        raise ValueError(f"precise_stop (method '{ps.method}') needs a [[desk]] event with target_stop_m "
+                         f"(the target stop point, track position [m])")
+    full = step_decel_mps2(scenario)[7]
+    if ps.planned_decel_mps2 > full:
+        raise ValueError(f"precise_stop.planned_decel_mps2 {ps.planned_decel_mps2} is above the full service "
+                         f"deceleration {full} m/s² (bcu.step_decel_mps2 step 7)")
+
+
+def _method(value):
+    """railhil 0.1's "none" meant the function was not fitted: no section."""
+    from hil.scenario.load import DROP
+
+    return DROP if value == "none" else value
+
+
+#: railhil 0.1's keys of this study (hil.scenario.load reads them for one release)
+LEGACY_KEYS = {
+    "bcu.stopping": ("precise_stop.method", _method),
+    "bcu.stop_decel_mps2": "precise_stop.planned_decel_mps2",
+}
+
+
+def bcu_params(scenario: Scenario, kw: dict) -> None:
+    """The stopping function of the BCU (hil.scenario.params.bcu_params): the odometer's reference point is
+    the train's front passing the start position at t = 0."""
+    full = step_decel_mps2(scenario)[7]
+    ps = scenario.precise_stop
+    kw["stopping"] = StoppingParams(
+        method=ps.method, planned_decel_mps2=ps.planned_decel_mps2, max_decel_mps2=full, hold_decel_mps2=full,
+        start_position_m=scenario.train.start_position_m, start_time_us=0,
+        pi=dataclasses.replace(StoppingParams().pi, out_max=full), balises=bool(scenario.track.balises))
