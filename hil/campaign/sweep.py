@@ -67,6 +67,7 @@ from pathlib import Path
 import numpy as np
 
 from hil.errors import ScenarioError
+from hil.resources import campaigns_dir
 from hil.scenario import Scenario, apply_set, load_scenario, parse_scenario
 
 __all__ = ["Campaign", "CampaignError", "CampaignResult", "Point", "PointResult", "check_positive", "draw",
@@ -141,12 +142,18 @@ def _check_distribution(where: str, spec: object) -> tuple[str, list]:
 
 
 def load_campaign(path: str | Path) -> Campaign:
-    """Read and check a campaign file (module docstring); every error names the file and the key."""
+    """Read and check a campaign file (module docstring); every error names the file and the key.  A
+    name without a folder that is no file here is a shipped campaign (`mass_sweep`: campaigns/)."""
     path = Path(path)
+    if not path.exists() and "/" not in str(path):
+        shipped = campaigns_dir() / (path.name if path.suffix == ".toml" else f"{path.name}.toml")
+        path = shipped if shipped.is_file() else path
     try:
         data = tomllib.loads(path.read_text())
     except FileNotFoundError:
-        raise CampaignError(f"{path}: no such campaign file") from None
+        names = ", ".join(sorted(p.stem for p in campaigns_dir().glob("*.toml")))
+        raise CampaignError(f"{path}: no such campaign file, and no shipped campaign of that name "
+                            f"(shipped: {names})") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise CampaignError(f"{path}: cannot read: {exc}") from None
     except tomllib.TOMLDecodeError as exc:

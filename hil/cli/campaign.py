@@ -30,7 +30,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                     "pyarrow is installed), plot_<key>.png and report.html. Exit 0 when every point ran, "
                     "1 when some failed, 2 for bad input, 130 when interrupted.",
     )
-    p.add_argument("campaign", type=Path, help="campaign TOML file, e.g. campaigns/mass_sweep.toml")
+    p.add_argument("campaign", type=Path, help="campaign TOML file (e.g. campaigns/mass_sweep.toml) or a "
+                                               "shipped campaign's name (mass_sweep)")
     where = p.add_mutually_exclusive_group()
     where.add_argument("-j", "--jobs", type=int, default=1, metavar="N",
                        help="local worker processes running points in parallel (default 1: in this "

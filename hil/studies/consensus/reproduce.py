@@ -16,19 +16,9 @@ at once) in the can setting over its first CASE3_SWEEP_S.  Latency sweep: the pa
 extra delay on every BECUn_CONS frame (`[messages.BECUn_CONS] delay_min_us = delay_max_us`,
 hil/runtime/release.py).
 
-Figures per run (like Figs. 3-17 of seed 003): speeds, coupler displacements, tracking errors and the
-observer's estimate for car 2 against the plant's φ₂/m₂.  Definitions used in the tables:
-
-The per-run figures (hil/studies/consensus/kpis.py, the same for a `railhil run`):
-
-- max |Δl|: largest coupler deformation over every 1 ms plant step [mm]; holds: ≤ θ₂ = 10 mm.
-- convergence time: from t0 (case 1) or from the end of skidding (case 2), the time after which every
-  car's |v_i − v*| stays within a tolerance (TOLS_MPS: 1 km/h and 0.1 km/h) until the next event or
-  the end [s].
-- tracking RMS: RMS of v_i − v* over all cars from RMS_FROM (case 1: 1 s; case 2: recovery + 1 s; case
-  3: the disturbance window from 6 s) [m/s].
-- observer convergence: first time after t0 from which |φ̂₂ − φ₂/m₂| ≤ OBS_TOL for 100 ms (BECU2's DIAG
-  frame against the plant's truth) [ms].
+Figures per run (like Figs. 3-17 of seed 003, plots.py): speeds, coupler displacements, tracking errors and
+the observer's estimate for car 2 against the plant's φ₂/m₂.  The tables' definitions (max |Δl|,
+convergence time, tracking RMS, observer convergence) are kpis.py's, the same for a `railhil run`.
 """
 
 from __future__ import annotations
@@ -36,14 +26,13 @@ from __future__ import annotations
 import argparse
 import copy
 import json
-import sys
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import can
 import numpy as np
 
+from hil.campaign.jobs import map_jobs
 from hil.errors import RailhilError, ScenarioError
 from hil.resources import scenarios_dir
 from hil.studies.consensus.kpis import consensus_figures
@@ -159,22 +148,7 @@ def run_job(job: Job) -> dict:
 
 
 def _run_all(jobs: list[Job], workers: int, progress: bool) -> list[dict]:
-    from tqdm import tqdm
-    bar = tqdm(total=len(jobs), desc="consensus runs", unit="run", disable=not progress, file=sys.stderr)
-    results: list[dict] = []
-    try:
-        if workers <= 1:
-            for j in jobs:
-                results.append(run_job(j))
-                bar.update()
-        else:
-            with ProcessPoolExecutor(max_workers=workers) as pool:
-                for res in pool.map(run_job, jobs, chunksize=1):
-                    results.append(res)
-                    bar.update()
-    finally:
-        bar.close()
-    return results
+    return map_jobs(run_job, jobs, workers, "consensus runs", progress)
 
 
 def build_jobs(cycles: list[int], latencies: list[float], sweep_horizon_s: float,

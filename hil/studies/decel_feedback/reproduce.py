@@ -14,11 +14,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+from hil.campaign.jobs import add_run_options, checked_out, map_jobs
 from hil.errors import RailhilError
 from hil.resources import scenarios_dir
 from hil.studies.decel_feedback.plots import compare_runs
@@ -71,27 +70,14 @@ def table(rows: list[dict]) -> list[str]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--jobs", type=int, default=2, help="worker processes (default 2; 1 = in this process)")
-    p.add_argument("--out", type=Path, default=Path("runs") / "decel-feedback",
-                   help="folder for the two run folders, fig19_20.png and results.json "
-                        "(default runs/decel-feedback)")
+    add_run_options(p, "decel-feedback", "the two run folders, fig19_20.png and results.json")
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.jobs < 1:
-        raise DecelFeedbackError(f"--jobs {args.jobs}: expected a number of worker processes >= 1")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise DecelFeedbackError(f"--out {out}: exists and is not a folder; expected a folder for the runs")
-    out.mkdir(parents=True, exist_ok=True)
+    out = checked_out(args, DecelFeedbackError)
     t0 = time.perf_counter()
     todo = [(False, str(out / "open-loop")), (True, str(out / "closed-loop"))]
-    print(f"2 lockstep runs of scenarios/{SCENARIO}.toml ...", file=sys.stderr)
-    if args.jobs <= 1:
-        rows = [run_one(job) for job in todo]
-    else:
-        with ProcessPoolExecutor(max_workers=min(args.jobs, 2)) as pool:
-            rows = list(pool.map(run_one, todo))
+    rows = map_jobs(run_one, todo, min(args.jobs, 2), "decel-feedback runs", not args.quiet)
     for line in table(rows):
         print(line)
     fig = compare_runs(Path(todo[0][1]), Path(todo[1][1]), out / "fig19_20.png")

@@ -28,9 +28,10 @@ def run_plots(run: RunView) -> list[Path]:
     sig = run.signals(STOP_SIGNALS)
     fig, (ax_v, ax_a) = plt.subplots(2, 1, figsize=(10, 8))
     ax_v.plot(to_go, cols["v_mps_1"] * 3.6, lw=1.0, label="train (plant truth)")
-    if sig["ref"][0].size:
-        ax_v.plot(sig["to_go"][1], sig["ref"][1] * 3.6, lw=0.8, ls="--", color="k",
-                  label="braking curve (BCU_STOP, at the BCU's odometer)")
+    if sig["ref"][0].size:                   # RefSpeed is 0 while the BCU is not following the curve
+        following = sig["ref"][1] > 0
+        ax_v.plot(sig["to_go"][1], np.where(following, sig["ref"][1] * 3.6, np.nan), lw=0.8, ls="--",
+                  color="k", label="braking curve (BCU_STOP, at the BCU's odometer)")
     for b in sc.track.balises:
         ax_v.axvline(target_m - b, color="tab:green", lw=0.6, ls=":")
     ax_v.set_xlim(max(float(np.max(to_go)), 1.0), min(float(np.min(to_go)), 0.0) - 1.0)

@@ -15,13 +15,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
+from hil.campaign.jobs import add_run_options, checked_out, map_jobs
 from hil.errors import RailhilError
 from hil.resources import scenarios_dir
 from hil.studies.precise_stop.kpis import PAPER_STOP_ERROR_M
@@ -70,24 +69,8 @@ def run_one(args: tuple[str, int, float | None, str]) -> dict:
 
 def run_campaign(out: Path, methods, runs: int, distance_m: float | None, jobs: int = 2,
                  progress: bool = False) -> list[dict]:
-    from tqdm import tqdm
-
     todo = [(m, k, distance_m, str(out)) for m in methods for k in range(runs)]
-    bar = tqdm(total=len(todo), desc="precise-stop runs", unit="run", disable=not progress, file=sys.stderr)
-    results = []
-    try:
-        if jobs <= 1:
-            for job in todo:
-                results.append(run_one(job))
-                bar.update()
-        else:
-            with ProcessPoolExecutor(jobs) as pool:
-                for r in pool.map(run_one, todo):
-                    results.append(r)
-                    bar.update()
-    finally:
-        bar.close()
-    return results
+    return map_jobs(run_one, todo, jobs, "precise-stop runs", progress)
 
 
 def table(results: list[dict]) -> dict[str, dict[str, float]]:
@@ -126,23 +109,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="every stop point this far ahead [m] (default: seeded, uniform in 400-1500 m)")
     p.add_argument("--method", dest="methods", action="append", choices=METHODS + (NO_BALISES,),
                    help="a method to run (repeatable; default: all four)")
-    p.add_argument("--jobs", type=int, default=2, help="worker processes (default 2; 1 = in this process)")
-    p.add_argument("--out", type=Path, default=Path("runs") / "precise-stop",
-                   help="folder for the run folders and results.json (default runs/precise-stop)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_run_options(p, "precise-stop", "the run folders and results.json")
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.jobs < 1:
-        raise PreciseStopError(f"--jobs {args.jobs}: expected a number of worker processes >= 1")
     if args.runs < 1:
         raise PreciseStopError(f"--runs {args.runs}: expected at least 1 run per method")
     if args.distance is not None and not 50.0 <= args.distance <= 20_000.0:
         raise PreciseStopError(f"--distance {args.distance}: expected a stop point 50-20000 m ahead")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise PreciseStopError(f"--out {out}: exists and is not a folder; expected a folder for the runs")
-    out.mkdir(parents=True, exist_ok=True)
+    out = checked_out(args, PreciseStopError)
     t0 = time.perf_counter()
     methods = tuple(args.methods or METHODS + (NO_BALISES,))
     results = run_campaign(out, methods, args.runs, args.distance, args.jobs, progress=not args.quiet)

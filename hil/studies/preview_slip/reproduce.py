@@ -21,15 +21,14 @@ import argparse
 import functools
 import json
 import math
-import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from firmware_py.preview import RefParams, delta_star, reference
+from hil.campaign.jobs import map_jobs
 from hil.errors import RailhilError
 from hil.resources import scenarios_dir
 from hil.studies.preview_slip.kpis import achieved_alpha, tracking_norm
@@ -148,27 +147,10 @@ def _run_full_one(args: tuple[str, tuple[str, ...]]) -> dict:
 def reproduce_full(jobs: int, sets: tuple[str, ...] = (), progress: bool = True) -> dict:
     """Full mode: Lf, Bd and Dp on the wheelset plant (FULL_SCENARIO with `sets`), on `jobs` processes, and
     paper mode for the same cars at the α the slip loops achieved (their mean over cars and methods)."""
-    from tqdm import tqdm
-
     from hil.scenario import load_scenario
     scenario = load_scenario(FULL_SCENARIO, sets=list(sets))
     todo = [(m, tuple(sets)) for m in FULL_METHODS]
-    bar = tqdm(total=len(todo), desc="preview-slip full-mode runs", unit="run", disable=not progress,
-               file=sys.stderr)
-    try:
-        if jobs <= 1:
-            runs = []
-            for t in todo:
-                runs.append(_run_full_one(t))
-                bar.update()
-        else:
-            with ProcessPoolExecutor(max_workers=jobs) as pool:
-                runs = []
-                for r in pool.map(_run_full_one, todo):
-                    runs.append(r)
-                    bar.update()
-    finally:
-        bar.close()
+    runs = map_jobs(_run_full_one, todo, jobs, "preview-slip full-mode runs", progress)
     full = {r["method"]: r for r in runs}
     alphas = [a for r in runs for a in r["achieved_alpha"] if math.isfinite(a)]
     alpha = round(float(np.mean(alphas)), 2) if alphas else scenario.preview.alpha_per_s
@@ -251,26 +233,11 @@ def _run_one(args: tuple[Case, bool]) -> tuple[Case, dict]:
 
 def run_all(parts: dict[str, list[Case]], jobs: int, progress: bool = True) -> dict[Case, dict]:
     """Every distinct case once, on `jobs` processes (1: in this process), with a tqdm bar."""
-    from tqdm import tqdm
     todo = list(dict.fromkeys(c for cs in parts.values() for c in cs))
     with_truth = set(parts["table1"])
     # the longest runs first (v(0) = 50, small alpha), so that the pool does not end on one long run
     todo.sort(key=lambda c: (-c.v0, c.alpha))
-    bar = tqdm(total=len(todo), desc="preview-slip runs", unit="run", disable=not progress, file=sys.stderr)
-    results: dict[Case, dict] = {}
-    try:
-        if jobs <= 1:
-            for c in todo:
-                results[c] = run_case(c, with_truth=c in with_truth)
-                bar.update()
-        else:
-            with ProcessPoolExecutor(max_workers=jobs) as pool:
-                for c, res in pool.map(_run_one, [(c, c in with_truth) for c in todo], chunksize=1):
-                    results[c] = res
-                    bar.update()
-    finally:
-        bar.close()
-    return results
+    return dict(map_jobs(_run_one, [(c, c in with_truth) for c in todo], jobs, "preview-slip runs", progress))
 
 
 def _s(results: dict[Case, dict], c: Case) -> float:

@@ -16,11 +16,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+from hil.campaign.jobs import add_run_options, checked_out, map_jobs
 from hil.errors import RailhilError
 from hil.resources import scenarios_dir
 from hil.studies.wheel_slip.kpis import (
@@ -50,26 +49,9 @@ def run_one(job: tuple[str, bool, str]) -> dict:
 
 
 def reproduce(out: Path, jobs: int, progress: bool = True) -> list[dict]:
-    from tqdm import tqdm
-
     todo = [(fig, gov, str(out / f"{fig}-governor-{'on' if gov else 'off'}"))
             for fig in FIGURES for gov in (False, True)]
-    bar = tqdm(total=len(todo), desc="wheel-slip runs", unit="run", disable=not progress, file=sys.stderr)
-    try:
-        if jobs <= 1:
-            rows = []
-            for job in todo:
-                rows.append(run_one(job))
-                bar.update()
-        else:
-            with ProcessPoolExecutor(max_workers=jobs) as pool:
-                rows = []
-                for row in pool.map(run_one, todo):
-                    rows.append(row)
-                    bar.update()
-    finally:
-        bar.close()
-    return rows
+    return map_jobs(run_one, todo, jobs, "wheel-slip runs", progress)
 
 
 def _g(x) -> str:
@@ -108,19 +90,11 @@ def table(rows: list[dict]) -> list[str]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--jobs", type=int, default=2, help="worker processes (default 2; 1 = in this process)")
-    p.add_argument("--out", type=Path, default=Path("runs") / "wheel-slip",
-                   help="folder for the four run folders and results.json (default runs/wheel-slip)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_run_options(p, "wheel-slip", "the four run folders and results.json")
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.jobs < 1:
-        raise WheelSlipError(f"--jobs {args.jobs}: expected a number of worker processes >= 1")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise WheelSlipError(f"--out {out}: exists and is not a folder; expected a folder for the runs")
-    out.mkdir(parents=True, exist_ok=True)
+    out = checked_out(args, WheelSlipError)
     t0 = time.perf_counter()
     rows = reproduce(out, args.jobs, progress=not args.quiet)
     for line in table(rows):
