@@ -100,8 +100,15 @@ def test_keys_of_release_0_1_still_load_with_a_notice(tmp_path):
                    .replace("margin = 0.005", "")
                    .replace("slip_max_mps = 0.1              # s̄ of eq. (8)", "")
                    .replace("[becu]", "[becu]\ngovernor = true\nslip_max_mps = 0.1\ngovernor_margin = 0.005"))
-    with pytest.warns(RailhilDeprecation, match="'becu.governor' is now 'wheel_slip.governor'"):
+    with pytest.warns(RailhilDeprecation) as notices:
         sc = load_scenario(old)
+    said = " ".join(str(w.message) for w in notices)
+    for old_key, new_key in (("becu.governor", "wheel_slip.governor"),
+                             ("becu.slip_max_mps", "wheel_slip.slip_max_mps"),
+                             ("becu.governor_margin", "wheel_slip.margin"),
+                             ("report.paper_figure", "wheel_slip.paper_figure"),
+                             ("report.steady_state_window_s", "wheel_slip.steady_state_window_s")):
+        assert f"'{old_key}' is now '{new_key}'" in said
     assert sc.wheel_slip == load_scenario(RG).wheel_slip
     with pytest.warns(RailhilDeprecation, match="--set bcu.decel_feedback is now --set decel_feedback"):
         fb = load_scenario(ROOT / "scenarios" / "decel_feedback.toml", sets=["bcu.decel_feedback=false"])
@@ -110,9 +117,11 @@ def test_keys_of_release_0_1_still_load_with_a_notice(tmp_path):
     stop.write_text((ROOT / "scenarios" / "precise_stop.toml").read_text()
                     .replace("[precise_stop]", "[bcu]").replace("method =", "stopping =")
                     .replace("planned_decel_mps2", "stop_decel_mps2"))
-    with pytest.warns(RailhilDeprecation, match="'bcu.stopping' is now 'precise_stop.method'"):
-        shipped = load_scenario(ROOT / "scenarios" / "precise_stop.toml")
+    shipped = load_scenario(ROOT / "scenarios" / "precise_stop.toml")
+    with pytest.warns(RailhilDeprecation) as notices:
         assert load_scenario(stop).precise_stop == shipped.precise_stop
+    said = " ".join(str(w.message) for w in notices)
+    assert "'bcu.stopping' is now 'precise_stop.method'" in said and "'bcu.stop_decel_mps2'" in said
     unfitted = tmp_path / "unfitted.toml"                   # 0.1's "none": the function is not fitted
     unfitted.write_text(stop.read_text().replace('stopping = "pi"', 'stopping = "none"')
                         .replace("stop_decel_mps2 = 0.6", ""))

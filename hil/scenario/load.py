@@ -189,7 +189,7 @@ def parse_set(text: str) -> tuple[str, object]:
     key, raw = key.strip(), raw.strip()
     if not sep or not key or not raw:
         raise ScenarioError(f"--set {text!r}: expected KEY=VALUE with a dotted scenario key, "
-                            f"e.g. becu.governor=false")
+                            f"e.g. train.initial_speed_kmh=120")
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
     except tomllib.TOMLDecodeError:
