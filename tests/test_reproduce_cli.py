@@ -28,7 +28,8 @@ def test_reproduce_decel_feedback_compares_the_loops(tmp_path, capsys):
     assert main(["reproduce", "decel-feedback", "--out", str(tmp_path), "-q"]) == 0
     out = capsys.readouterr().out
     assert "open loop" in out and "closed loop" in out and "1.32" in out
-    rows = {r["closed_loop"]: r["decel_feedback"] for r in json.loads((tmp_path / "results.json").read_text())}
+    results = json.loads((tmp_path / "results.json").read_text())
+    rows = {r["closed_loop"]: r["decel_feedback"] for r in results}
     assert rows[True]["within_band_after_engagement"] > rows[False]["within_band_after_engagement"]
     assert (tmp_path / "fig19_20.png").stat().st_size > 10_000
 
