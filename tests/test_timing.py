@@ -327,6 +327,9 @@ def test_cli_on_a_lockstep_run_passes_when_unsent_frames_are_ignored(tmp_path, c
     # the optional functions' frames (ACD, radio, the studies') are out of scope unless --function names them
     assert main(args + ["--ignore", "*7_*", "--ignore", "*8_*", "--function", "anticollision"]) == 1
     capsys.readouterr()
+    old = {v: k for k, v in __import__("hil.cli.aliases", fromlist=["FUNCTIONS"]).FUNCTIONS.items()}
+    assert main(args + ["--ignore", "*7_*", "--ignore", "*8_*", "--function", old["anticollision"]]) == 1
+    assert f"notice: --function '{old['anticollision']}' is now 'anticollision'" in capsys.readouterr().err
     ignore = ["--ignore", "*7_*", "--ignore", "*8_*"]
     assert main(args + ignore + ["--format", "json"]) == 0
     report = json.loads(capsys.readouterr().out)

@@ -109,7 +109,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--function", action="append", default=[], metavar="NAME",
                    help="also check the frames of this optional function of the DBC (its messages' "
                         "RailhilFunction attribute, e.g. consensus; 'all' for every frame); by "
-                        "default only the train's base frames are in scope; repeatable")
+                        "default only the train's base frames are in scope; repeatable (railhil 0.1's "
+                        "function names still work, until 0.3)")
     p.add_argument("--jitter", action="append", default=[], metavar="NAME=US",
                    help="queuing jitter of one message for --rta, in µs (default: from the sender's "
                         "CANoeJitterMin/Max node attributes, in %% of the cycle time, else 0); repeatable")
