@@ -23,12 +23,12 @@ run: $(STAMP)
 ## their node processes do not compete with other tests for the CPUs
 TEST_JOBS ?= auto
 test: $(STAMP)
-	$(PY) -m pytest -q -n $(TEST_JOBS) -m "not slow and not realtime"
+	$(PY) -m pytest -q -rs -n $(TEST_JOBS) -m "not slow and not realtime"
 	$(PY) -m pytest -q -rs -m "realtime and not slow"
 
 ## make test-slow: the long suites too
 test-slow: $(STAMP)
-	$(PY) -m pytest -q -n $(TEST_JOBS) -m "not realtime"
+	$(PY) -m pytest -q -rs -n $(TEST_JOBS) -m "not realtime"
 	$(PY) -m pytest -q -rs -m realtime
 
 ## make fuzz: 10^6 fuzzed frames through decode + SecOC + E2E, twice: the protocol layers alone and the

@@ -18,6 +18,7 @@ import can
 import cantools
 import pytest
 from can.io.player import MESSAGE_READERS
+from cantools.database.namedsignalvalue import NamedSignalValue
 from conftest import assert_one_line_error, railhil
 
 from hil.runtime.run import run_scenario_lockstep
@@ -63,6 +64,12 @@ def jsonl(text: str) -> list[dict]:
 def cantools_values(db, msg: can.Message) -> dict[str, float]:
     return {k: float(v) for k, v in db.decode_message(msg.arbitration_id, bytes(msg.data),
                                                       decode_choices=False).items()}
+
+
+def cantools_names(db, msg: can.Message) -> dict[str, str]:
+    """The value-table names cantools gives the frame's values that are in their tables."""
+    return {k: str(v) for k, v in db.decode_message(msg.arbitration_id, bytes(msg.data)).items()
+            if isinstance(v, NamedSignalValue)}
 
 
 @pytest.fixture(scope="module")
@@ -138,8 +145,9 @@ def test_decode_candump_with_the_leaf_dbc_shows_every_frame_raw(capsys):
     (PYCAN_DATA / "issue_1256.asc", CANTOOLS_DBC / "socialledge.dbc"),
 ], ids=["candump+abs", "candump+prius", "issue_1256+socialledge"])
 def test_decode_equals_cantools(capsys, trace, dbc):
-    """Real traces against DBCs whose ids overlap theirs: every frame decodes as cantools decodes it,
-    or fails where cantools fails (shown raw with the reason, never raised)."""
+    """Real traces against DBCs whose ids overlap theirs: every frame decodes as cantools decodes it (its
+    numbers, and the names of the values in their tables), or fails where cantools fails (shown raw with
+    the reason, never raised)."""
     db = cantools.database.load_file(str(dbc))
     known = {(m.frame_id, m.is_extended_frame) for m in db.messages}
     frames = list(can.LogReader(trace))
@@ -155,6 +163,7 @@ def test_decode_equals_cantools(capsys, trace, dbc):
         elif "signals" in row:
             decoded += 1
             assert row["signals"] == cantools_values(db, msg)
+            assert row["choices"] == cantools_names(db, msg)
         else:
             failed += 1
             assert row["error"]
@@ -176,6 +185,9 @@ def test_decode_lockstep_trace_with_a_message_filter(capsys, lockstep_trace):
     for msg, row in zip(frames, rows, strict=True):
         assert row["name"] == "BCU_DEMAND" and row["id"] == f"0x{frame_id:03X}"
         assert row["signals"] == cantools_values(db, msg)
+        assert row["choices"] == cantools_names(db, msg) and row["choices"]["Mode"] in (
+            "RELEASED", "SERVICE", "EMERGENCY")
+        assert row["units"] == {"TargetDecel": "m/s^2"}
 
 
 def test_decode_table_and_signal_filter(capsys, lockstep_trace):
@@ -184,7 +196,8 @@ def test_decode_table_and_signal_filter(capsys, lockstep_trace):
     assert code == 0, err
     lines = out.splitlines()
     assert lines[0].split() == ["t_s", "id", "name", "signals"]
-    assert lines[1:] and all(line.split()[3].startswith("AxleSpeed=") and len(line.split()) == 4
+    # AxleSpeed is in rad/s: its number, then its unit
+    assert lines[1:] and all(line.split()[3].startswith("AxleSpeed=") and line.split()[4:] == ["rad/s"]
                              for line in lines[1:])
 
 
@@ -195,7 +208,7 @@ def test_decode_start_end_and_id_filters(capsys, lockstep_trace):
                              "--id", "40", "--start", "0.5", "--end", "1.0", "--format", "csv")
     assert code == 0, err
     rows = list(csv.DictReader(io.StringIO(out)))
-    assert rows and set(rows[0]) == {"t", "id", "name", "signal", "value", "error"}
+    assert rows and list(rows[0]) == ["t", "id", "name", "signal", "value", "error", "unit", "choice"]
     assert {r["id"] for r in rows} == {"0x101", "0x028"}
     assert all(0.5 <= float(r["t"]) <= 1.0 for r in rows)
     assert len({(r["t"], r["id"]) for r in rows}) == len(frames)

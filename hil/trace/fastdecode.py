@@ -14,10 +14,14 @@ corpus traces and DBCs, on traces of generated DBCs and on generated candump tex
   them (``int.from_bytes(data[:length], 'little' | 'big')``), for every frame at once.
 * The text of a signal's value is made once per distinct raw value and kept: the value is computed
   by ``FrameCodec.decode`` itself, on a payload that holds that raw value (the value of a signal of
-  such a message depends on its bits only), and formatted with the very expression of the per-frame
-  path (``f"{name}={value:.10g}"``, ``repr(value)``...), with the constant text around it (id, name,
-  separators).  Counters, states and quantised sensors take few distinct values, so most frames
-  cost an array lookup.
+  such a message depends on its bits only), its value-table name by ``choice_names`` (cantools'
+  ``decode_choices=True``) on the same payload, and both are formatted with the very expression of
+  the per-frame path (``f"{name}={value:.10g}"``, ``repr(value)``, ``table_word``...), with the
+  constant text around it (id, name, unit, separators).  Counters, states and quantised sensors take
+  few distinct values, so most frames cost an array lookup.  In jsonl a signal with a value table
+  has a second text, its ``"name": "choice"`` item of the ``choices`` object, empty when its value is
+  not in the table; the comma before an item depends on the items before it in the frame, so each
+  item is kept with and without one and the right one taken for every frame at once.
 * The timestamp is formatted as the per-frame path does (``f"{t:17.6f}"``, ``f"{t:.6f}"``,
   ``json.dumps(t)``), or, for candump text, taken from the trace's text where that is provably the
   same (``FrameBlock.stamps``).  A frame's line is then its pieces joined: the timestamp and the
@@ -41,12 +45,13 @@ from operator import itemgetter
 import can
 import numpy as np
 from cantools.database.can import Signal
+from cantools.database.namedsignalvalue import NamedSignalValue
 
 from hil.can.codec import Codec, FrameCodec
 from hil.trace.columns import FrameBlock
 from hil.trace.readers import id_text
 
-__all__ = ["FORMATS", "BlockDecoder"]
+__all__ = ["FORMATS", "BlockDecoder", "choice_names", "table_word"]
 
 FORMATS = ("table", "csv", "jsonl")
 SMALL_BITS = 16  # signals of up to this many bits keep their texts in an array indexed by raw value
@@ -60,25 +65,90 @@ def _csv_field(text: str) -> str:
     return buffer.getvalue()[:-2]
 
 
-# The text of a decoded signal value, as the per-frame path writes it (hil.cli.trace.decode.row_texts),
-# with what comes before (`before`) and after it (`end`) in the line
+# --- value-table names and units, shared with the per-frame path (hil.cli.trace.decode) --------------
+
+_NOT_PLAIN = frozenset(' "=\\')
 
 
-def _table_text(before: str, name: str, end: str) -> Callable[[float], str]:
-    return lambda value: f"{before}{name}={value:.10g}{end}"
+def table_word(text: str, choice: bool = False) -> str:
+    """A value-table name (`choice`) or a unit as the table format writes it: as it is when it is one
+    plain word, else as a JSON string (``"Signal error"``).  Not plain: empty, with a space, ``=``,
+    ``"``, ``\\`` or a character that does not print, and, for a name, a word that ``float()`` reads as a
+    number (``"1"``, ``"inf"``), so that a name never passes for a number nor a unit for a signal."""
+    if text and text.isprintable() and _NOT_PLAIN.isdisjoint(text):
+        if not choice:
+            return text
+        try:
+            float(text)
+        except ValueError:
+            return text
+    return json.dumps(text, ensure_ascii=False)
 
 
-def _csv_text(before: str) -> Callable[[float], str]:
-    return lambda value: f"{before}{value!r},\n"
+def choice_names(fc: FrameCodec, data: bytes) -> dict[str, str]:
+    """The value-table name of each signal of a frame whose raw value is in the signal's table, as
+    cantools decodes it (``Message.decode(decode_choices=True)`` gives a NamedSignalValue there, the
+    number elsewhere), in cantools' order; {} for a message without value tables.  `data` is a payload
+    that ``fc.decode`` decodes (at least the message's bytes; beyond them is ignored, as the codec
+    does)."""
+    message = fc.message
+    if not any(s.choices for s in message.signals):
+        return {}
+    data = bytes(data[: fc.length])
+    try:
+        values = message.decode(data, decode_choices=True)
+    except (ValueError, OverflowError):
+        # cantools looks the name up as choices.get(int(raw)): int() raises on the NaN or infinite raw
+        # value of an IEEE float signal with a value table, which has no name then
+        raw = message.decode(data, decode_choices=False, scaling=False)
+        return {s.name: str(s.choices[int(raw[s.name])]) for s in message.signals
+                if s.choices and s.name in raw and math.isfinite(raw[s.name])
+                and int(raw[s.name]) in s.choices}
+    return {name: str(v) for name, v in values.items() if isinstance(v, NamedSignalValue | str)}
 
 
-def _json_text(before: str, name: str, end: str) -> Callable[[float], str]:
+# The texts of a decoded signal value (the number, and its value-table name or None), as the
+# per-frame path writes them (hil.cli.trace.decode.row_texts), with what comes before (`before`) and
+# after them (`end`) in the line
+
+
+def _table_text(before: str, name: str, unit: str, end: str) -> Callable[[float, str | None], tuple[str]]:
+    after = f" {table_word(unit)}{end}" if unit else end
+
+    def text(value: float, choice: str | None) -> tuple[str]:
+        if choice is not None:
+            return (f"{before}{name}={table_word(choice, True)}{end}",)
+        return (f"{before}{name}={value:.10g}{after}",)
+
+    return text
+
+
+def _csv_text(before: str, unit: str) -> Callable[[float, str | None], tuple[str]]:
+    unit_field = _csv_field(unit)
+
+    def text(value: float, choice: str | None) -> tuple[str]:
+        return (f"{before}{value!r},,{unit_field},{_csv_field(choice or '')}\n",)
+
+    return text
+
+
+def _json_text(before: str, name: str, end: str, with_table: bool
+               ) -> Callable[[float, str | None], tuple[str, ...]]:
+    """The signal's item of the ``signals`` object; for a signal with a value table (and names shown)
+    also its item of the ``choices`` object without and with the ", " before it ("" and "" when the
+    value is not in the table)."""
     key = json.dumps(name)
 
-    def text(value: float) -> str:
+    def text(value: float, choice: str | None) -> tuple[str, ...]:
         # json.dumps writes a float with float.__repr__; a non-finite value is written as its repr, quoted
         number = f"{value!r}" if math.isfinite(value) else f'"{value!r}"'
-        return f"{before}{key}: {number}{end}"
+        item = f"{before}{key}: {number}{end}"
+        if not with_table:
+            return (item,)
+        if choice is None:
+            return item, "", ""
+        named = f"{key}: {json.dumps(choice)}"
+        return item, named, ", " + named
 
     return text
 
@@ -94,20 +164,24 @@ def _json_float(value: float) -> str:
 
 @dataclass
 class _SignalPlan:
-    """One signal of a message: where its raw bits are, and the text of each raw value seen so far."""
+    """One signal of a message: where its raw bits are, and the texts of each raw value seen so far
+    (``fields`` of them: the signal's text, and in jsonl for a signal with a value table its two
+    ``choices`` items)."""
 
     name: str
     big_endian: bool
     shift: int  # of the LSB in int.from_bytes(data[:message length], 'big' if big_endian else 'little')
     length: int  # bits
-    text: Callable[[float], str]  # the per-frame path's text of a decoded value
+    text: Callable[[float, str | None], tuple[str, ...]]  # the per-frame path's texts of a decoded value
+    with_table: bool  # the signal has a value table and names are shown: its name is looked up
+    fields: int = 1
 
     def __post_init__(self) -> None:
         self.mask = (1 << self.length) - 1
         if self.length <= SMALL_BITS:
             self.known = np.zeros(1 << self.length, dtype=bool)
-            self.table = np.empty(1 << self.length, dtype=object)
-        self.cache: dict[int, str] = {}
+            self.tables = [np.empty(1 << self.length, dtype=object) for _ in range(self.fields)]
+        self.cache: dict[int, tuple[str, ...]] = {}
 
     def window(self, message_length: int) -> tuple[int, int] | None:
         """The bytes [first, last + 1) of the payload that hold the signal, or None if more than 8."""
@@ -117,6 +191,23 @@ class _SignalPlan:
         if self.big_endian:  # byte k of the big-endian integer, counted from its end, is data[m - 1 - k]
             return message_length - 1 - high, message_length - low
         return low, high + 1
+
+    def lookup(self, bits: np.ndarray) -> list[np.ndarray]:
+        """The texts (one object array per field) of raw values already learnt."""
+        if self.length <= SMALL_BITS:
+            return [table[bits] for table in self.tables]
+        values = np.unique(bits)  # sorted
+        where = np.searchsorted(values, bits)
+        known = list(map(self.cache.__getitem__, values.tolist()))
+        return [np.array([k[f] for k in known], dtype=object)[where] for f in range(self.fields)]
+
+    def learn(self, values: list[int], texts: list[tuple[str, ...]]) -> None:
+        if self.length <= SMALL_BITS:
+            for f, table in enumerate(self.tables):
+                table[values] = [t[f] for t in texts]
+            self.known[values] = True
+        else:
+            self.cache.update(zip(values, texts, strict=True))
 
 
 def _shift(signal: Signal, message_length: int) -> int:
@@ -133,42 +224,59 @@ class _MessagePlan:
 
     A decoded frame is written as pieces: its timestamp (BlockDecoder._times), then the text of each
     signal, the first one with what comes between (id, name), each with what follows it (a
-    separator, the end of the line); in csv each signal's row starts with the timestamp.  ``empty``
-    is what follows the timestamp when no signal is written (None in csv: then nothing is written).
+    separator, unit and choice columns in csv, the end of the line); in csv each signal's row starts
+    with the timestamp.  In jsonl, when signals with value tables are written, the last signal's text
+    ends with ``}, "choices": {``, then come their ``choices`` items (``named``), then ``tail`` (the
+    ``units`` object and the end of the line).  ``empty`` is what follows the timestamp when no
+    signal is written (None in csv: then nothing is written).  `raw` (``--raw``): no value-table
+    names.
     """
 
-    def __init__(self, fc: FrameCodec, fmt: str, width: int, signals: set[str] | None) -> None:
+    def __init__(self, fc: FrameCodec, fmt: str, width: int, signals: set[str] | None, raw: bool) -> None:
         self.fc = fc
         self.length = fc.length
         wanted = [s for s in fc.message.signals if signals is None or s.name in signals]
         ident = id_text(fc.frame_id, fc.is_extended_id)
         n = len(wanted)
-        texts: list[Callable[[float], str]] = []
+        with_table = [not raw and bool(s.choices) for s in wanted]
+        self.named = [k for k, t in enumerate(with_table) if t] if fmt == "jsonl" else []
+        texts: list[Callable[[float, str | None], tuple[str, ...]]] = []
         self.empty: str | None
+        self.tail = ""
         if fmt == "table":
             lead = f"  {ident:<10}  {fc.name:<{width}}  "
             self.empty = lead + "\n"
             for k, s in enumerate(wanted):
-                texts.append(_table_text(lead if k == 0 else "", s.name, " " if k < n - 1 else "\n"))
+                texts.append(_table_text(lead if k == 0 else "", s.name, s.unit or "",
+                                         " " if k < n - 1 else "\n"))
         elif fmt == "csv":
             self.empty = None
             for s in wanted:
-                texts.append(_csv_text(f",{_csv_field(ident)},{_csv_field(fc.name)},{_csv_field(s.name)},"))
+                texts.append(_csv_text(f",{_csv_field(ident)},{_csv_field(fc.name)},{_csv_field(s.name)},",
+                                       s.unit or ""))
         else:
             lead = f', "id": {json.dumps(ident)}, "name": {json.dumps(fc.name)}, "signals": {{'
-            self.empty = lead + "}}\n"
+            units = f'"units": {json.dumps({s.name: s.unit for s in wanted if s.unit})}}}\n'
+            self.tail = "}, " + units  # after the choices items
+            close = "}, " + ("" if raw else '"choices": {}, ') + units  # after signals with no items
+            end = '}, "choices": {' if self.named else close
+            self.empty = lead + close
             for k, s in enumerate(wanted):
-                texts.append(_json_text(lead if k == 0 else "", s.name, ", " if k < n - 1 else "}}\n"))
+                texts.append(_json_text(lead if k == 0 else "", s.name, ", " if k < n - 1 else end,
+                                        with_table[k]))
         self.signals = [_SignalPlan(s.name, s.byte_order == "big_endian", _shift(s, fc.length), s.length,
-                                    text) for s, text in zip(wanted, texts, strict=True)]
+                                    text, table, 3 if k in self.named else 1)
+                        for k, (s, text, table) in enumerate(zip(wanted, texts, with_table, strict=True))]
         self.windows = [p.window(fc.length) for p in self.signals]
         self.columnar = (fc.fallback_reason is None and all(s.length >= 1 for s in fc.message.signals)
                          and None not in self.windows)
-        self.pieces = 2 * n if fmt == "csv" else 1 + max(n, 1)  # per frame
+        # per frame
+        self.pieces = 2 * n if fmt == "csv" else 1 + max(n, 1) + (len(self.named) + 1 if self.named else 0)
 
     def texts(self, payload: np.ndarray) -> list[np.ndarray]:
-        """The text of each signal in each frame (object arrays, one per signal), for the frames whose
-        data bytes are the rows of `payload` (uint8, at least the message's length wide)."""
+        """The texts of each frame, piece by piece after the timestamp (object arrays: one per signal,
+        then in jsonl one per ``choices`` item), for the frames whose data bytes are the rows of
+        `payload` (uint8, at least the message's length wide)."""
         m = self.length
         rows = len(payload)
         words: dict[bool, np.ndarray] = {}
@@ -197,20 +305,20 @@ class _MessagePlan:
                     bits = (word >> (plan.shift - 8 * first)) & plan.mask
             all_bits.append(bits)
         self._learn(all_bits)
-        out = []
-        for plan, bits in zip(self.signals, all_bits, strict=True):
-            if plan.length <= SMALL_BITS:
-                out.append(plan.table[bits])
-            else:
-                values = np.unique(bits)  # sorted
-                cache = plan.cache
-                texts = np.array(list(map(cache.__getitem__, values.tolist())), dtype=object)
-                out.append(texts[np.searchsorted(values, bits)])
+        texts = [plan.lookup(bits) for plan, bits in zip(self.signals, all_bits, strict=True)]
+        out = [fields[0] for fields in texts]
+        if self.named:  # the choices items: ", " before each but the first one present in its frame
+            before = np.zeros(rows, dtype=bool)
+            for k in self.named:
+                _, item, with_comma = texts[k]
+                out.append(np.where(before, with_comma, item))
+                before |= item != ""
         return out
 
     def _learn(self, all_bits: list[np.ndarray]) -> None:
-        """Make the text of every raw value not seen before: decode payloads that carry them (the k-th
-        payload carries the k-th new value of each signal) with the codec, format the values."""
+        """Make the texts of every raw value not seen before: decode payloads that carry them (the k-th
+        payload carries the k-th new value of each signal) with the codec, and the value-table names
+        of those with ``choice_names``, format them."""
         new: list[list[int]] = []
         for plan, bits in zip(self.signals, all_bits, strict=True):
             if plan.length <= SMALL_BITS:
@@ -223,15 +331,19 @@ class _MessagePlan:
         count = max(map(len, new), default=0)
         if not count:
             return
-        decoded = list(map(self.fc.decode, self._payloads(new, count)))
+        payloads = self._payloads(new, count)
+        decoded = list(map(self.fc.decode, payloads))
+        named = max((len(values) for plan, values in zip(self.signals, new, strict=True) if plan.with_table),
+                    default=0)  # the payloads that carry a new value of a signal with a table
+        names = [choice_names(self.fc, p) for p in payloads[:named]]
         for plan, values in zip(self.signals, new, strict=True):
             if values:
-                texts = list(map(plan.text, map(itemgetter(plan.name), decoded[: len(values)])))
-                if plan.length <= SMALL_BITS:
-                    plan.table[values] = texts
-                    plan.known[values] = True
+                numbers = map(itemgetter(plan.name), decoded[: len(values)])
+                if plan.with_table:
+                    chosen = [n.get(plan.name) for n in names[: len(values)]]
                 else:
-                    plan.cache.update(zip(values, texts, strict=True))
+                    chosen = [None] * len(values)
+                plan.learn(values, list(map(plan.text, numbers, chosen)))
 
     def _payloads(self, new: list[list[int]], count: int) -> list[bytes]:
         """`count` payloads, the k-th with the k-th value of each signal's list (0 past its end)."""
@@ -264,14 +376,14 @@ class BlockDecoder:
 
     `ids` (--id), `names` (messages by --message and --signal), `signals` (--signal), `start` and
     `end` (--start/--end, trace time [s]) are the filters of the per-frame path, None when not given;
-    `width` is the table's name column width; `slow(message)` is the per-frame path's text of one
-    python-can Message (empty if its filters drop it), counting it in `counts` as it does.  ``text``
-    counts the frames it writes itself in `counts` (decoded, unknown).
+    `width` is the table's name column width; `raw` (--raw) leaves value-table names out; `slow(message)`
+    is the per-frame path's text of one python-can Message (empty if its filters drop it), counting it
+    in `counts` as it does.  ``text`` counts the frames it writes itself in `counts` (decoded, unknown).
     """
 
     def __init__(self, codec: Codec, fmt: str, *, width: int, ids: set[int] | None, names: set[str] | None,
                  signals: set[str] | None, start: float | None, end: float | None,
-                 slow: Callable[[can.Message], str], counts: dict[str, int]) -> None:
+                 slow: Callable[[can.Message], str], counts: dict[str, int], raw: bool = False) -> None:
         if fmt not in FORMATS:
             raise ValueError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
         self.codec = codec
@@ -284,6 +396,7 @@ class BlockDecoder:
         self.end = end
         self.slow = slow
         self.counts = counts
+        self.raw = raw
         self._plans: dict[int, _MessagePlan | None] = {}  # by key id * 2 + extended
 
     def _plan(self, key: int) -> _MessagePlan | None:
@@ -293,7 +406,8 @@ class BlockDecoder:
             fc = self.codec.get(key >> 1)
             if fc is not None and bool(fc.message.is_extended_frame) != bool(key & 1):
                 fc = None
-            self._plans[key] = None if fc is None else _MessagePlan(fc, self.fmt, self.width, self.signals)
+            self._plans[key] = None if fc is None else _MessagePlan(fc, self.fmt, self.width, self.signals,
+                                                                        self.raw)
         return self._plans[key]
 
     def _raw_ends(self, key: int) -> tuple[bytes, bytes]:
@@ -302,7 +416,7 @@ class BlockDecoder:
         if self.fmt == "table":
             return f"  {ident:<10}  {'?':<{self.width}}  data=".encode(), b"\n"
         if self.fmt == "csv":
-            return f",{_csv_field(ident)},,,".encode(), b",\n"
+            return f",{_csv_field(ident)},,,".encode(), b",,,\n"
         return f', "id": {json.dumps(ident)}, "name": null, "data": "'.encode(), b'"}\n'
 
     # --- a block ------------------------------------------------------------------------------------
@@ -426,6 +540,8 @@ class BlockDecoder:
             pieces[at] = times
             for k, column in enumerate(texts):
                 pieces[at + 1 + k] = column
+            if plan.named:
+                pieces[at + 1 + len(texts)] = plan.tail
 
     def _write_raw(self, key: int, block: FrameBlock, rows: np.ndarray, pieces: np.ndarray, at: np.ndarray,
                    times: np.ndarray) -> None:

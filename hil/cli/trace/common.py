@@ -71,7 +71,8 @@ def jsonable(value: float) -> float | str:
 
 
 class Output:
-    """stdout that stops quietly when the reader goes away (``railhil trace ... | head``)."""
+    """stdout that stops quietly when the reader goes away (``railhil trace ... | head``), and writes a
+    character its encoding lacks as a backslash escape."""
 
     def __init__(self) -> None:
         self.closed = False
@@ -82,6 +83,9 @@ class Output:
                 sys.stdout.write(text)
             except BrokenPipeError:
                 self.pipe_closed()
+            except UnicodeEncodeError:  # a DBC unit or name stdout's encoding lacks ('°' on ASCII): escaped
+                encoding = getattr(sys.stdout, "encoding", None) or "utf-8"
+                self.write(text.encode(encoding, "backslashreplace").decode(encoding))
 
     def flush(self) -> None:
         if not self.closed:

@@ -5,6 +5,13 @@ python-can Message), the reference; and the fast path that ``run`` takes, a bloc
 (``hil.trace.columns.BlockReader`` reads them, ``hil.trace.fastdecode.BlockDecoder`` decodes and writes
 them, and hands the frames it does not take -- remote, error, multiplexed, too short -- to the
 per-frame path, in their place).  tests/test_fastdecode.py holds the two to the same output.
+
+Values are shown as cantools shows them (``cantools decode``): a signal whose raw value is in its value
+table by the table's name (``Enable=Enabled``), every other one by its number and the DBC unit
+(``AverageRadius=1.8 m``); ``--raw`` shows every signal by its number (``Enable=1 -``), as
+``cantools decode --no-decode-choices``.  csv and jsonl carry the number, the unit and the name.  The
+names are cantools' own (``decode_choices=True``, ``hil.trace.fastdecode.choice_names``), the numbers
+``hil.can.codec``'s, which equal cantools' (tests/test_decode_choices.py).
 """
 
 from __future__ import annotations
@@ -34,22 +41,29 @@ from hil.cli.trace.common import (
     parse_id,
 )
 from hil.trace.columns import BLOCK_FRAMES, BlockReader
-from hil.trace.fastdecode import BlockDecoder
+from hil.trace.fastdecode import BlockDecoder, choice_names, table_word
 from hil.trace.readers import open_trace
 
 FORMAT_CHOICES = ("table", "csv", "jsonl")
+CSV_HEADER = "t,id,name,signal,value,error,unit,choice\n"
 
 
 def add_parser(tsub: argparse._SubParsersAction) -> None:
     d = tsub.add_parser(
         "decode",
         help="decode the frames of a trace with a DBC",
-        description="Decode each frame with the DBC. table: one line per frame, signals as name=value; "
-                    "csv: one row per (frame, signal) with columns t,id,name,signal,value,error; "
-                    "jsonl: one object per frame {t, id, name, signals}. Frames of ids the DBC does "
-                    "not know, remote and error frames are shown raw (hex data) unless a filter "
-                    "excludes them; a frame that does not decode is shown raw with the reason, "
-                    "counted, and decoding goes on. A summary goes to stderr.",
+        description="Decode each frame with the DBC, as cantools decode does: a signal whose value is in "
+                    "its value table (VAL_) by the table's name, any other by its number and its DBC "
+                    "unit. table: one line per frame, signals as name=value (Enable=Enabled "
+                    "AverageRadius=1.8 m; a name or unit that is not one plain word is written as a "
+                    "JSON string, \"Signal error\"); csv: one row per (frame, signal) with columns "
+                    "t,id,name,signal,value,error,unit,choice (choice: the value-table name, empty when "
+                    "none); jsonl: one object per frame {t, id, name, signals, choices, units} (signals: "
+                    "the numbers; choices: the names of the signals whose value is in their table; "
+                    "units: the units the DBC gives). --raw: numbers only, no names (units kept). "
+                    "Frames of ids the DBC does not know, remote and error frames are shown raw (hex "
+                    "data) unless a filter excludes them; a frame that does not decode is shown raw "
+                    "with the reason, counted, and decoding goes on. A summary goes to stderr.",
     )
     d.add_argument("trace", help="trace file, or '-' for candump -L text on stdin")
     d.add_argument("--dbc", type=Path, required=True, help="DBC file")
@@ -64,6 +78,10 @@ def add_parser(tsub: argparse._SubParsersAction) -> None:
     d.add_argument("--end", type=float, default=None, metavar="S",
                    help="only frames with timestamp <= S (the trace's own time, seconds)")
     d.add_argument("--format", choices=FORMAT_CHOICES, default="table", help="output format (default table)")
+    d.add_argument("--raw", action="store_true",
+                   help="value-table signals as their numbers, not their names (as cantools decode "
+                        "--no-decode-choices; the scaled values, not the raw bits): no choice in csv, no "
+                        "choices in jsonl; units are still shown")
     d.set_defaults(func=run)
 
 
@@ -110,10 +128,12 @@ class Row:
     kind: str = "data"
     error: str | None = None
     dlc: int = 0
+    choices: dict[str, str] | None = None  # the names of the values in their value tables; None: --raw
+    units: dict[str, str] | None = None  # the units of the signals the DBC gives one
 
 
 def decoded_rows(frames: Iterable[can.Message], codec: Codec, sel: Selection, start: float | None,
-                 end: float | None, counts: dict[str, int]) -> Iterator[Row]:
+                 end: float | None, counts: dict[str, int], raw: bool = False) -> Iterator[Row]:
     for msg in frames:
         t = msg.timestamp
         if start is not None and t < start:
@@ -140,8 +160,14 @@ def decoded_rows(frames: Iterable[can.Message], codec: Codec, sel: Selection, st
             continue
         if sel.signals is not None:
             values = {k: v for k, v in values.items() if k in sel.signals}
+        choices = None
+        if not raw:
+            names = choice_names(fc, bytes(msg.data))
+            choices = {k: names[k] for k in values if k in names}
+        signal = fc.message.get_signal_by_name
+        units = {k: unit for k in values if (unit := signal(k).unit)}
         counts["decoded"] += 1
-        yield Row(t, ident, fc.name, values)
+        yield Row(t, ident, fc.name, values, choices=choices, units=units)
 
 
 def row_texts(fmt: str, width: int) -> Callable[[Iterable[Row]], str]:
@@ -154,10 +180,12 @@ def row_texts(fmt: str, width: int) -> Callable[[Iterable[Row]], str]:
             for r in rows:
                 if r.signals is None:
                     writer.writerow((f"{r.t:.6f}", r.id, r.name or ("" if r.kind == "data" else r.kind), "",
-                                     r.data, r.error or ""))
+                                     r.data, r.error or "", "", ""))
                 else:
+                    choices, units = r.choices or {}, r.units or {}
                     for sig, value in r.signals.items():
-                        writer.writerow((f"{r.t:.6f}", r.id, r.name, sig, repr(value), ""))
+                        writer.writerow((f"{r.t:.6f}", r.id, r.name, sig, repr(value), "", units.get(sig, ""),
+                                         choices.get(sig, "")))
             text = buffer.getvalue()
             buffer.seek(0)
             buffer.truncate()
@@ -170,6 +198,9 @@ def row_texts(fmt: str, width: int) -> Callable[[Iterable[Row]], str]:
             obj: dict = {"t": r.t, "id": r.id, "name": r.name}
             if r.signals is not None:
                 obj["signals"] = {k: jsonable(v) for k, v in r.signals.items()}
+                if r.choices is not None:
+                    obj["choices"] = r.choices
+                obj["units"] = r.units or {}
             else:
                 obj["data"] = r.data
                 if r.kind != "data":
@@ -180,7 +211,7 @@ def row_texts(fmt: str, width: int) -> Callable[[Iterable[Row]], str]:
                     obj["error"] = r.error
             return json.dumps(obj) + "\n"
         if r.signals is not None:
-            body = " ".join(f"{k}={v:.10g}" for k, v in r.signals.items())
+            body = " ".join(signal_text(k, v, r.choices, r.units or {}) for k, v in r.signals.items())
             name = r.name
         else:
             body = {"remote": f"remote frame dlc={r.dlc}", "error": "error frame"}.get(
@@ -191,16 +222,26 @@ def row_texts(fmt: str, width: int) -> Callable[[Iterable[Row]], str]:
     return lambda rows: "".join(map(one, rows))
 
 
+def signal_text(name: str, value: float, choices: dict[str, str] | None, units: dict[str, str]) -> str:
+    """One signal in the table: ``name=choice`` where it has a name, else ``name=value`` and the unit."""
+    if choices and name in choices:
+        return f"{name}={table_word(choices[name], choice=True)}"
+    unit = units.get(name)
+    return f"{name}={value:.10g} {table_word(unit)}" if unit else f"{name}={value:.10g}"
+
+
 def run(args: argparse.Namespace) -> int:
     codec = Codec(load_dbc(args.dbc))
     sel = select(args, codec)
     check_window(args.start, args.end)
-    return decode(args.trace, codec, sel, args.format, args.start, args.end, dbc_name=str(args.dbc))
+    return decode(args.trace, codec, sel, args.format, args.start, args.end, dbc_name=str(args.dbc),
+                  raw=args.raw)
 
 
 def decode(trace: str | Path, codec: Codec, sel: Selection, fmt: str, start: float | None, end: float | None,
-           dbc_name: str, fast: bool = True, block_frames: int = BLOCK_FRAMES) -> int:
-    """Write the decoded frames of `trace` to stdout in `fmt`, the summary to stderr.
+           dbc_name: str, fast: bool = True, block_frames: int = BLOCK_FRAMES, raw: bool = False) -> int:
+    """Write the decoded frames of `trace` to stdout in `fmt`, the summary to stderr; `raw` (--raw):
+    numbers only, no value-table names.
 
     `fast` (the default): a block of up to `block_frames` frames at a time (hil.trace.columns reads
     them, hil.trace.fastdecode decodes and writes them, the per-frame path below takes the frames it does
@@ -217,22 +258,22 @@ def decode(trace: str | Path, codec: Codec, sel: Selection, fmt: str, start: flo
         frames = open_trace(trace)
     out = Output()
     if fmt == "csv":
-        out.write("t,id,name,signal,value,error\n")
+        out.write(CSV_HEADER)
     elif fmt == "table":
         out.write(f"{'t_s':>17}  {'id':<10}  {'name':<{width}}  signals\n")
     if fast:
         def slow(msg: can.Message) -> str:
-            return texts(decoded_rows((msg,), codec, sel, start, end, counts))
+            return texts(decoded_rows((msg,), codec, sel, start, end, counts, raw))
 
         decoder = BlockDecoder(codec, fmt, width=width, ids=sel.ids, names=sel.names, signals=sel.signals,
-                               start=start, end=end, slow=slow, counts=counts)
+                               start=start, end=end, slow=slow, counts=counts, raw=raw)
         for block in reader:
             out.write(decoder.text(block))
             if out.closed:
                 break
         frames = reader.trace  # a new one if the BLF reader gave the file to python-can's
     else:
-        for row in decoded_rows(frames, codec, sel, start, end, counts):
+        for row in decoded_rows(frames, codec, sel, start, end, counts, raw):
             out.write(texts((row,)))
             if out.closed:
                 break
