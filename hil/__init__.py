@@ -1,9 +1,22 @@
 """railhil: a hardware-in-the-loop testbench for railway brake electronics over CAN.
 
 The controllers are firmware_py's, the physics plant_sim's; this package is everything between, in
-wings: can (the DBC, codec, E2E, SecOC, bus timing), trace (reading and analysing traces), scenario
-(the model, loading, scenario -> parameters, the study registry), links (GPS serial line, control
-centre), runtime (nodes, lockstep and real-time runners, one run), safety (fault injection, the threat
-matrix), report (KPIs, plots, HTML), campaign (sweeps), studies (one folder per study) and cli
-(`railhil`).  docs/architecture.md describes the layers.
+wings: can (the DBC, codec, E2E, SecOC, bus timing), trace (reading, writing, decoding and analysing
+traces), scenario (the model, loading, scenario -> parameters, the study registry), links (GPS serial
+line, control centre), runtime (nodes, lockstep and real-time runners, one run), safety (fault
+injection, the threat matrix), report (KPIs, plots, HTML, run folders in Python), campaign (sweeps),
+studies (one folder per study) and cli (`railhil`).  docs/architecture.md describes the layers.
+
+In a notebook: `hil.open_run(RUN_FOLDER)` and `hil.open_trace(TRACE, dbc=DBC)` (hil.report.runfolder;
+imported on first use, so `import hil` stays light).
 """
+
+__all__ = ["open_run", "open_trace"]
+
+
+def __getattr__(name: str):
+    if name in __all__:
+        from hil.report import runfolder
+
+        return getattr(runfolder, name)
+    raise AttributeError(f"module 'hil' has no attribute {name!r}")

@@ -308,7 +308,8 @@ class HilRun:
 
     @property
     def trace(self) -> Path:
-        return self.out_dir / "trace.blf"
+        """The run's trace file (trace.blf, or the [trace] format's)."""
+        return self.out_dir / f"trace.{self.scenario.trace.format}"
 
     def signals(self, *names: str) -> dict[str, Signal]:
         """Several "MESSAGE.Signal" names decoded in one pass over the trace (time: simulated s)."""

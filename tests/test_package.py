@@ -28,8 +28,9 @@ def test_pyproject_lists_every_package_of_the_tree():
     """setuptools is given the package list by name (the data folders are mapped into it): a package
     added to the tree and not to pyproject.toml would be missing from the wheel."""
     listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
-    tree = {".".join(p.parent.relative_to(ROOT).parts) for top in ("hil", "firmware_py", "plant_sim")
-            for p in (ROOT / top).rglob("__init__.py")}
+    tops = ("hil", "firmware_py", "plant_sim", "railhil")
+    tree = {".".join(p.parent.relative_to(ROOT).parts)
+            for top in tops for p in (ROOT / top).rglob("__init__.py")}
     assert tree - listed == set(), "packages missing from pyproject.toml [tool.setuptools] packages"
     assert {p for p in listed - tree if not p.startswith("hil._data.")} == set()
 

@@ -524,11 +524,9 @@ def _summary_plots(result: CampaignResult) -> list[Path]:
     metrics = [m for m in result.campaign.plot if any(_is_number(_flatten(r.kpis).get(m)) for r in ok)]
     if not ok or not metrics:
         return []
-    import matplotlib
+    from hil.report.plots import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     files = []
     for key in result.campaign.swept:
         xs = [r.point.values[key] for r in ok]

@@ -28,7 +28,7 @@ COMMANDS = {
                   "railhil run NAME)"),
     "init": ("hil.cli.init", "write an editable copy of a shipped scenario and the DBC into a folder"),
     "trace": ("hil.cli.trace",
-              "inspect a recorded CAN trace: statistics, decoding, plots, comparison, replay"),
+              "inspect a recorded CAN trace: statistics, decoding, export, plots, comparison, replay"),
     "timing": ("hil.cli.timing",
                "cycle-time conformance of a trace against the DBC, bus load, response-time analysis, "
                "latency chains"),

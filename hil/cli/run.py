@@ -21,8 +21,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
         help="run a scenario and write its run folder",
         description="Run a brake scenario: lockstep (one process, simulated time, deterministic) or real "
                     "time (one OS process per node on a python-can bus, udp_multicast by default). "
-                    "Writes trace.blf, truth.csv, kpis.json, plot.png, run.json and report.html (the "
-                    "self-contained HTML report) to the run folder and prints a summary.",
+                    "Writes the trace (trace.blf; [trace] format: mf4, asc, log), truth.csv, kpis.json, "
+                    "plot.png, run.json and report.html (the self-contained HTML report) to the run "
+                    "folder and prints a summary.",
     )
     p.add_argument("scenario", type=Path,
                    help="scenario TOML file (e.g. scenarios/default.toml) or the name of a shipped scenario "

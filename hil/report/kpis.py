@@ -151,7 +151,7 @@ class RunView:
 
     @classmethod
     def from_folder(cls, folder: Path) -> RunView:
-        """The view of a run folder of `railhil run` (run.json, truth.csv, trace.blf), read back."""
+        """The view of a run folder of `railhil run` (run.json, truth.csv, the trace), read back."""
         from hil.can.dbc import DEFAULT_DBC, load_dbc
         from hil.scenario import scenario_model
 
@@ -165,7 +165,7 @@ class RunView:
         cols = read_truth_csv(folder / "truth.csv")
         db = load_dbc(Path(scenario.dbc) if scenario.dbc else DEFAULT_DBC)
         codec = Codec(db)
-        trace = folder / "trace.blf"
+        trace = folder / meta.get("trace", "trace.blf")
         speed = scenario.realtime.speed if meta.get("mode") == "realtime" else 1.0
         t0 = meta.get("trace_t0_s", 0.0)
         wanted = {"r0": ("BCU_DEMAND", "TargetDecel")}

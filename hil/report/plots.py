@@ -16,10 +16,14 @@ if TYPE_CHECKING:
 
 
 def pyplot():
-    """matplotlib's pyplot on the Agg backend (no display needed)."""
+    """matplotlib's pyplot, on the Agg backend (no display needed) unless a program has chosen its own
+    already (a notebook's inline backend stays: a run started from a notebook must not switch it)."""
+    import sys
+
     import matplotlib
 
-    matplotlib.use("Agg")
+    if "matplotlib.pyplot" not in sys.modules:
+        matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     return plt

@@ -43,6 +43,7 @@ from hil.runtime.gctune import LOOP_THRESHOLDS
 from hil.runtime.outcome import RunOutcome
 from hil.runtime.plant_node import TruthLog
 from hil.scenario import Scenario
+from hil.trace.writers import open_writer
 
 READY_TIMEOUT_S = 60.0         # processes importing numpy/cantools on a loaded 2-core machine
 START_MARGIN_S = 0.3           # t0 lies this far after the last process reported ready
@@ -276,7 +277,7 @@ def _recorder_process(trace_path: str, cfg: dict, go, stop, results) -> None:
         bus = open_bus(cfg)
         enlarge_receive_buffer(bus)
         _raise_priority(REALTIME_NICE)
-        writer = can.Logger(trace_path)
+        writer = open_writer(trace_path)          # wall-clock timestamps: the writer's own epoch
         results.put(("ready", "RECORDER", None))
         notifier = can.Notifier(bus, [writer], timeout=0.05)
         while not stop.wait(PARENT_CHECK_S):
@@ -462,7 +463,7 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
                           progress: Callable[[int, dict], None] | None = None):
     from hil.can.codec import Codec
     from hil.can.dbc import load_dbc
-    from hil.runtime.run import TRACE_NAME, dbc_path_of, finish_run
+    from hil.runtime.run import dbc_path_of, finish_run, trace_name
 
     if scenario.faults:                           # not silently dropped: say where they work
         from hil.errors import ScenarioError
@@ -481,7 +482,7 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
     if scenario.messages:
         print("notice: [messages.*] extra delays apply to lockstep runs only; the real-time bus has its own",
               file=sys.stderr)
-    trace = out_dir / TRACE_NAME                  # its folder is made once the bus opened
+    trace = out_dir / trace_name(scenario)        # its folder is made once the bus opened
     outcome, epoch_t0, failure = run_realtime(scenario, str(dbc_path), trace, cfg, progress=progress)
     report = finish_run(scenario, outcome, out_dir, db, codec, trace_t0_s=epoch_t0,
                         trace_speed=scenario.realtime.speed,

@@ -28,8 +28,15 @@ from hil.runtime.desk import DeskScript
 from hil.runtime.lockstep import prepare_lockstep, run_lockstep
 from hil.runtime.outcome import RunOutcome, realtime_verdict
 from hil.scenario import Scenario
+from hil.trace.writers import open_writer
 
-TRACE_NAME = "trace.blf"
+TRACE_NAME = "trace.blf"       # the default trace's name; [trace] format chooses another (trace_name)
+
+
+def trace_name(scenario: Scenario) -> str:
+    """The trace file of a run folder: trace.<format> ([trace] format; python-can picks its writer by
+    the suffix)."""
+    return f"trace.{scenario.trace.format}"
 
 
 @dataclass
@@ -87,7 +94,7 @@ def dbc_path_of(scenario: Scenario) -> Path:
 
 def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec: Codec,
                trace_t0_s: float = 0.0, trace_speed: float = 1.0, extra: dict | None = None) -> RunReport:
-    trace = out_dir / TRACE_NAME
+    trace = out_dir / trace_name(scenario)
     cols = outcome.truth.columns()
     truth_csv = out_dir / "truth.csv"
     write_truth_csv(cols, truth_csv)
@@ -139,6 +146,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
         "python": sys.version.split()[0],
         "python_can": can.__version__,
         "platform": platform.platform(),
+        "trace": trace.name,
         "trace_t0_s": trace_t0_s,
         "node_stats": outcome.node_stats,
         "bus_timing": outcome.bus,
@@ -159,7 +167,7 @@ def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None) -> R
     codec = Codec(db)
     setup = prepare_lockstep(scenario, db, codec, str(dbc_path))   # bad input: no run folder is left
     out_dir = check_out_dir(out_dir)
-    with can.Logger(str(out_dir / TRACE_NAME)) as writer:
+    with open_writer(out_dir / trace_name(scenario), start_time_s=0.0) as writer:   # simulated s from 0
         outcome = run_lockstep(scenario, db, codec, writer, progress=progress, dbc_name=str(dbc_path),
                                setup=setup)
     return finish_run(scenario, outcome, out_dir, db, codec)

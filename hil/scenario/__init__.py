@@ -29,6 +29,7 @@ from hil.scenario.model import (
     ScenarioBase,
     SecOcSpec,
     SensorSpec,
+    TraceSpec,
     TrackSpec,
     TrainSpec,
     scenario_model,
@@ -37,7 +38,7 @@ from hil.scenario.model import (
 __all__ = ["MAX_CARS", "RAIL_CONDITION_NAMES", "BcuSpec", "BecuSpec", "BusSpec", "CurvePoint", "DeskEvent",
            "GradientPoint", "MessageTiming", "NodeTiming", "PlantSpec", "RailRow", "RailSegment",
            "RailhilDeprecation", "RealtimeSpec", "Scenario", "ScenarioBase", "SecOcSpec", "SensorSpec",
-           "TrackSpec", "TrainSpec", "apply_set", "load_scenario", "parse_scenario", "parse_set",
+           "TraceSpec", "TrackSpec", "TrainSpec", "apply_set", "load_scenario", "parse_scenario", "parse_set",
            "scenario_model"]
 
 

@@ -127,6 +127,15 @@ class RealtimeSpec(_Strict):
     speed: Annotated[float, Field(gt=0, le=1)] = 1.0
 
 
+class TraceSpec(_Strict):
+    """The run's trace: every frame of the bus, written by python-can's writer for the format, as
+    trace.<format> in the run folder.  BLF opens in Vector tools and SavvyCAN; MF4 (ASAM MDF 4 bus
+    logging, through asammdf) in CANape, asammdf and most automotive measurement tools; ASC is Vector's
+    text; log is candump -L text."""
+
+    format: Literal["blf", "mf4", "asc", "log"] = "blf"
+
+
 class BusSpec(_Strict):
     """The lockstep bus.  Real-time runs get their timing from the real bus instead."""
 
@@ -298,6 +307,7 @@ class ScenarioBase(_Strict):
     desk: list[DeskEvent] = Field(default_factory=list)
     realtime: RealtimeSpec = Field(default_factory=RealtimeSpec)
     bus: BusSpec = Field(default_factory=BusSpec)
+    trace: TraceSpec = Field(default_factory=TraceSpec)
     nodes: dict[str, NodeTiming] = Field(default_factory=dict)        # by node name, e.g. BECU3
     messages: dict[str, MessageTiming] = Field(default_factory=dict)  # by DBC message name
     plant: PlantSpec = Field(default_factory=PlantSpec)

@@ -3,8 +3,9 @@ bulk, into columns without a ``can.Message`` per frame.
 
 ``read_columns(path)`` gives the same ``hil.trace.timing.FrameArrays`` as
 ``frame_arrays(open_trace(path))``, column by column and bit for bit, and the same ``TraceError``
-for a file that cannot be read.  Only a BLF file (``.blf``, also ``.blf.gz``) takes the fast path;
-every other format, and stdin, goes through python-can's reader and ``frame_arrays``.
+for a file that cannot be read.  A BLF file (``.blf``, also ``.blf.gz``) and an MF4 file (``.mf4``,
+read_mf4_chunks: each CAN channel group in one asammdf call) take fast paths; every other format, and
+stdin, goes through python-can's reader and ``frame_arrays``.
 
 ``BlockReader(path)`` gives the frames with their data bytes, for decoding (``trace decode``,
 ``hil.trace.fastdecode``), as ``FrameBlock`` columns of up to ``BLOCK_FRAMES`` frames: BLF through the
@@ -468,6 +469,111 @@ def read_blf_columns(reader: blf.BLFReader) -> FrameArrays:
     return BlfColumnReader(reader).read()
 
 
+# --- MF4 (ASAM MDF 4 bus logging) --------------------------------------------------------------------------
+_MF4_NAMES = ("CAN_DataFrame", "CAN_ErrorFrame", "CAN_RemoteFrame")
+
+
+def _is_mf4(path: str | pathlib.Path) -> bool:
+    return str(path).lower().endswith(".mf4")
+
+
+def read_mf4_chunks(path: str | pathlib.Path, payload: bool = False, mdf=None) -> list[dict[str, np.ndarray]]:
+    """The frames of an MF4 bus-logging file as python-can's MF4Reader gives them, as columns (t, id,
+    extended, dlc, kind, fd, and with `payload` the data bytes and their length), without a Message per
+    frame: each CAN channel group's records are read by asammdf in one call, the fields taken as
+    python-can takes them (its defaults where a field is absent: a data or error frame without IDE is
+    29-bit, as `can.Message` makes it), and the groups merged by timestamp as python-can's heapq.merge
+    merges them.  NotFast where python-can's result would not be plain columns of that: groups whose
+    timestamps go back, variable-length data bytes."""
+    from asammdf import MDF
+    from asammdf.blocks.v4_constants import BUS_TYPE_CAN, FLAG_CG_BUS_EVENT, SOURCE_BUS
+
+    from hil.trace.timing import KIND_DATA, KIND_ERROR, KIND_REMOTE
+
+    own = mdf is None                     # `mdf`: the file already open (python-can's reader's)
+    mdf = MDF(str(path)) if own else mdf
+    try:
+        start = mdf.header.start_time.timestamp()
+        parts: list[dict[str, np.ndarray]] = []
+        for index, group in enumerate(mdf.groups):
+            cg = group.channel_group
+            source = cg.acq_source
+            if not cg.flags & FLAG_CG_BUS_EVENT or cg.cycles_nr == 0 or source is None:
+                continue
+            if not source.source_type & SOURCE_BUS or source.bus_type != BUS_TYPE_CAN:
+                continue
+            names = [c.name for c in group.channels]
+            frame = next((n for n in _MF4_NAMES if n in names), None)   # python-can's order of tests
+            if frame is None:
+                continue
+            sig = mdf.get(frame, index, raw=False)
+            rec = sig.samples
+            fields = rec.dtype.names or ()
+
+            def col(field: str, default, dtype, rec=rec, fields=fields, frame=frame):
+                key = f"{frame}.{field}"
+                return (np.asarray(rec[key]).astype(dtype) if key in fields
+                        else np.full(len(rec), default, dtype=dtype))
+
+            n = len(rec)
+            t = np.asarray(sig.timestamps, dtype=np.float64) + start
+            if n > 1 and (np.diff(t) < 0).any():
+                raise NotFast("an MF4 channel group whose timestamps go back")
+            part = {"t": t, "arbitration_id": col("ID", 0, np.int64) & 0x1FFFFFFF,
+                    "extended": col("IDE", True, bool), "fd": col("EDL", False, bool)}
+            if frame == "CAN_RemoteFrame":
+                part.update(dlc=col("DLC", 0, np.int64), kind=np.full(n, KIND_REMOTE, np.int8),
+                            fd=np.zeros(n, bool))
+                data, length = np.zeros((n, 0), np.uint8), np.zeros(n, np.int64)
+            else:
+                has_data = f"{frame}.DataBytes" in fields and (frame == "CAN_DataFrame"
+                                                              or f"{frame}.DataLength" in fields)
+                if has_data:
+                    data = np.asarray(rec[f"{frame}.DataBytes"])
+                    if data.dtype != np.uint8 or data.ndim != 2:
+                        raise NotFast("MF4 data bytes that are not a fixed-width byte array")
+                    length = np.minimum(col("DataLength", 0, np.int64), data.shape[1])
+                else:
+                    data, length = np.zeros((n, 0), np.uint8), np.zeros(n, np.int64)
+                part.update(dlc=length, kind=np.full(n, KIND_DATA if frame == "CAN_DataFrame" else KIND_ERROR,
+                                                     np.int8))
+            if payload:
+                width = int(length.max()) if n else 0
+                keep = np.arange(width)[None, :] < length[:, None]
+                part["payload"] = np.where(keep, data[:, :width], 0).astype(np.uint8)
+                part["length"] = length
+            parts.append(part)
+    finally:
+        if own:
+            mdf.close()
+    if len(parts) <= 1:
+        return parts
+    keys = list(parts[0])
+    order = np.argsort(np.concatenate([p["t"] for p in parts]), kind="stable")   # ties: group order
+    width = max(p["payload"].shape[1] for p in parts) if payload else 0
+    merged = {}
+    for k in keys:
+        if k == "payload":
+            padded = [np.pad(p[k], ((0, 0), (0, width - p[k].shape[1]))) for p in parts]
+            merged[k] = np.concatenate(padded)[order]
+        else:
+            merged[k] = np.concatenate([p[k] for p in parts])[order]
+    return [merged]
+
+
+def read_mf4_columns(path: str | pathlib.Path, mdf=None) -> FrameArrays:
+    """``frame_arrays(open_trace(path))`` of an MF4 file, column by column (read_mf4_chunks)."""
+    from hil.trace.timing import FrameArrays
+
+    chunks = read_mf4_chunks(path, mdf=mdf)
+    if not chunks:
+        empty = np.zeros(0)
+        return FrameArrays(empty.astype(np.float64), empty.astype(np.int64), empty.astype(bool),
+                           empty.astype(np.int64), empty.astype(np.int8), empty.astype(bool))
+    c = chunks[0]
+    return FrameArrays(c["t"], c["arbitration_id"], c["extended"], c["dlc"], c["kind"], c["fd"])
+
+
 def _is_blf(path: str | pathlib.Path) -> bool:
     if str(path) == STDIN:
         return False
@@ -488,6 +594,16 @@ def read_trace_columns(path: str | pathlib.Path, salvage: bool = False) -> tuple
 
     trace = open_trace(path)
     arrays = None
+    if _is_mf4(path) and isinstance(trace.reader, can.io.MF4Reader):
+        try:
+            arrays = read_mf4_columns(path, getattr(trace.reader, "_mdf", None))
+        except Exception:  # NotFast, or an odd file: python-can's reader gives the result or the error
+            arrays = None
+        if arrays is not None and len(arrays):
+            trace.close()
+            trace.count = len(arrays)
+        else:
+            arrays = None
     if _is_blf(path) and isinstance(trace.reader, blf.BLFReader):
         try:
             arrays = read_blf_columns(trace.reader)
@@ -837,6 +953,11 @@ class BlockReader:
         if self.trace.is_candump:
             yield from self._candump()
             return
+        if _is_mf4(self.path) and isinstance(self.trace.reader, can.io.MF4Reader):
+            blocks = self._mf4()
+            if blocks:
+                yield from blocks
+                return
         if _is_blf(self.path) and isinstance(self.trace.reader, blf.BLFReader):
             blocks = self._blf()
             if blocks is not None:
@@ -892,6 +1013,28 @@ class BlockReader:
         if group:
             blocks.append(group[0] if len(group) == 1 else FrameBlock.join(group))
         self.trace.count = sum(map(len, blocks))
+        return blocks
+
+    def _mf4(self) -> list[FrameBlock] | None:
+        """The frames of an MF4 file read by read_mf4_chunks (payload included), in blocks of up to
+        max_frames rows; None where it gives up (python-can's reader then reads the file)."""
+        from hil.trace.timing import KIND_ERROR, KIND_REMOTE
+
+        try:
+            chunks = read_mf4_chunks(self.path, payload=True, mdf=getattr(self.trace.reader, "_mdf", None))
+        except Exception:  # NotFast, or an odd file
+            return None
+        if not chunks:
+            return None
+        self.trace.close()
+        c = chunks[0]
+        whole = FrameBlock(t=c["t"], arbitration_id=c["arbitration_id"], extended=c["extended"],
+                           remote=c["kind"] == KIND_REMOTE, error=c["kind"] == KIND_ERROR, dlc=c["dlc"],
+                           length=c["length"], payload=c["payload"])
+        blocks = [whole if len(whole) <= self.max_frames else
+                  whole.take(np.arange(first, min(first + self.max_frames, len(whole))))
+                  for first in range(0, len(whole), self.max_frames)]
+        self.trace.count = len(whole)
         return blocks
 
     def _candump(self) -> Iterator[FrameBlock]:

@@ -172,8 +172,12 @@ def open_trace(path: str | pathlib.Path) -> Trace:
             stream = gzip.open(path, "rt") if compressed else path.open("r")
             lines = _Lines(stream)
             reader = CandumpReader(lines)
+        elif suffix == ".mf4":
+            reader = _open_mf4(path, expected)
         else:
             reader = can.LogReader(path)
+    except TraceError:
+        raise
     except OSError as exc:  # permission denied, an I/O error: the system's reason, not a format's
         raise TraceError(f"{path}: cannot read the trace file: {exc.strerror or _one_line(exc)}") from exc
     except Exception as exc:  # python-can raises many types; all mean "not readable as expected"
@@ -185,6 +189,64 @@ def open_trace(path: str | pathlib.Path) -> Trace:
     if suffix == ".blf" and not compressed:
         trace.cut = blf_cut(path)
     return trace
+
+
+def _open_mf4(path: pathlib.Path, expected: str) -> can.io.MF4Reader:
+    """python-can's MF4 reader of a bus-logging file, or one TraceError line.  asammdf leaves a half-made
+    MDF object behind when it cannot open a file, whose __del__ then prints a traceback: its frames are
+    cleared and the object collected here, with that noise suppressed."""
+    import gc
+    import traceback
+
+    hook = sys.unraisablehook
+    sys.unraisablehook = lambda unraisable: None
+    failed = True
+    try:
+        try:
+            reader = can.LogReader(path)
+            mf4_check_bus_logging(path, getattr(reader, "_mdf", None))   # python-can's own MDF, if it has one
+            failed = False
+            return reader
+        except TraceError:
+            raise
+        except OSError:
+            raise
+        except Exception as exc:
+            traceback.clear_frames(exc.__traceback__)
+            raise TraceError(f"{path}: not readable as {expected}: {_one_line(exc)}") from None
+    finally:
+        if failed:            # the half-made MDF goes now, while its noise is suppressed (30 ms: not always)
+            gc.collect()
+        sys.unraisablehook = hook
+
+
+def mf4_check_bus_logging(path: pathlib.Path, mdf=None) -> None:
+    """An MF4 file python-can reads frames from holds CAN bus logging: a channel group flagged as bus
+    events from a CAN bus source, with CAN_DataFrame, CAN_ErrorFrame or CAN_RemoteFrame (ASAM MDF 4.1
+    bus logging, as python-can and asammdf write it).  Another MF4 (a measurement of signals) is a
+    TraceError naming what it holds instead."""
+    from asammdf import MDF
+    from asammdf.blocks.v4_constants import BUS_TYPE_CAN, FLAG_CG_BUS_EVENT
+
+    own = mdf is None                     # `mdf`: the file already open (python-can's reader's)
+    mdf = MDF(str(path)) if own else mdf
+    try:
+        names: list[str] = []
+        for group in mdf.groups:
+            channels = [c.name for c in group.channels]
+            source = group.channel_group.acq_source
+            if (group.channel_group.flags & FLAG_CG_BUS_EVENT and source is not None
+                    and source.bus_type == BUS_TYPE_CAN
+                    and {"CAN_DataFrame", "CAN_ErrorFrame", "CAN_RemoteFrame"} & set(channels)):
+                return
+            names += [c for c in channels if c not in ("t", "time")]
+    finally:
+        if own:
+            mdf.close()
+    shown = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+    raise TraceError(f"{path}: not an MF4 CAN bus-logging file: no channel group of CAN frames "
+                     f"(CAN_DataFrame as python-can, asammdf and CANape log them); it holds "
+                     f"{shown or 'no channels'}")
 
 
 def blf_cut(path: pathlib.Path) -> str | None:

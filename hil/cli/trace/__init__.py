@@ -1,7 +1,7 @@
 """`railhil trace ACTION` — inspect, plot, compare and replay recorded CAN traces.
 
-One module per action (cantools' ``subparsers/``): ``stats``, ``decode``, ``plot``, ``diff``,
-``replay``; what they share is in ``common``.  Every action reads any trace python-can reads
+One module per action (cantools' ``subparsers/``): ``stats``, ``decode``, ``export``, ``plot``,
+``diff``, ``replay``; what they share is in ``common``.  Every action reads any trace python-can reads
 (.asc .blf .csv .db .log .mf4 .trc, also .gz compressed; '-' = candump -L text on stdin) through
 ``hil.trace.readers.open_trace``.  Times are the trace's own timestamps, in seconds, everywhere: in the
 output and in --start/--end (``trace stats`` shows the first and last).  Ids print as candump does:
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 
-from hil.cli.trace import decode, diff, plot, replay, stats
+from hil.cli.trace import decode, diff, export, plot, replay, stats
 from hil.cli.trace.common import (
     Output,
     SignalRef,
@@ -33,13 +33,13 @@ __all__ = [
     "jsonable", "kind_of", "lookup", "notice_skipped", "num", "parse_id", "resolve_signal",
 ]
 
-ACTIONS = (stats, decode, plot, diff, replay)
+ACTIONS = (stats, decode, export, plot, diff, replay)
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "trace",
-        help="inspect a recorded CAN trace: statistics, decoding, plots, comparison, replay",
+        help="inspect a recorded CAN trace: statistics, decoding, export, plots, comparison, replay",
         description="Inspect a CAN trace that python-can reads (.asc .blf .csv .db .log .mf4 .trc, "
                     "also .gz compressed; '-' reads candump -L text from stdin): per-id statistics, "
                     "DBC decoding, signal plots, a signal-by-signal comparison of two traces, and "

@@ -136,8 +136,8 @@ def judge_run_dir(run_dir: Path) -> dict:
     spec_of(scenario)
     db = load_dbc(dbc_path_of(scenario))
     speed = scenario.realtime.speed if meta.get("mode") == "realtime" else 1.0
-    t, req, _ = read_signal(run_dir / TRACE_NAME, db, Codec(db), "ACD_BRAKE_REQ", "Request",
-                            t0_s=float(meta.get("trace_t0_s", 0.0)), speed=speed)
+    t, req, _ = read_signal(run_dir / meta.get("trace", TRACE_NAME), db, Codec(db), "ACD_BRAKE_REQ",
+                            "Request", t0_s=float(meta.get("trace_t0_s", 0.0)), speed=speed)
     cols = {name: np.asarray(data[name]) for name in data.dtype.names}
     j = judge(scenario, cols, np.asarray(t), np.asarray(req))
     return {**j.as_dict(), "seed": scenario.seed, "prediction": spec_of(scenario).prediction,

@@ -76,7 +76,7 @@ def run_plots(run: RunView) -> list[Path]:
 def compare_runs(open_dir: Path, closed_dir: Path, out: Path) -> Path:
     """Seed 004's Figs. 19-20 as the paper shows them: cylinder pressure (car 1) and train deceleration of
     an open-loop and a closed-loop run of the same scenario, side by side in one figure, from the two run
-    folders (truth.csv, run.json, trace.blf).  Returns `out`."""
+    folders (truth.csv, run.json, the trace).  Returns `out`."""
     plt = pyplot()
     fig, (ax_p, ax_d) = plt.subplots(2, 1, figsize=(10, 8), sharex=True)
     for label, folder, color in (("before (open loop)", Path(open_dir), "tab:blue"),
