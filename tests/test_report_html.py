@@ -1,6 +1,9 @@
-"""The HTML reports (hil.report.html): every run folder gets report.html with verdicts, KPIs, the plot
-embedded, timing, faults and what reproduces the run (run.json); `railhil report` rebuilds it; a
-campaign folder gets its table and plots; the page renders with its plots in a headless browser."""
+"""The HTML reports (hil.report.html): every run folder gets report.html with verdicts, KPIs (name, value,
+unit, meaning; per-car values a column per car), the signals as an interactive plotly figure (plotly.js
+inline, nothing fetched), the static plots embedded, timing, faults and what reproduces the run
+(run.json); every KPI of every kpis.json has a description (hil.report.kpi_info, the studies' KPI_INFO);
+`railhil report` rebuilds the page and `--against` compares two runs; a campaign folder gets its table and
+plots; the pages render with their plots in a headless browser."""
 
 from __future__ import annotations
 
@@ -21,34 +24,92 @@ from hil.can.dbc import DEFAULT_DBC
 
 
 class Page(HTMLParser):
-    """The tags, embedded images and cell texts of a page (the parser raises nothing: we count)."""
+    """The tags, embedded images, links, scripts, table rows and cell texts of a page (the parser raises
+    nothing: we count).  A cell's text is that of its own table only (a mapping KPI's small table inside
+    a cell gives cells of its own too)."""
 
     def __init__(self, text: str) -> None:
         super().__init__()
         self.images: list[bytes] = []
         self.links: list[str] = []
+        self.refs: list[str] = []                   # every src= and href= of every tag
+        self.scripts: list[tuple[dict, str]] = []   # (attributes, text)
         self.cells: list[str] = []
-        self.open: list[str] = []
-        self._cell: list[str] | None = None
+        self.rows: list[tuple[str, list[str]]] = []  # (class of the <tr>, texts of its cells)
+        self._cells: list[list[str]] = []
+        self._row: list[tuple[str, list[str]]] = []
+        self._script: dict | None = None
+        self._text: list[str] = []
+        self.raw = text
         self.feed(text)
 
     def handle_starttag(self, tag, attrs):
         a = dict(attrs)
+        self.refs += [v or "" for k, v in attrs if k in ("src", "href")]
         if tag == "img" and a.get("src", "").startswith("data:image/png;base64,"):
             self.images.append(base64.b64decode(a["src"].split(",", 1)[1]))
         if tag == "a":
             self.links.append(a.get("href", ""))
+        if tag == "script":
+            self._script, self._text = a, []
+        if tag == "tr":
+            self._row.append((a.get("class") or "", []))
         if tag in ("td", "th"):
-            self._cell = []
+            self._cells.append([])
 
     def handle_endtag(self, tag):
-        if tag in ("td", "th") and self._cell is not None:
-            self.cells.append("".join(self._cell).strip())
-            self._cell = None
+        if tag in ("td", "th") and self._cells:
+            text = "".join(self._cells.pop()).strip()
+            self.cells.append(text)
+            if self._row:
+                self._row[-1][1].append(text)
+            if self._cells:                         # a cell inside a cell: its text is the outer's too
+                self._cells[-1].append(text + " ")
+        if tag == "tr" and self._row:
+            self.rows.append(self._row.pop())
+        if tag == "script" and self._script is not None:
+            self.scripts.append((self._script, "".join(self._text)))
+            self._script = None
 
     def handle_data(self, data):
-        if self._cell is not None:
-            self._cell.append(data)
+        if self._script is not None:
+            self._text.append(data)
+        elif self._cells:
+            self._cells[-1].append(data)
+
+    def row(self, first: str) -> tuple[str, list[str]]:
+        """The (class, cells) of the first row whose first cell starts with `first`."""
+        return next(r for r in self.rows if r[1] and r[1][0].startswith(first))
+
+    def figure(self, div_id: str = "signals-plot") -> dict:
+        """The plotly figure (data, layout) embedded for the <div id=div_id>."""
+        text = next(t for a, t in self.scripts if a.get("id") == f"{div_id}-data")
+        assert a_figure_div(div_id) in self.raw
+        return json.loads(text)
+
+
+def a_figure_div(div_id: str) -> str:
+    return f"<div id={div_id} class=plot>"
+
+
+def array(v) -> np.ndarray:
+    """A plotly data array: a list, or a typed array {"dtype": "f4", "bdata": base64}."""
+    if isinstance(v, dict):
+        return np.frombuffer(base64.b64decode(v["bdata"]), dtype=np.dtype(v["dtype"])).astype(float)
+    return np.asarray(v, dtype=float)
+
+
+def page_of(path: Path) -> Page:
+    return Page(path.read_text(encoding="utf-8"))
+
+
+def assert_self_contained(page: Page) -> None:
+    """Nothing loaded from elsewhere: every src/href is an embedded data: URI or an anchor in the page,
+    no <script src=...>, plotly.js inlined exactly once."""
+    assert page.refs and all(r.startswith(("data:", "#")) for r in page.refs), \
+        [r for r in page.refs if not r.startswith(("data:", "#"))]
+    assert not any("src" in a for a, _ in page.scripts)
+    assert sum("* plotly.js v" in t[:200] for _, t in page.scripts) == 1
 
 
 def verdict_of(page: Page, check: str) -> str:
@@ -60,11 +121,9 @@ def test_every_run_folder_has_a_self_contained_report(default_lockstep):
     out = default_lockstep.out_dir
     report = out / "report.html"
     assert report in default_lockstep.files
-    text = report.read_text()
-    page = Page(text)
+    page = page_of(report)
     assert page.images == [(out / "plot.png").read_bytes()]       # the plot itself, embedded
-    refs = re.findall(r"""\b(?:src|href)\s*=\s*["']?([^"' >]*)""", text)
-    assert refs and all(r.startswith("data:") for r in refs)      # nothing loaded from elsewhere
+    assert_self_contained(page)
     kpis = default_lockstep.kpis
     assert verdict_of(page, "train stopped") == ("pass" if kpis["stopped"] else "FAIL")
     assert verdict_of(page, "frames lost") == ("pass" if kpis["frames_lost"] == 0 else "FAIL")
@@ -171,7 +230,9 @@ def test_campaign_folder_gets_its_report(tmp_path):
     assert plots and page.images == [p.read_bytes() for p in plots]
     assert page.links == [f"{r.run_dir.relative_to(tmp_path / 'out')}/report.html" for r in result.results]
     for link in page.links:                                   # each point's own run report exists
-        assert (tmp_path / "out" / link).is_file()
+        point = (tmp_path / "out" / link).read_text()
+        assert "Plotly.newPlot" not in point and len(point) < 1_000_000   # static figures, no plotly.js
+        assert f"railhil report {(tmp_path / 'out' / link).parent}" in point    # how to get the zoomable one
     assert page.cells.count("ok") == len(result.results) == 2
     rebuilt = tmp_path / "out" / "again.html"
     report.rename(rebuilt)
@@ -181,23 +242,283 @@ def test_campaign_folder_gets_its_report(tmp_path):
     assert Page(report.read_text()).cells.count("ok") == 2
 
 
+# ------------------------------------------------------------------------------------- KPIs described
+def entries():
+    """(where, key, entry) of every KPI description: the foundation's and each study's KPI_INFO."""
+    from hil.report.kpi_info import FOUNDATION
+    from hil.scenario.registry import studies
+
+    out = [("hil/report/kpi_info.py", k, e) for k, e in FOUNDATION.items()]
+    for study in studies():
+        table = getattr(study.part("kpis"), "KPI_INFO", None)
+        assert table, f"hil/studies/{study.name}/kpis.py has no KPI_INFO"
+        out += [(f"hil/studies/{study.name}/kpis.py", k, e) for k, e in table.items()]
+    return out
+
+
+def test_every_kpi_description_has_a_name_a_unit_and_a_one_line_meaning():
+    from hil.report.kpi_info import KpiInfo
+
+    for where, key, entry in entries():
+        assert isinstance(entry, tuple) and len(entry) in (3, 4), (where, key, entry)
+        info = KpiInfo(*entry)
+        assert all(isinstance(x, str) and x.strip() for x in info[:3]), (where, key, entry)
+        assert "\n" not in info.meaning and len(info.meaning) < 250, (where, key)
+        assert isinstance(info.per_car, bool), (where, key)
+
+
+def study_scenarios() -> dict[str, Path]:
+    """Each study -> the first shipped scenario with its section (scenarios/*.toml, sorted)."""
+    from hil.scenario import load_scenario
+    from hil.scenario.registry import active
+
+    out: dict[str, Path] = {}
+    for path in sorted((ROOT / "scenarios").glob("*.toml")):
+        for study in active(load_scenario(path)):
+            out.setdefault(study.name, path)
+    return out
+
+
+STUDY_RUN_S = 6.0          # a study's scenario is run this long (enough for every KPI key it writes)
+
+
+def test_every_kpi_of_a_default_run_has_a_description(default_lockstep):
+    """A KPI added to compute_kpis or finish_run without an entry in hil/report/kpi_info.py fails here; the
+    real-time and fault KPIs are checked on top of the lockstep run's (below)."""
+    from hil.report.kpi_info import undescribed
+    from hil.runtime.outcome import realtime_verdict
+
+    kpis = json.loads((default_lockstep.out_dir / "kpis.json").read_text())
+    assert undescribed(kpis) == []
+    kpis["realtime"] = realtime_verdict({"PLANT": {"max_lag_us": 1200, "missed_cycles": 0}})
+    assert undescribed(kpis) == []
+
+
+def test_every_kpi_of_a_run_with_faults_has_a_description(tmp_path):
+    from hil.report.kpi_info import undescribed
+    from hil.runtime.run import run_scenario_lockstep
+    from hil.scenario import load_scenario
+
+    scenario = load_scenario("default", overrides={"max_duration_s": 1.5, "faults": [
+        {"kind": "deletion", "message": "BCU_DEMAND", "from_s": 1.0, "to_s": 1.05},
+        {"kind": "sensor", "sensor": "wheel_speed", "car": 2, "mode": "stuck", "from_s": 0.2, "to_s": 1.5}]})
+    kpis = run_scenario_lockstep(scenario, tmp_path / "run").kpis
+    assert "faults_injected" in kpis and "plausibility_flags" in kpis
+    assert undescribed(kpis) == []
+
+
+@pytest.mark.parametrize("study", sorted(study_scenarios()))
+def test_every_kpi_of_a_study_run_has_a_description(study, tmp_path):
+    """Each study's first shipped scenario, run STUDY_RUN_S: every key its kpis() writes is in its
+    KPI_INFO (appended to hil/studies/<name>/kpis.py)."""
+    from hil.report.kpi_info import undescribed
+    from hil.runtime.run import run_scenario_lockstep
+    from hil.scenario import load_scenario
+
+    path = study_scenarios()[study]
+    base = load_scenario(path)
+    scenario = load_scenario(path, overrides={"max_duration_s": min(base.max_duration_s, STUDY_RUN_S)})
+    kpis = run_scenario_lockstep(scenario, tmp_path / "run").kpis
+    assert study in kpis
+    assert undescribed(kpis) == [], f"describe them in hil/studies/{study}/kpis.py KPI_INFO"
+    page = page_of(tmp_path / "run" / "report.html")
+    assert any(c.startswith(f"{by_name_title(study)} ({study})") for c in page_headings(page))
+
+
+def by_name_title(name: str) -> str:
+    from hil.scenario.registry import by_name
+
+    return by_name(name).title
+
+
+def page_headings(page: Page) -> list[str]:
+    return re.findall(r"<h3>([^<]*)</h3>", page.raw)
+
+
+def test_the_kpi_tables_give_name_value_unit_and_meaning(default_lockstep):
+    from hil.report.kpi_info import FOUNDATION, KpiInfo
+
+    page = page_of(default_lockstep.out_dir / "report.html")
+    kpis = default_lockstep.kpis
+    cls, cells = page.row("stopping distance stopping_distance_m")
+    info = KpiInfo(*FOUNDATION["stopping_distance_m"])
+    assert cells == ["stopping distance stopping_distance_m", str(kpis["stopping_distance_m"]), "m",
+                     info.meaning]
+    assert page.row("train stopped stopped")[1][1:3] == ["yes", "yes/no"]
+    head = next(c for _, c in page.rows if c and c[0] == "per car")      # a column per car
+    assert head == ["per car", *(f"car {i}" for i in range(1, 7)), "unit", "meaning"]
+    _, slip = page.row("max slip speed max_slip_speed_mps")
+    assert slip[1:7] == [f"{v:.6g}" for v in kpis["max_slip_speed_mps"]] and slip[7] == "m/s"
+    assert page.row("bitrate bus.bitrate_bps")[1][1:3] == ["500000", "bit/s"]   # the bus: a table of its own
+    assert "CAN bus (bit-timed lockstep bus)" in page_headings(page)
+    by_node = page.row("frames sent by node frames_sent_by_node")[1]   # a mapping: its own small table
+    nodes = json.loads((default_lockstep.out_dir / "kpis.json").read_text())["frames_sent_by_node"]
+    assert by_node[1].split() == [*nodes, *map(str, nodes.values())]
+    assert not any("undescribed" in c for c, _ in page.rows)
+
+
+def test_a_kpi_without_a_description_shows_as_such(default_lockstep, tmp_path):
+    from hil.report.html import render_run_report
+    from hil.report.kpi_info import undescribed
+
+    run = tmp_path / "run"
+    shutil.copytree(default_lockstep.out_dir, run)
+    kpis = json.loads((run / "kpis.json").read_text())
+    kpis["brake_pad_wear_mm"] = 0.3
+    kpis["bus"]["error_frames"] = 2
+    (run / "kpis.json").write_text(json.dumps(kpis))
+    assert undescribed(kpis) == ["brake_pad_wear_mm", "bus.error_frames"]
+    page = Page(render_run_report(run))
+    cls, cells = page.row("brake_pad_wear_mm")
+    assert cls == "undescribed" and cells[1:3] == ["0.3", "?"] and cells[3].startswith("no description")
+    assert page.row("error_frames")[0] == "undescribed"
+    assert "2 KPIs without a description: brake_pad_wear_mm, bus.error_frames" in page.raw
+
+
+# ------------------------------------------------------------------------------------------- signals
+def test_decimate_keeps_the_peaks_and_short_curves_whole():
+    from hil.report.html import decimate
+
+    t = np.arange(10_000) * 0.01
+    y = np.sin(t)
+    y[4321] = 7.0                                  # a one-sample spike
+    y[777] = -5.0
+    td, yd = decimate(t, y, 2000)
+    assert len(td) <= 2002 and np.all(np.diff(td) > 0)
+    assert yd.max() == 7.0 and yd.min() == -5.0 and td[0] == t[0] and td[-1] == t[-1]
+    assert np.all(np.isin(td, t))                   # samples, not interpolations
+    short = np.arange(500.0)
+    assert decimate(short, short, 2000)[0] is short
+
+
+def test_the_signals_are_embedded_as_an_interactive_figure(default_lockstep):
+    from hil.report.html import MAX_POINTS
+    from hil.report.kpis import read_truth_csv
+
+    out = default_lockstep.out_dir
+    page = page_of(out / "report.html")
+    fig = page.figure()
+    cols = read_truth_csv(out / "truth.csv")
+    traces = fig["data"]
+    assert len(traces) == 3 * 6                               # speed, pressure, slip of every car
+    axes = [tr.get("yaxis", "y") for tr in traces]
+    assert axes == ["y"] * 6 + ["y2"] * 6 + ["y3"] * 6
+    assert [tr["name"] for tr in traces[:6]] == [f"car {i}" for i in range(1, 7)]
+    for tr, (key, scale) in ((traces[0], ("v_mps_1", 3.6)), (traces[6], ("p_Pa_1", 1e-3)),
+                             (traces[15], ("slip_speed_mps_4", 1.0))):
+        x, y = array(tr["x"]), array(tr["y"])
+        assert 100 < len(x) <= MAX_POINTS + 2
+        truth = cols[key] * scale
+        assert np.allclose(y, np.interp(x, cols["t_s"], truth), rtol=1e-4, atol=1e-3 * np.abs(truth).max())
+        assert y.max() == pytest.approx(truth.max(), rel=1e-5)   # the peak survives the decimation
+    assert fig["layout"]["xaxis3"]["title"]["text"] == "time [s]"
+    assert fig["layout"]["xaxis"].get("matches") or fig["layout"]["xaxis2"].get("matches")  # zoom together
+    assert fig["layout"].get("dragmode", "zoom") == "zoom"
+    assert "Plotly.newPlot('signals-plot'" in page.raw
+    assert 2_000_000 < len(page.raw.encode()) < 8_000_000      # plotly.js (4.8 MB) + the data
+
+
+# ------------------------------------------------------------------------------------------ --against
+@pytest.fixture(scope="module")
+def seed2_run(tmp_path_factory):
+    """The default scenario in lockstep with seed 2, through the command line."""
+    out = tmp_path_factory.mktemp("against") / "seed2"
+    from hil.cli.main import main
+
+    assert main(["run", "default", "--lockstep", "--seed", "2", "--out", str(out), "-q"]) == 0
+    return out
+
+
+def test_against_compares_two_seeds_of_the_default_scenario(default_lockstep, seed2_run, capsys):
+    ref = default_lockstep.out_dir
+    code, out, err = railhil(capsys, "report", seed2_run, "--against", ref)
+    assert code == 0, err
+    page_path = seed2_run / f"report-vs-{ref.name}.html"
+    assert out.strip() == str(page_path)
+    page = page_of(page_path)
+    assert_self_contained(page)
+    assert page.row("seed")[1][1:] == ["2", "1"] and page.row("seed")[0] == "changed"   # runs table
+    assert page.row("scenario")[1][1:] == ["default", "default"]
+    a = json.loads((seed2_run / "kpis.json").read_text())
+    b = default_lockstep.kpis
+    cls, cells = page.row("stopping distance stopping_distance_m")
+    d = a["stopping_distance_m"] - b["stopping_distance_m"]
+    assert cells[1:3] == [str(a["stopping_distance_m"]), str(b["stopping_distance_m"])]
+    assert cells[3] == f"{d:+.4g}" and cells[4] == f"{100 * d / abs(b['stopping_distance_m']):+.2f} %"
+    assert cls == ("changed" if d else "")
+    assert cells[5] == "m"
+    assert "KPIs differ" in page.raw
+    cls, same = page.row("frames lost frames_lost")                     # the same value: Δ 0, not marked
+    assert same[3] == "0" and cls == ""
+    fig = page.figure()
+    names = [tr["name"] for tr in fig["data"]]
+    assert f"{seed2_run.name} · car 1" in names and f"{ref.name} · car 1" in names
+    assert len(fig["data"]) == 2 * 3 * 6
+    dashes = {tr["name"]: tr["line"]["dash"] for tr in fig["data"]}
+    assert dashes[f"{seed2_run.name} · car 1"] == "solid" and dashes[f"{ref.name} · car 1"] == "dash"
+    shown = [tr["name"] for tr in fig["data"] if tr.get("visible", True) is True]
+    assert set(shown) == {f"{seed2_run.name} · car 1", f"{ref.name} · car 1"}   # the rest: a legend click
+
+
+def test_against_writes_where_o_says_and_bad_input_is_a_one_line_error(default_lockstep, seed2_run,
+                                                                     tmp_path, capsys):
+    ref = default_lockstep.out_dir
+    code, out, err = railhil(capsys, "report", seed2_run, "--against", ref, "-o", tmp_path / "cmp.html")
+    assert code == 0 and out.strip() == str(tmp_path / "cmp.html") and (tmp_path / "cmp.html").is_file()
+    (tmp_path / "empty").mkdir()
+    assert_one_line_error(*railhil(capsys, "report", seed2_run, "--against", tmp_path / "nope")[::2],
+                          "nope", "no such run folder")
+    assert_one_line_error(*railhil(capsys, "report", seed2_run, "--against", tmp_path / "empty")[::2],
+                          "empty", "not a run folder", "run.json")
+    assert_one_line_error(*railhil(capsys, "report", tmp_path / "empty", "--against", ref)[::2],
+                          "empty", "run.json")
+    assert_one_line_error(*railhil(capsys, "report", seed2_run, ref, "--against", ref)[::2],
+                          "--against", "one run folder")
+    assert_one_line_error(*railhil(capsys, "report", seed2_run, "-o", tmp_path / "x.html")[::2],
+                          "-o", "--against")
+    assert_one_line_error(*railhil(capsys, "report", seed2_run, "--against", ref, "-o",
+                                   tmp_path / "no" / "x.html")[::2], "no such directory")
+
+
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+#: headless, and nothing of its own on the network (no updates, no sync): the page must need nothing either
+CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                  "--disable-component-update", "--disable-sync", "--no-first-run")
+needs_chromium = pytest.mark.skipif(CHROMIUM is None, reason="no headless browser (apt-get install chromium) "
+                                                             "to render the report with")
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="no headless browser (apt-get install chromium) to render the "
-                                             "report with")
-def test_report_renders_with_its_plot_in_a_headless_browser(default_lockstep, tmp_path):
+def chromium(*args, timeout=120) -> subprocess.CompletedProcess:
+    return subprocess.run([CHROMIUM, *CHROMIUM_FLAGS, "--virtual-time-budget=20000", *map(str, args)],
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@needs_chromium
+def test_report_renders_with_its_plots_in_a_headless_browser(default_lockstep, tmp_path):
+    """plotly.js runs offline from the page (it draws the 18 curves, with its zoom button), and the static
+    plot is on the screen: its lines in matplotlib's tab10 colours, car 1's (tab:blue) and car 2's
+    (tab:orange)."""
     from matplotlib.image import imread
 
+    page = default_lockstep.out_dir / "report.html"
+    dom = chromium("--dump-dom", page.as_uri())
+    assert "js-plotly-plot" in dom.stdout, dom.stderr[-2000:]
+    assert dom.stdout.count('class="trace scatter') == 18
+    assert 'data-title="Zoom"' in dom.stdout and 'data-title="Share chart' not in dom.stdout
     shot = tmp_path / "report.png"
-    proc = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
-                           "--window-size=1200,2000", f"--screenshot={shot}",
-                           (default_lockstep.out_dir / "report.html").as_uri()],
-                          capture_output=True, text=True, timeout=120)
+    proc = chromium("--hide-scrollbars", "--window-size=1200,4600", f"--screenshot={shot}", page.as_uri())
     assert shot.exists(), proc.stderr[-2000:]
     img = imread(shot)[..., :3]                   # floats in [0, 1]
-    # the plot's lines are drawn in matplotlib's tab10 colours: count the screen pixels of car 1's
-    # (tab:blue) and car 2's (tab:orange); a page without the plot has none of them
     for rgb in ((0x1F, 0x77, 0xB4), (0xFF, 0x7F, 0x0E)):
         close = np.all(np.abs(img - np.asarray(rgb) / 255.0) < 0.08, axis=-1)
         assert close.sum() > 500, (rgb, int(close.sum()))
+
+
+@needs_chromium
+def test_comparison_renders_in_a_headless_browser(default_lockstep, seed2_run, tmp_path):
+    from hil.report.html import write_comparison
+
+    page = write_comparison(seed2_run, default_lockstep.out_dir, tmp_path / "cmp.html")
+    dom = chromium("--dump-dom", page.as_uri())
+    assert "js-plotly-plot" in dom.stdout, dom.stderr[-2000:]
+    assert dom.stdout.count('class="trace scatter') == 2 * 3      # car 1 of both runs; the rest hidden

@@ -307,7 +307,8 @@ def run_point(scenario_json: str, run_dir: str) -> dict:
     try:
         from hil.runtime.run import run_scenario_lockstep
 
-        report = run_scenario_lockstep(Scenario.model_validate_json(scenario_json), Path(run_dir))
+        report = run_scenario_lockstep(Scenario.model_validate_json(scenario_json), Path(run_dir),
+                                       interactive_report=False)    # 4.8 MB of plotly.js a point is too much
         if report.outcome.reason == "interrupted":       # a cut-short run is no result to cache
             raise KeyboardInterrupt
         kpis = json.loads(json.dumps(report.kpis, default=str))

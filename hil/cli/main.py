@@ -37,7 +37,8 @@ COMMANDS = {
                  "or on a Dask cluster; resumable"),
     "reproduce": ("hil.cli.reproduce", "reproduce a paper's simulation campaigns next to its figures (one "
                   "command per study)"),
-    "report": ("hil.cli.report", "write the self-contained HTML report of a run folder or a campaign folder"),
+    "report": ("hil.cli.report", "write the HTML report of a run or campaign folder, or compare two runs "
+               "(--against)"),
     "control-centre": ("hil.cli.control_centre", "the anti-collision control centre: pairs follower and "
                        "leader trains over TCP, reports kept in SQLite"),
 }

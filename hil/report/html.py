@@ -1,18 +1,30 @@
-"""One self-contained HTML page per run folder (report.html) and per campaign folder.
+"""One self-contained HTML page per run folder (report.html), per campaign folder, and per comparison of
+two run folders (report-vs-<other>.html).
 
-A run's page is built from the files of its folder only — run.json, kpis.json and the PNG plots — so
-`railhil report RUN_DIR` rebuilds it at any time and `hil.runtime.run.finish_run` writes it after every run
-(cheap: the plots are already drawn; they are embedded as base64 PNG, so the page needs nothing else,
-no network, no neighbouring file). It shows:
+A run's page is built from the files of its folder only — run.json, kpis.json, truth.csv and the PNG plots
+— so `railhil report RUN_DIR` rebuilds it at any time and `hil.runtime.run.finish_run` writes it after
+every run.  It needs nothing else: no network, no neighbouring file (the PNGs are embedded as base64,
+plotly.js is inlined once per page).  It shows:
 
 * the scenario (name, description, seed, the full resolved scenario);
 * the verdicts: each check of `run_verdicts` with its value, its criterion and pass / fail;
-* every KPI of kpis.json (definitions in hil.report.kpis.compute_kpis);
+* every KPI of kpis.json with its name, value, unit and meaning (hil.report.kpi_info): one table of the
+  single values and one of the per-car values (a column per car) for the train, then the same for each
+  group (the bus, real time, each study); a KPI without a description is shown as such;
+* the signals: an interactive plotly figure of the truth (speed, cylinder pressure and slip speed of
+  every car over time, as plot.png), zoomable; at most MAX_POINTS samples a curve (min/max per bucket,
+  so peaks survive the decimation);
+* the static figures: plot.png and each study's <name>.png, as the folder has them;
 * timing: per message on the bit-timed lockstep bus, frames, worst and mean response time [µs] and
   deadline misses (response longer than the message's cycle time); per node of a real-time run, cycles,
   late cycles (started after their deadline) and missed cycles;
 * faults injected and what the receivers' E2E / SecOC checks and the plausibility checks reported;
 * what reproduces the run: railhil and library versions, seed, DBC path and SHA-256, git commit.
+
+A comparison page (`write_comparison`: `railhil report RUN --against REF`) puts two run folders side by
+side the way a regression is reviewed: both runs' scenario, seed, mode and versions, the scenario keys
+that differ, both runs' verdicts, every KPI of either with both values, Δ = RUN − REF and Δ relative to
+|REF| (changed values highlighted), and the two runs' signals overlaid (RUN solid, REF dashed).
 
 A campaign's page (`write_campaign_report`) holds the point counts, the results table (results.csv)
 and the summary plots (plot_<key>.png) of the campaign folder.
@@ -28,14 +40,20 @@ import csv
 import hashlib
 import html
 import json
+import math
 import platform
+import re
 import sys
 from dataclasses import dataclass
 from functools import cache
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
+import numpy as np
+
 from hil.errors import RailhilError
+from hil.report import kpi_info
+from hil.report.kpi_info import Kpi
 from hil.scenario import registry
 
 REPORT_NAME = "report.html"
@@ -43,6 +61,15 @@ REPORT_NAME = "report.html"
 VERSIONED = ("railhil", "python-can", "cantools", "numpy", "pydantic", "matplotlib")
 MAX_FAULT_EVENTS = 200       # fault events listed in a report (run.json keeps them all)
 MAX_TABLE_ROWS = 2000        # campaign rows shown in the page (results.csv keeps them all)
+MAX_POINTS = 2000            # samples a curve of the interactive figures keeps at most (min/max decimation)
+#: matplotlib's tab10, the colours of plot.png's cars, so both figures colour car i alike
+CAR_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
+               "#bcbd22", "#17becf")
+#: the truth columns of the interactive figures: (column prefix, scale, y-axis title), as plot.png
+SIGNALS = (("v_mps", 3.6, "speed [km/h]"), ("p_Pa", 1e-3, "cylinder pressure [kPa]"),
+           ("slip_speed_mps", 1.0, "slip speed v − rω [m/s]"))
+#: no plotly logo, no "Share chart" button (plotly.js 3 uploads the data to Plotly Cloud with it)
+PLOTLY_CONFIG = {"displaylogo": False, "responsive": True, "showSendToCloud": False, "plotlyServerURL": ""}
 
 
 class ReportError(RailhilError):
@@ -199,6 +226,12 @@ th{background:#f4f4f6}td.num{text-align:right;font-variant-numeric:tabular-nums}
 .info{color:#666}.banner{padding:.5em .8em;border-radius:4px;margin:.6em 0;font-weight:600}
 img{max-width:100%;border:1px solid #eee}pre{background:#f7f7f9;padding:.6em;overflow:auto;font-size:.8em}
 .scroll{max-height:32em;overflow:auto}
+h3{font-size:1em;margin:1.2em 0 .2em}code.key{color:#777;font-size:.85em;display:block}
+td.meaning{color:#444;max-width:36em}table.inner{margin:0;font-size:1em}
+table.inner td,table.inner th{padding:.1em .4em}.note{background:#fff6c8;color:#5c4a00}
+tr.undescribed td{background:#fff1d6}tr.changed td{background:#fff6c8}td.delta{white-space:nowrap}
+table.runs td{overflow-wrap:anywhere}table.runs td:first-child{white-space:nowrap}
+nav{font-size:.88em;color:#666}nav a{margin-right:.8em}.plot{width:100%;min-height:400px}
 """
 
 
@@ -238,10 +271,17 @@ def _images(paths: list[Path]) -> str:
     return "".join(parts) or "<p class=info>no plot in this folder</p>"
 
 
-def _page(title: str, body: str) -> str:
+def _page(title: str, body: str, plotly: bool = False) -> str:
+    """The page; `plotly`: with plotly.js inlined (once, in the head) for the interactive figures."""
+    script = (f"<script>window.PlotlyConfig = {{MathJaxConfig: 'local'}};</script>\n"
+              f"<script>{_plotly_js()}</script>\n") if plotly else ""
     return (f"<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8>"
             f"<meta name=viewport content=\"width=device-width, initial-scale=1\">"
-            f"<title>{_e(title)}</title><style>{CSS}</style></head><body>\n{body}\n</body></html>\n")
+            f"<title>{_e(title)}</title><style>{CSS}</style>\n{script}</head><body>\n{body}\n</body></html>\n")
+
+
+def _nav(sections: list[tuple[str, str]]) -> str:
+    return "<nav>" + "".join(f"<a href=\"#{a}\">{_e(t)}</a>" for a, t in sections) + "</nav>"
 
 
 def _read_json(path: Path, what: str) -> dict:
@@ -251,6 +291,192 @@ def _read_json(path: Path, what: str) -> dict:
         raise ReportError(f"{path.parent}: not a run folder: no {path.name} ({what})") from None
     except (OSError, ValueError, UnicodeDecodeError) as exc:
         raise ReportError(f"{path}: cannot read {what}: {' '.join(str(exc).split())[:160]}") from None
+
+
+# ------------------------------------------------------------------------------------------------ KPIs
+def _value_html(v: object) -> str:
+    """A KPI's value for a table cell (escaped): yes/no, numbers, lists as "a, b", a mapping (frames by
+    node, events by status, flags by car) as a small table of its own."""
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, list):
+        return ", ".join(_value_html(x) for x in v) or "—"
+    if isinstance(v, dict):
+        if not v:
+            return "none"
+        if all(isinstance(x, dict) for x in v.values()):          # {flag: {car: t}}
+            return "<table class=inner>" + "".join(
+                f"<tr><th>{_e(k)}</th><td>{_value_html(x)}</td></tr>" for k, x in v.items()) + "</table>"
+        return ("<table class=inner><tr>" + "".join(f"<th>{_e(k)}</th>" for k in v) + "</tr><tr>"
+                + "".join(f"<td class=num>{_value_html(x)}</td>" for x in v.values()) + "</tr></table>")
+    return _e(_fmt(v))
+
+
+def _kpi_name(k: Kpi) -> str:
+    name = k.info.name if k.info else k.key
+    return f"{_e(name)} <code class=key>{_e(k.path)}</code>"
+
+
+def _unit_meaning(k: Kpi) -> tuple[str, str]:
+    if k.info is None:
+        return "?", ("no description: add one to hil/report/kpi_info.py (the foundation's) or the study's "
+                     "KPI_INFO (hil/studies/<name>/kpis.py)")
+    return k.info.unit, k.info.meaning
+
+
+def _kpi_row(k: Kpi) -> str:
+    unit, meaning = _unit_meaning(k)
+    cls = " class=undescribed" if k.info is None else ""
+    num = " class=num" if isinstance(k.value, int | float) and not isinstance(k.value, bool) else ""
+    return (f"<tr{cls}><td>{_kpi_name(k)}</td><td{num}>{_value_html(k.value)}</td><td>{_e(unit)}</td>"
+            f"<td class=meaning>{_e(meaning)}</td></tr>")
+
+
+def _car_cells(values: list, n: int) -> str:
+    """One cell per car, n of them (a shorter list leaves the last ones empty)."""
+    return "".join(f"<td class=num>{_value_html(v)}</td>" for v in values) + "<td></td>" * (n - len(values))
+
+
+def _per_car_table(kpis: list[Kpi]) -> str:
+    n = max(len(k.value) for k in kpis)
+    head = "".join(f"<th>car {i}</th>" for i in range(1, n + 1))
+    rows = []
+    for k in kpis:
+        unit, meaning = _unit_meaning(k)
+        rows.append(f"<tr><td>{_kpi_name(k)}</td>{_car_cells(k.value, n)}<td>{_e(unit)}</td>"
+                    f"<td class=meaning>{_e(meaning)}</td></tr>")
+    return (f"<table><thead><tr><th>per car</th>{head}<th>unit</th><th>meaning</th></tr></thead>"
+            f"<tbody>{''.join(rows)}</tbody></table>")
+
+
+def _kpi_section(kpis: dict) -> str:
+    """The KPIs of kpis.json (hil.report.kpi_info.groups): per group a table name / value / unit /
+    meaning and a table of the per-car values, one column per car."""
+    parts = []
+    for g in kpi_info.groups(kpis):
+        if not g.kpis:
+            continue
+        single = [k for k in g.kpis if not k.per_car]
+        per_car = [k for k in g.kpis if k.per_car]
+        parts.append(f"<h3>{_e(g.title)}</h3>")
+        if single:
+            parts.append("<table><thead><tr><th>KPI</th><th>value</th><th>unit</th><th>meaning</th></tr>"
+                         f"</thead><tbody>{''.join(_kpi_row(k) for k in single)}</tbody></table>")
+        if per_car:
+            parts.append(_per_car_table(per_car))
+    missing = kpi_info.undescribed(kpis)
+    if missing:
+        parts.insert(0, f"<p class=fail>{len(missing)} KPIs without a description: "
+                        f"{_e(', '.join(missing))}</p>")
+    return "".join(parts) or "<p class=info>no KPIs in kpis.json</p>"
+
+
+# -------------------------------------------------------------------------------- interactive figures
+@cache
+def _plotly_js() -> str:
+    from plotly.offline import get_plotlyjs
+
+    return get_plotlyjs()
+
+
+def decimate(t: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """At most about `max_points` samples of the curve (t, y): the smallest and the largest sample of each
+    of max_points/2 equal buckets, in time order, and the first and last sample (a peak survives; a
+    curve of max_points samples or fewer is kept whole)."""
+    n = len(t)
+    if n <= max_points:
+        return t, y
+    k = math.ceil(2 * n / max_points)
+    m = n // k
+    blocks = y[: m * k].reshape(m, k)
+    base = np.arange(m) * k
+    idx = np.unique(np.concatenate([base + np.argmin(blocks, axis=1), base + np.argmax(blocks, axis=1),
+                                    np.arange(m * k, n), [0, n - 1]]))
+    return t[idx], y[idx]
+
+
+def _read_truth(run_dir: Path) -> tuple[dict[str, np.ndarray] | None, str]:
+    """truth.csv of a run folder as columns, or None and why not."""
+    from hil.report.kpis import read_truth_csv
+
+    path = run_dir / "truth.csv"
+    if not path.is_file():
+        return None, f"no {path.name} in the folder"
+    try:
+        cols = read_truth_csv(path)
+    except (RailhilError, ValueError) as exc:
+        return None, " ".join(str(exc).split())[:200]
+    if "t_s" not in cols or len(np.atleast_1d(cols["t_s"])) < 2:
+        return None, f"{path.name} holds no samples"
+    return {k: np.atleast_1d(v) for k, v in cols.items()}, ""
+
+
+def _cars(cols: dict[str, np.ndarray]) -> int:
+    n = 0
+    while f"v_mps_{n + 1}" in cols:
+        n += 1
+    return n
+
+
+def _signals_figure(runs: list[tuple[str, dict[str, np.ndarray]]], title: str):
+    """The truth's speed, cylinder pressure and slip speed of every car over time (SIGNALS), one row each
+    with a shared time axis; one run: every car shown; several (a comparison): the first solid, the others
+    dashed, car 1 shown and the other cars in the legend (a click shows them)."""
+    import plotly.graph_objects as go
+    from plotly.subplots import make_subplots
+
+    rows = [s for s in SIGNALS if any(f"{s[0]}_1" in cols for _, cols in runs)]
+    fig = make_subplots(rows=len(rows), cols=1, shared_xaxes=True, vertical_spacing=0.04)
+    compare = len(runs) > 1
+    for r, (key, scale, label) in enumerate(rows, start=1):
+        for j, (name, cols) in enumerate(runs):
+            t = cols["t_s"]
+            for i in range(1, _cars(cols) + 1):
+                col = cols.get(f"{key}_{i}")
+                if col is None:
+                    continue
+                x, y = decimate(t, col * scale)
+                group = f"{name} · car {i}" if compare else f"car {i}"
+                fig.add_trace(go.Scatter(
+                    x=x.astype(np.float32), y=y.astype(np.float32), mode="lines", name=group,
+                    legendgroup=group, showlegend=r == 1,
+                    visible=True if not compare or i == 1 else "legendonly",
+                    line={"color": CAR_COLOURS[(i - 1) % len(CAR_COLOURS)], "width": 1.2,
+                          "dash": "solid" if j == 0 else "dash"}), row=r, col=1)
+        fig.update_yaxes(title_text=label, row=r, col=1)
+    fig.update_xaxes(title_text="time [s]", row=len(rows), col=1)
+    legend = ({"orientation": "v", "x": 1.01, "y": 1.0, "yanchor": "top"} if compare
+              else {"orientation": "h", "x": 0.0, "y": 1.01, "yanchor": "bottom"})
+    fig.update_layout(title=title, template="plotly_white", height=160 + 260 * len(rows),
+                      hovermode="x unified", legend=legend,
+                      margin={"t": 100, "l": 70, "r": 190 if compare else 20, "b": 50})
+    return fig
+
+
+def _figure_html(fig, div_id: str) -> str:
+    """A plotly figure as a <div> and its data as JSON in the page (plotly.js itself is in the head)."""
+    import plotly.io as pio
+
+    data = pio.to_json(fig, validate=False, pretty=False)      # escapes < > / : safe inside <script>
+    return (f"<div id={div_id} class=plot></div>"
+            f"<script type=application/json id={div_id}-data>{data}</script>"
+            f"<script>(function(){{var f=JSON.parse(document.getElementById('{div_id}-data').textContent);"
+            f"Plotly.newPlot('{div_id}',f.data,f.layout,{json.dumps(PLOTLY_CONFIG)});}})();</script>")
+
+
+def _signals_section(runs: list[tuple[str, dict[str, np.ndarray] | None, str]],
+                     title: str) -> tuple[str, bool]:
+    """(HTML, whether it has a plotly figure) of the signals of `runs` = (name, truth columns or None, why
+    not)."""
+    missing = "".join(f"<p class=info>{_e(name)}: no signals ({_e(why)})</p>" for name, cols, why in runs
+                      if cols is None)
+    have = [(name, cols) for name, cols, _ in runs if cols is not None]
+    if not have:
+        return missing, False
+    note = (f"<p class=info>the plant's truth (truth.csv, every 10 ms), at most {MAX_POINTS} samples a curve "
+            f"(the smallest and largest of each bucket); drag to zoom, double-click to zoom out, click a "
+            f"legend entry to hide or show it</p>")
+    return missing + note + _figure_html(_signals_figure(have, title), "signals-plot"), True
 
 
 # --------------------------------------------------------------------------------------------- run page
@@ -311,26 +537,26 @@ def _faults_section(kpis: dict, meta: dict) -> str:
     return out
 
 
-def _kpi_rows(kpis: dict, prefix: str = "") -> list[list[object]]:
-    rows = []
-    for k, v in sorted(kpis.items()):
-        if isinstance(v, dict) and v and all(not isinstance(x, dict) for x in v.values()) and len(v) > 12:
-            rows.append([prefix + k, v])
-        elif isinstance(v, dict) and v:
-            rows += _kpi_rows(v, f"{prefix}{k}.")
-        else:
-            rows.append([prefix + k, v])
-    return rows
-
-
-def render_run_report(run_dir: Path) -> str:
-    """The HTML page of a run folder (module docstring), from its run.json, kpis.json and PNG plots."""
+def _run_header(run_dir: Path) -> tuple[dict, dict, dict]:
+    """(run.json, kpis.json, the resolved scenario) of a run folder; ReportError when it is none."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise ReportError(f"{run_dir}: no such run folder")
     meta = _read_json(run_dir / "run.json", "the run's metadata")
     kpis = _read_json(run_dir / "kpis.json", "the run's KPIs")
-    scenario = meta.get("scenario") or {}
+    return meta, kpis, meta.get("scenario") or {}
+
+
+def _versions_of(meta: dict) -> dict:
+    return meta.get("versions") or {"python": meta.get("python"), "python-can": meta.get("python_can")}
+
+
+def render_run_report(run_dir: Path, interactive: bool = True) -> str:
+    """The HTML page of a run folder (module docstring), from its run.json, kpis.json, truth.csv and PNG
+    plots; `interactive=False` leaves the plotly figure (and the 4.8 MB of plotly.js) out — a campaign's
+    points, of which there may be hundreds, keep the static figures and say how to get it."""
+    run_dir = Path(run_dir)
+    meta, kpis, scenario = _run_header(run_dir)
     verdicts = run_verdicts(kpis, meta)
     failed = [v for v in verdicts if v.passed is False]
     name = scenario.get("name", run_dir.name)
@@ -339,33 +565,246 @@ def render_run_report(run_dir: Path) -> str:
               if failed else "<div class='banner pass'>PASS: every check holds</div>")
     vrows = "".join(f"<tr><td>{_e(v.check)}</td><td>{_e(v.value)}</td><td>{_e(v.criterion)}</td>"
                     f"{_verdict_cell(v.passed)}</tr>" for v in verdicts)
-    versions = meta.get("versions") or {"python": meta.get("python"), "python-can": meta.get("python_can")}
     repro = [["seed", scenario.get("seed")], ["mode", meta.get("mode")], ["DBC", meta.get("dbc")],
              ["DBC SHA-256", meta.get("dbc_sha256")], ["git commit", meta.get("git_commit")],
              ["command", meta.get("command")], ["platform", meta.get("platform")],
+             ["trace", meta.get("trace", "trace.blf")],
              ["wall time [s]", meta.get("wall_s")], ["simulated [s]", kpis.get("simulated_s")]]
-    repro += [[f"version: {k}", v] for k, v in versions.items()]
-    plots = sorted(run_dir.glob("*.png"))
+    repro += [[f"version: {k}", v] for k, v in _versions_of(meta).items()]
+    if interactive:
+        cols, why = _read_truth(run_dir)
+        signals, plotly = _signals_section([(name, cols, why)], title)
+    else:
+        signals, plotly = (f"<p class=info>no interactive figure in this page (a campaign point's page "
+                           f"keeps the static figures below); <code>railhil report {_e(run_dir)}</code> "
+                           f"writes it with the zoomable signals</p>"), False
+    sections = [("verdicts", "Verdicts"), ("kpis", "KPIs"), ("signals", "Signals"),
+                ("figures", "Static figures"), ("timing", "Timing"), ("faults", "Faults"),
+                ("reproduce", "Reproduce"), ("scenario", "Scenario")]
     body = (f"<h1>{_e(title)}</h1><p>{_e(scenario.get('description', ''))}</p>{banner}"
             f"<p class=info>folder {_e(run_dir.resolve())}; ended by {_e(kpis.get('end_reason'))} after "
-            f"{_e(_fmt(kpis.get('simulated_s')))} s simulated</p>"
-            f"<h2>Verdicts</h2><table><thead><tr><th>check</th><th>value</th><th>criterion</th>"
+            f"{_e(_fmt(kpis.get('simulated_s')))} s simulated</p>{_nav(sections)}"
+            f"<h2 id=verdicts>Verdicts</h2><table><thead><tr><th>check</th><th>value</th><th>criterion</th>"
             f"<th>verdict</th></tr></thead><tbody>{vrows}</tbody></table>"
-            f"<h2>Plots</h2>{_images(plots)}"
-            f"<h2>KPIs</h2>{_table(['KPI', 'value'], _kpi_rows(kpis))}"
-            f"<h2>Timing</h2>{_timing_section(meta)}"
-            f"<h2>Faults</h2>{_faults_section(kpis, meta)}"
-            f"<h2>Reproduce</h2>{_table(['', ''], repro)}"
-            f"<h2>Scenario</h2><details><summary>the resolved scenario (JSON)</summary><pre>"
+            f"<h2 id=kpis>KPIs</h2>{_kpi_section(kpis)}"
+            f"<h2 id=signals>Signals</h2>{signals}"
+            f"<h2 id=figures>Static figures</h2>{_images(sorted(run_dir.glob('*.png')))}"
+            f"<h2 id=timing>Timing</h2>{_timing_section(meta)}"
+            f"<h2 id=faults>Faults</h2>{_faults_section(kpis, meta)}"
+            f"<h2 id=reproduce>Reproduce</h2>{_table(['', ''], repro)}"
+            f"<h2 id=scenario>Scenario</h2><details><summary>the resolved scenario (JSON)</summary><pre>"
             f"{_e(json.dumps(scenario, indent=2))}</pre></details>")
-    return _page(title, body)
+    return _page(title, body, plotly)
 
 
-def write_run_report(run_dir: Path) -> Path:
-    """Write <run_dir>/report.html; returns its path."""
-    page = render_run_report(run_dir)
+def write_run_report(run_dir: Path, interactive: bool = True) -> Path:
+    """Write <run_dir>/report.html (`interactive`: as render_run_report); returns its path."""
+    page = render_run_report(run_dir, interactive)
     out = Path(run_dir) / REPORT_NAME
     out.write_text(page, encoding="utf-8")
+    return out
+
+
+# ------------------------------------------------------------------------------------- comparison page
+COMPARE_PREFIX = "report-vs-"      # RUN/report-vs-<REF folder name>.html
+
+
+def comparison_path(run_dir: Path, ref_dir: Path) -> Path:
+    """Where `railhil report RUN --against REF` writes by default: RUN/report-vs-<REF's folder name>.html."""
+    name = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(ref_dir).resolve().name) or "run"
+    return Path(run_dir) / f"{COMPARE_PREFIX}{name}.html"
+
+
+def _is_num(v: object) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _signed(d: float) -> str:
+    if d == 0:
+        return "0"
+    return f"{d:+d}" if isinstance(d, int) else f"{d:+.4g}"
+
+
+def _delta(a: object, b: object, unit: str = "") -> tuple[str, str]:
+    """(Δ = a − b, Δ relative to |b|) of two values of one KPI, as text; lists element by element; for an
+    identifier or a text only whether they differ."""
+    if unit in ("id", "text"):
+        return ("" if a == b else "changed"), ""
+    if _is_num(a) and _is_num(b):
+        d = a - b
+        return _signed(d), ("—" if b == 0 else "0 %" if d == 0 else f"{100 * d / abs(b):+.2f} %")
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b) and all(map(_is_num, a + b)):
+        return ", ".join(_signed(x - y) for x, y in zip(a, b, strict=True)), ""
+    return ("" if a == b else "changed"), ""
+
+
+def _flat(v: object, prefix: str) -> dict[str, object]:
+    """A mapping KPI (frames by node, flags by car) as one value per key: "frames_sent_by_node · BCU"."""
+    if not isinstance(v, dict) or not v:
+        return {prefix: v}
+    out: dict[str, object] = {}
+    for k, x in v.items():
+        out.update(_flat(x, f"{prefix} · {k}"))
+    return out
+
+
+_NONE = object()                   # a KPI the run does not have
+
+
+def _cell(v: object) -> str:
+    return "<td class=info>(none)</td>" if v is _NONE else f"<td class=num>{_value_html(v)}</td>"
+
+
+def _compare_kpi_section(ka: dict, kb: dict) -> tuple[str, int, int]:
+    """(HTML, KPIs compared, KPIs that differ) of the KPI tables of a comparison: per group, single values
+    with both runs, Δ and Δ relative, and the per-car values (rows run / reference / Δ)."""
+    order: list[str] = []
+    titles: dict[str, str] = {}
+    pairs: dict[str, dict[str, list]] = {}
+    for side, kpis in ((0, ka), (1, kb)):
+        for g in kpi_info.groups(kpis):
+            if g.key not in pairs:
+                order.append(g.key)
+                titles[g.key], pairs[g.key] = g.title, {}
+            for k in g.kpis:
+                pairs[g.key].setdefault(k.path, [None, None])[side] = k
+    parts, total, changed = [], 0, 0
+    for key in order:
+        single, per_car = [], []
+        for a, b in pairs[key].values():
+            k = a or b
+            va, vb = (a.value if a else _NONE), (b.value if b else _NONE)
+            unit, meaning = _unit_meaning(k)
+            if (a and a.per_car) or (b and b.per_car):
+                total += 1
+                changed += va != vb
+                per_car.append((k, va, vb, unit))
+                continue
+            fa = _flat(va, k.path) if va is not _NONE else {}
+            fb = _flat(vb, k.path) if vb is not _NONE else {}
+            for path in dict.fromkeys([*fa, *fb]):
+                x, y = fa.get(path, _NONE), fb.get(path, _NONE)
+                total += 1
+                changed += x != y
+                d, rel = _delta(x, y, unit) if x is not _NONE and y is not _NONE else ("changed", "")
+                name = (k.info.name if k.info else k.key) + path[len(k.path):]
+                cls = " class=changed" if x != y else (" class=undescribed" if k.info is None else "")
+                single.append(f"<tr{cls}><td>{_e(name)} <code class=key>{_e(path)}</code></td>{_cell(x)}"
+                              f"{_cell(y)}<td class='num delta'>{_e(d)}</td><td class='num delta'>{_e(rel)}"
+                              f"</td><td>{_e(unit)}</td><td class=meaning>{_e(meaning)}</td></tr>")
+        parts.append(f"<h3>{_e(titles[key])}</h3>")
+        if single:
+            parts.append("<table><thead><tr><th>KPI</th><th>run</th><th>reference</th><th>Δ</th>"
+                         "<th>Δ rel.</th><th>unit</th><th>meaning</th></tr></thead>"
+                         f"<tbody>{''.join(single)}</tbody></table>")
+        if per_car:
+            n = max(len(v) for _, va, vb, _ in per_car for v in (va, vb) if isinstance(v, list))
+            head = "".join(f"<th>car {i}</th>" for i in range(1, n + 1))
+            rows = []
+            for k, va, vb, unit in per_car:
+                la = va if isinstance(va, list) else []
+                lb = vb if isinstance(vb, list) else []
+                cls = " class=changed" if va != vb else ""
+                deltas = [_delta(x, y, unit)[0] for x, y in zip(la, lb, strict=False)]
+                deltas += [""] * (n - len(deltas))
+                rows.append(f"<tr{cls}><td rowspan=3>{_kpi_name(k)}</td><td>run</td>{_car_cells(la, n)}"
+                            f"<td rowspan=3>{_e(unit)}</td></tr>"
+                            f"<tr{cls}><td>reference</td>{_car_cells(lb, n)}</tr>"
+                            f"<tr{cls}><td>Δ</td>"
+                            + "".join(f"<td class='num delta'>{_e(d)}</td>" for d in deltas) + "</tr>")
+            parts.append(f"<table><thead><tr><th>per car</th><th></th>{head}<th>unit</th></tr></thead>"
+                         f"<tbody>{''.join(rows)}</tbody></table>")
+    return "".join(parts), total, changed
+
+
+def _flat_json(v: object, prefix: str = "") -> dict[str, object]:
+    if isinstance(v, dict) and v:
+        out: dict[str, object] = {}
+        for k, x in v.items():
+            out.update(_flat_json(x, f"{prefix}.{k}" if prefix else str(k)))
+        return out
+    return {prefix: v}
+
+
+def _pair_rows(rows: list[tuple[str, object, object]], always: tuple[str, ...] = ()) -> str:
+    """Rows label / run / reference, those that differ highlighted (but those in `always`: they differ
+    between any two runs)."""
+    return "".join(f"<tr{' class=changed' if a != b and label not in always else ''}><td>{_e(label)}</td>"
+                   f"<td>{_e(_fmt(a))}</td><td>{_e(_fmt(b))}</td></tr>" for label, a, b in rows)
+
+
+def render_comparison(run_dir: Path, ref_dir: Path) -> str:
+    """The comparison page of two run folders (module docstring): Δ = RUN − REF."""
+    run_dir, ref_dir = Path(run_dir), Path(ref_dir)
+    meta_a, ka, sa = _run_header(run_dir)
+    meta_b, kb, sb = _run_header(ref_dir)
+    la, lb = run_dir.resolve().name, ref_dir.resolve().name
+    if la == lb:
+        la, lb = "run", "reference"
+    va, vb = _versions_of(meta_a), _versions_of(meta_b)
+    runs = [("folder", str(run_dir.resolve()), str(ref_dir.resolve())),
+            ("scenario", sa.get("name"), sb.get("name")),
+            ("description", sa.get("description"), sb.get("description")),
+            ("seed", sa.get("seed"), sb.get("seed")), ("mode", meta_a.get("mode"), meta_b.get("mode")),
+            ("ended by", ka.get("end_reason"), kb.get("end_reason")),
+            ("simulated [s]", ka.get("simulated_s"), kb.get("simulated_s")),
+            ("wall time [s]", meta_a.get("wall_s"), meta_b.get("wall_s")),
+            ("git commit", meta_a.get("git_commit"), meta_b.get("git_commit")),
+            ("DBC SHA-256", meta_a.get("dbc_sha256"), meta_b.get("dbc_sha256")),
+            ("trace", meta_a.get("trace", "trace.blf"), meta_b.get("trace", "trace.blf"))]
+    runs += [(f"version: {k}", va.get(k), vb.get(k)) for k in dict.fromkeys([*va, *vb])]
+    fa, fb = _flat_json(sa), _flat_json(sb)
+    diffs = [(k, fa.get(k), fb.get(k)) for k in dict.fromkeys([*fa, *fb]) if fa.get(k) != fb.get(k)]
+    scen = (f"<table><thead><tr><th>key</th><th>run</th><th>reference</th></tr></thead><tbody>"
+            f"{_pair_rows(diffs)}</tbody></table>" if diffs
+            else "<p class=info>the two runs' resolved scenarios are the same</p>")
+    verd_a = {v.check: v for v in run_verdicts(ka, meta_a)}
+    verd_b = {v.check: v for v in run_verdicts(kb, meta_b)}
+    regressions = [c for c in verd_a if verd_a[c].passed is False and c in verd_b and verd_b[c].passed]
+    vrows = []
+    for check in dict.fromkeys([*verd_a, *verd_b]):
+        a, b = verd_a.get(check), verd_b.get(check)
+        cells = "".join(f"<td>{_e(v.value)}</td>{_verdict_cell(v.passed)}" if v
+                        else "<td class=info>—</td><td></td>" for v in (a, b))
+        diff = (a.passed if a else None) != (b.passed if b else None) or (a and b and a.value != b.value)
+        vrows.append(f"<tr{' class=changed' if diff else ''}><td>{_e(check)}</td>{cells}</tr>")
+    kpi_html, total, changed = _compare_kpi_section(ka, kb)
+    title = f"railhil comparison: {la} against {lb}"
+    if regressions:
+        banner = ("<div class='banner fail'>REGRESSION: fails here, passes in the reference: "
+                  f"{_e(', '.join(regressions))}</div>")
+    elif changed:
+        banner = (f"<div class='banner note'>{changed} of {total} KPIs differ; no check that passes in the "
+                  f"reference fails here</div>")
+    else:
+        banner = f"<div class='banner pass'>the same: none of {total} KPIs differs</div>"
+    ca, why_a = _read_truth(run_dir)
+    cb, why_b = _read_truth(ref_dir)
+    signals, plotly = _signals_section([(la, ca, why_a), (lb, cb, why_b)],
+                                       f"{la} (solid) against {lb} (dashed)")
+    sections = [("runs", "Runs"), ("scenario", "Scenario differences"), ("verdicts", "Verdicts"),
+                ("kpis", "KPIs"), ("signals", "Signals")]
+    body = (f"<h1>{_e(title)}</h1>{banner}<p class=info>run: {_e(run_dir.resolve())}; reference: "
+            f"{_e(ref_dir.resolve())}; Δ = run − reference, Δ rel. = Δ / |reference|; rows that differ are "
+            f"highlighted</p>{_nav(sections)}"
+            f"<h2 id=runs>Runs</h2><table class=runs><thead><tr><th></th><th>run: {_e(la)}</th>"
+            f"<th>reference: {_e(lb)}</th></tr></thead><tbody>{_pair_rows(runs, ('folder', 'wall time [s]'))}"
+            f"</tbody></table>"
+            f"<h2 id=scenario>Scenario differences</h2>{scen}"
+            f"<h2 id=verdicts>Verdicts</h2><table><thead><tr><th>check</th><th>run</th><th></th>"
+            f"<th>reference</th><th></th></tr></thead><tbody>{''.join(vrows)}</tbody></table>"
+            f"<h2 id=kpis>KPIs</h2>{kpi_html}"
+            f"<h2 id=signals>Signals</h2>{signals}")
+    return _page(title, body, plotly)
+
+
+def write_comparison(run_dir: Path, ref_dir: Path, out: Path | None = None) -> Path:
+    """Write the comparison page of RUN against REF (`render_comparison`) to `out` (default
+    `comparison_path`: RUN/report-vs-<REF's name>.html); returns its path."""
+    out = Path(out) if out is not None else comparison_path(run_dir, ref_dir)
+    if not out.parent.is_dir():
+        raise ReportError(f"-o {out}: no such directory {out.parent}")
+    out.write_text(render_comparison(run_dir, ref_dir), encoding="utf-8")
     return out
 
 

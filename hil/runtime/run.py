@@ -93,7 +93,8 @@ def dbc_path_of(scenario: Scenario) -> Path:
 
 
 def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec: Codec,
-               trace_t0_s: float = 0.0, trace_speed: float = 1.0, extra: dict | None = None) -> RunReport:
+               trace_t0_s: float = 0.0, trace_speed: float = 1.0, extra: dict | None = None,
+               interactive_report: bool = True) -> RunReport:
     trace = out_dir / trace_name(scenario)
     cols = outcome.truth.columns()
     truth_csv = out_dir / "truth.csv"
@@ -157,11 +158,12 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     }
     run_json = out_dir / "run.json"
     run_json.write_text(json.dumps(meta, indent=2, default=str) + "\n")
-    report = write_run_report(out_dir)                           # report.html: one self-contained page
+    report = write_run_report(out_dir, interactive_report)       # report.html: one self-contained page
     return RunReport(out_dir, outcome, kpis, [trace, truth_csv, kpis_json, plot, *figures, run_json, report])
 
 
-def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None) -> RunReport:
+def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None,
+                          interactive_report: bool = True) -> RunReport:
     dbc_path = dbc_path_of(scenario)
     db = load_dbc(dbc_path)
     codec = Codec(db)
@@ -170,4 +172,4 @@ def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None) -> R
     with open_writer(out_dir / trace_name(scenario), start_time_s=0.0) as writer:   # simulated s from 0
         outcome = run_lockstep(scenario, db, codec, writer, progress=progress, dbc_name=str(dbc_path),
                                setup=setup)
-    return finish_run(scenario, outcome, out_dir, db, codec)
+    return finish_run(scenario, outcome, out_dir, db, codec, interactive_report=interactive_report)

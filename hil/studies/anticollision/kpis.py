@@ -173,3 +173,22 @@ def verdicts(k: dict) -> list[tuple]:
     gap = "—" if k["min_gap_m"] is None else f"{k['min_gap_m']:.1f} m"
     return [("no collision with the train ahead", f"min gap {gap}", "gap > 0 all along", not k["collision"]),
             ("no red signal passed", str(k["overruns"]), "= 0", k["overruns"] == 0)]
+
+
+# What each KPI above is, for report.html (hil.report.kpi_info): (display name, unit, meaning[, per car])
+KPI_INFO = {
+    "min_gap_m": ("min gap to the train ahead", "m",
+                  "smallest distance from car 1's front to the leading train's last wagon (none: no "
+                  "train ahead)"),
+    "collision": ("collision", "yes/no", "that gap reached 0"),
+    "overruns": ("red-signal overruns", "count", "signals the front passed while they showed red"),
+    "min_signal_m": ("closest to a red signal", "m",
+                     "smallest distance from the front to a signal ahead showing red (none: no red signal)"),
+    "applications": ("ACD brake applications", "count", "ACD_BRAKE_REQ.Request rising from NONE"),
+    "unnecessary": ("unnecessary applications", "count",
+                    "applications while the obstacle was farther than braking distance + release hysteresis"),
+    "first_brake_s": ("first ACD application", "s", "time of the ACD's first brake request (none: none)"),
+    "stop_gap_m": ("gap at the end", "m", "gap to the train ahead when the run ended (none without one)"),
+    "prediction": ("prediction", "yes/no",
+                   "the ACD's dead reckoning with an uncertainty margin (seed 002 §X)"),
+}

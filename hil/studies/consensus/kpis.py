@@ -126,3 +126,26 @@ def verdicts(k: dict) -> list[tuple]:
     """The study's checks for report.html: (check, value, criterion, passed), on plant truth."""
     return [("couplers within ±1 cm", f"max |Δl| {k['max_abs_dl_mm']:.2f} mm", "≤ 10 mm (θ2, Table 2)",
              k["holds_1cm"])]
+
+
+# What each KPI above is, for report.html (hil.report.kpi_info): (display name, unit, meaning[, per car])
+KPI_INFO = {
+    "observer": ("observer", "yes/no", "u_i3 compensates the observer's estimate (eq. 29)"),
+    "max_abs_dl_mm": ("max |Δl|", "mm", "largest coupler deformation over every 1 ms plant step"),
+    "holds_1cm": ("within ±1 cm", "yes/no", "max |Δl| ≤ θ2 = 10 mm (Table 2)"),
+    "converged_s": ("converged to 1 km/h", "s",
+                    "from t0, the time after which every |v_i − v*| stays within 1 km/h until the first "
+                    "event; none: never"),
+    "converged_fine_s": ("converged to 0.1 km/h", "s", "the same within 0.1 km/h"),
+    "converged_after_recovery_s": ("converged after recovery, 1 km/h", "s",
+                                   "the same from the end of skidding (case 2); none without a rail change"),
+    "converged_after_recovery_fine_s": ("converged after recovery, 0.1 km/h", "s",
+                                        "the same within 0.1 km/h"),
+    "tracking_rms_mps": ("tracking RMS", "m/s", "RMS of v_i − v* over all cars from rms_from_s"),
+    "rms_from_s": ("RMS from", "s", "start of the tracking RMS (1 s, recovery + 1 s, or the disturbance)"),
+    "final_abs_ve_max_mps": ("final max |v_i − v*|", "m/s",
+                             "largest speed error of any car at the last sample"),
+    "observer_converged_ms": ("observer converged", "ms",
+                              "first time from which |φ̂₂ − φ₂/m₂| ≤ 0.1 m/s² for 100 ms (BECU2's DIAG); "
+                              "none: never"),
+}

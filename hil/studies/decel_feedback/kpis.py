@@ -150,3 +150,27 @@ def summary_lines(k: dict) -> list[str]:
                     if k.get("pad_mu_ratio_range") else "")
                  + "   (paper, Figs. 19-20: closed loop smoother and closer to 1.32 m/s², no figure given)")
     return lines
+
+
+# What each KPI above is, for report.html (hil.report.kpi_info): (display name, unit, meaning[, per car])
+KPI_INFO = {
+    "closed_loop": ("closed loop", "yes/no",
+                    "the BCU corrects the pressure (φ, eq. 34); no: it monitors only"),
+    "engaged_at_s": ("engaged at", "s",
+                     "when the loop engaged (BCU_STATUS.FbState = ENGAGED, else §5.2's rule on the true "
+                     "ratio); none: never"),
+    "engage_source": ("engagement from", "text", "BCU (the trace) or truth rule"),
+    "band": ("band", "1", "[low, high] of actual/target deceleration the loop keeps to (§5.2)"),
+    "within_band_judged": ("within band, whole stop", "1",
+                           "fraction of judged samples with the ratio in the band (judged: steady target "
+                           "> 0.2 m/s², train > 1 m/s)"),
+    "within_band_after_engagement": ("within band after engagement", "1",
+                                     "the same from the engagement to the stop; none: not engaged"),
+    "window_s": ("judged window", "s", "[start, end] of the judged samples after engagement"),
+    "ratio_min": ("min ratio", "1", "smallest actual/target deceleration after engagement"),
+    "ratio_max": ("max ratio", "1", "largest actual/target deceleration after engagement"),
+    "ratio_rms_error": ("ratio RMS error", "1", "RMS of ratio − 1 after engagement"),
+    "wsp_activations": ("WSP activations", "count", "times the car's applied WSP valve went to VENT", True),
+    "pad_mu_ratio_range": ("pad friction μ_d/μ_d0", "1", "[min, max] of car 1's pad friction over nominal "
+                                                         "(eq. 25), judged samples"),
+}

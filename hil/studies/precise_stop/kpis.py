@@ -64,3 +64,19 @@ def summary_lines(k: dict) -> list[str]:
             + (f"   (paper: {paper})" if paper else ""),
             f"jerk                    p95 {k['jerk_p95_mps3']:.3f} m/s³, max {k['jerk_max_mps3']:.3f} m/s³ "
             f"over {k['braking_s']:.1f} s of braking"]
+
+
+# What each KPI above is, for report.html (hil.report.kpi_info): (display name, unit, meaning[, per car])
+KPI_INFO = {
+    "method": ("method", "text",
+               "the BCU's stopping method: adaptive (Fig. 2), adaptive_diff (Fig. 3) or pi"),
+    "target_m": ("target stop point", "m", "the desk's last target: track position of car 1's front"),
+    "stop_error_m": ("stop error", "m", "car 1's front at the standstill − the target; + = overshoot; none "
+                                        "when the train did not stop"),
+    "stopped": ("stopped", "yes/no", "the train came to a standstill"),
+    "braking_s": ("braking time", "s", "from the BCU's first non-zero target deceleration to the standstill"),
+    "jerk_p95_mps3": ("jerk, 95th percentile", "m/s³",
+                      "95th percentile of |d/dt| of the train deceleration (over 0.1 s) while braking"),
+    "jerk_max_mps3": ("jerk, max", "m/s³", "largest |d/dt| of the train deceleration (over 0.1 s) while "
+                                           "braking"),
+}

@@ -70,3 +70,24 @@ def summary_lines(k: dict) -> list[str]:
             f"norm n_e {ne}",
             f"  ... per car           mean |σ° − σ| {errors}; achieved α {alphas} 1/s (design "
             f"{k['alpha_design_per_s']:g})"]
+
+
+# What each KPI above is, for report.html (hil.report.kpi_info): (display name, unit, meaning[, per car])
+KPI_INFO = {
+    "mode": ("mode", "text",
+             "paper: the reduced slip model of eq. (4) in the plant; full: the wheelset plant, each BECU's "
+             "slip loop tracking the reference"),
+    "method": ("slip reference", "text", "Lf (car 1's σ°), Bd (own σ°), Dp (preview, eqs. 9–11) or ideal "
+                                         "(the limit S°)"),
+    "sigma_source": ("σ° source", "text", "oracle (the plant's true σ°) or estimate (each BECU's estimator)"),
+    "tracking_norm": ("tracking norm n_e", "1/√m",
+                      "(1/S)·√(∫‖σ° − σ‖² dx) over car 1's travel S (§3.2); smaller: closer to the "
+                      "optimum"),
+    "mean_abs_slip_error": ("mean |σ° − σ|", "1",
+                            "mean distance of the car's slip ratio from the optimal one while it moves "
+                            "(> 0.5 m/s)", True),
+    "achieved_alpha_per_s": ("achieved α", "1/s",
+                             "1/t63 of the car's first application: σ reaching 1 − 1/e of its SlipRef; none "
+                             "if never", True),
+    "alpha_design_per_s": ("design α", "1/s", "α of eq. (4) the scenario asks of the slip loop"),
+}

@@ -162,3 +162,37 @@ def verdicts(k: dict) -> list[tuple]:
     slips = " ".join(f"{s:.4f}" for s in k["max_slip_every_step_mps"])
     return [("slip ≤ s̄ at every plant step", f"{slips} m/s", f"≤ {k['slip_limit_mps']} m/s",
              all(k["slip_within_limit"]))]
+
+
+# What each KPI above is, for report.html (hil.report.kpi_info): (display name, unit, meaning[, per car])
+KPI_INFO = {
+    "governor": ("reference governor", "yes/no", "each BECU's reference governor (eq. 9) limits its "
+                                                 "deceleration reference"),
+    "slip_limit_mps": ("slip limit s̄", "m/s", "the slip speed the governor keeps below (eq. 8)"),
+    "paper_figure": ("paper figure", "text", "the seed 001 figure the scenario redoes (fig8, fig9), or none"),
+    "window_s": ("braking window", "s", "[start, end]: from the brake command to the stop, while the train "
+                                        "moves (> 0.5 m/s); none when it never moved"),
+    "max_slip_every_step_mps": ("max slip, every plant step", "m/s",
+                                "largest true slip speed v − rω of the car over every 1 ms plant step of the "
+                                "window", True),
+    "slip_within_limit": ("slip within s̄", "yes/no", "the car's slip stayed ≤ s̄ at every plant step", True),
+    "wsp_activations": ("WSP activations", "count", "times the car's applied WSP valve went to VENT", True),
+    "wsp_time_s": ("WSP time", "s", "time the car's applied WSP valve was not FILL", True),
+    "mean_error_g": ("mean deceleration error", "g",
+                     "mean r⁰ − v̇ over the window (the paper's lim 1/T ∫ r⁰ − v̇ dt, Fig. 8a)"),
+    "steady_state_window_s": ("steady-state window", "s",
+                              "[start, end]: the last steady_state_window_s of the window, at most its half"),
+    "steady_state_decel_g": ("steady-state deceleration", "g", "mean train deceleration in the steady state"),
+    "steady_state_error_g": ("steady-state error", "g", "mean r⁰ − v̇ in the steady state (Fig. 8b)"),
+    "mu_at_slip_limit": ("μ(s̄)", "1", "adhesion at the slip limit on the scenario's slip-speed curve"),
+    "steady_state_bound_g": ("steady-state error bound", "g",
+                             "r⁰ − μ(s̄)·g: the least steady error any reference gives without s > s̄ (none "
+                             "without the slip-speed adhesion curve)"),
+    "steady_state_excess_g": ("error above the bound", "g", "steady-state error − bound"),
+    "settling_time_s": ("settling time", "s",
+                        "brake command to v̇ staying within ±2 % of its steady value; none: not settled"),
+    "overshoot_g": ("overshoot", "g", "largest v̇ in the window above its steady value"),
+    "distance_m": ("distance over the window", "m", "car 1's travel over the braking window"),
+    "beyond_ideal_m": ("beyond ideal braking", "m",
+                       "distance − that of braking at exactly r⁰(t) from the same start (∬ r⁰ − v̇ dt²)"),
+}

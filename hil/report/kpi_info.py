@@ -1,0 +1,182 @@
+"""What each KPI of kpis.json is: its display name, its unit, a one-line meaning and whether it is per car.
+
+kpis.json holds the foundation's KPIs (hil.report.kpis.compute_kpis and hil.runtime.run.finish_run) at its
+top level, two groups of them (`bus`, `realtime`) and each study's under the study's name.  The table of
+the foundation's is `FOUNDATION` below (a group's members by their dotted path, `bus.load`); each study
+keeps its own as `KPI_INFO` at the end of hil/studies/<name>/kpis.py, in the same shape, and the report
+finds it through the study registry.
+
+An entry is a tuple `(display name, unit, meaning)` or `(display name, unit, meaning, True)` for a KPI
+that is a list of one value per car (car 1 first).  Units are SI as the key's suffix says (`_m`, `_s`,
+`_mps`, `_mps2`); the study KPIs the papers give in g say g (9.81 m/s²).  For what has no physical unit:
+`1` a ratio or fraction, `count` a number of things, `yes/no` a flag, `text` a name or a choice, `id`
+an identifier (the seed).
+
+`groups(kpis)` sorts a kpis.json into the tables the report shows, each KPI with its entry or None;
+`undescribed(kpis)` lists the dotted paths that have no entry (tests/test_report_html.py fails on any,
+so a KPI added without a description is caught).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+from hil.scenario import registry
+
+
+class KpiInfo(NamedTuple):
+    name: str               # display name
+    unit: str               # SI unit, or 1 / count / yes/no / text / id
+    meaning: str            # one line
+    per_car: bool = False   # a list of one value per car
+
+
+PER_CAR = True
+
+# (display name, unit, meaning[, per car]); the order is the report's
+FOUNDATION: dict[str, tuple] = {
+    "stopped": ("train stopped", "yes/no",
+                "every car below the plant's standstill speed (0.01 m/s) at a truth sample after the brake "
+                "command"),
+    "stopping_distance_m": ("stopping distance", "m",
+                            "car 1's travel from the first brake command to the standstill (to the end of "
+                            "the run when the train did not stop)"),
+    "time_to_stop_s": ("time to stop", "s",
+                       "from the first brake command to the standstill; none when the train did not stop"),
+    "brake_start_s": ("brake command", "s",
+                      "simulated time of the desk's first brake command (the start of the run without one)"),
+    "mean_abs_decel_error_mps2": ("mean |deceleration error|", "m/s²",
+                                  "mean |r⁰ − train deceleration| after the brake command while a car moves "
+                                  "(> 0.5 m/s); r⁰ = BCU_DEMAND.TargetDecel from the trace, the train's "
+                                  "deceleration mass-weighted from the truth; none without BCU_DEMAND"),
+    "max_slip_speed_mps": ("max slip speed", "m/s",
+                           "largest slip speed v − rω of the car at the 10 ms truth samples while it moves "
+                           "(> 0.5 m/s)", PER_CAR),
+    "max_slip_ratio": ("max slip ratio", "1",
+                       "largest slip ratio σ = (v − rω)/v of the car at the 10 ms truth samples while it "
+                       "moves (> 0.5 m/s)", PER_CAR),
+    "wsp_activations": ("WSP activations", "count",
+                        "times the car's applied WSP valve went to VENT (from FILL or HOLD; a VENT at the "
+                        "first sample counts)", PER_CAR),
+    "wsp_time_s": ("WSP time", "s",
+                   "time the car's applied WSP valve was not FILL (HOLD or VENT), at the truth samples",
+                   PER_CAR),
+    "max_abs_coupler_dl_m": ("max |coupler displacement|", "m",
+                             "largest |Δl| of any coupler at the truth samples (trains of more than one "
+                             "car)"),
+    "frames_sent": ("frames sent", "count", "CAN frames every node handed to the bus"),
+    "frames_recorded": ("frames recorded", "count", "frames in the run's trace"),
+    "frames_in_flight": ("frames in flight", "count",
+                         "frames still queued or on the wire when the run ended"),
+    "frames_overwritten": ("frames overwritten", "count",
+                           "frames replaced by a newer one of the same message in a full transmit queue"),
+    "frames_faulted": ("frames added/removed by faults", "count",
+                       "frames injected faults added (+) or deleted (−); 0 without faults"),
+    "frames_lost": ("frames lost", "count",
+                    "sent + faulted − recorded − in flight − overwritten: frames that went nowhere (0 "
+                    "expected)"),
+    "frames_sent_by_node": ("frames sent by node", "count", "frames each node handed to the bus"),
+    "protection_events": ("E2E / SecOC reports", "count",
+                          "what the receivers' E2E and SecOC checks reported (every status but INITIAL), by "
+                          "status; NONEWDATA = a frame 1.5 of its cycles late"),
+    "faults_injected": ("faults injected", "count",
+                        "injections of the scenario's [[faults]], by kind (only in runs with faults)"),
+    "plausibility_flags": ("first plausibility flags", "s",
+                           "simulated time each ECU flag (SpeedSensorFault, AccelSensorFault, "
+                           "CarsImplausible) was first set in the trace, by flag and car (runs with faults "
+                           "or flags)"),
+    "mode": ("mode", "text", "lockstep (simulated time, bit-timed bus) or realtime (OS processes on a "
+                             "python-can bus)"),
+    "seed": ("seed", "id", "the scenario's seed (release jitter, sensor noise, faults)"),
+    "simulated_s": ("simulated time", "s", "simulated time at the end of the run"),
+    "end_reason": ("ended by", "text",
+                   "standstill, max_duration, interrupted, failed or observed (a real-time node died)"),
+    # the bit-timed lockstep bus
+    "bus.bitrate_bps": ("bitrate", "bit/s", "the bus's bit rate (the DBC's Baudrate unless the scenario sets "
+                                            "one)"),
+    "bus.load": ("bus load", "1", "fraction of the run's time the bus carried frames (0 to 1)"),
+    "bus.worst_response_us": ("worst response time", "µs",
+                              "largest response of any message: end of the frame − start of its release "
+                              "window"),
+    "bus.worst_response_message": ("worst-response message", "text", "the message with that response"),
+    "bus.deadline_misses": ("deadline misses", "count",
+                            "frames whose response was longer than their message's cycle time, all messages"),
+    # a real-time run (hil.runtime.outcome.realtime_verdict)
+    "realtime.held": ("real time held", "yes/no",
+                      "no node's cycle started more than limit_ms late and none was skipped"),
+    "realtime.limit_ms": ("lag limit", "ms",
+                          "the largest lag a cycle may have for the run to hold real time"),
+    "realtime.max_lag_ms": ("max lag by node", "ms",
+                            "the latest each node's cycle was due when the one before ended"),
+    "realtime.missed_cycles": ("skipped cycles by node", "count",
+                               "cycles each node skipped after falling behind"),
+    "realtime.worst_node": ("worst node", "text", "the node with the largest lag"),
+}
+
+#: the foundation's groups of KPIs (a dict in kpis.json) and their titles
+GROUPS = {"bus": "CAN bus (bit-timed lockstep bus)", "realtime": "Real time"}
+
+
+def info_of(entry: tuple | None) -> KpiInfo | None:
+    return None if entry is None else KpiInfo(*entry)
+
+
+def study_info(name: str) -> tuple[str, dict[str, tuple]] | None:
+    """(title, KPI_INFO) of the study called `name` (None: no such study)."""
+    for study in registry.studies():
+        if study.name == name:
+            return study.title, getattr(study.part("kpis"), "KPI_INFO", {})
+    return None
+
+
+@dataclass(frozen=True)
+class Kpi:
+    path: str                   # dotted path in kpis.json: "stopping_distance_m", "bus.load", "wheel_slip.x"
+    key: str                    # its key in its group
+    value: object
+    info: KpiInfo | None        # None: no entry (undescribed)
+
+    @property
+    def per_car(self) -> bool:
+        return self.info is not None and self.info.per_car and isinstance(self.value, list)
+
+
+@dataclass(frozen=True)
+class Group:
+    key: str                    # "" (the foundation's top level), "bus", "realtime" or a study's name
+    title: str
+    kpis: list[Kpi]
+
+
+def _ordered(values: dict, table: dict[str, tuple], prefix: str = "") -> list[str]:
+    """The keys of `values`: those of `table` in its order, then the rest as they come."""
+    known = [k[len(prefix):] for k in table if k.startswith(prefix) and k[len(prefix):] in values]
+    return known + [k for k in values if k not in known]
+
+
+def groups(kpis: dict) -> list[Group]:
+    """kpis.json as the report's tables: the foundation's top level, then `bus`, `realtime`, then each study
+    (registry order), then any other group; each KPI with its entry (None when there is none)."""
+    top = [k for k in _ordered(kpis, {k: v for k, v in FOUNDATION.items() if "." not in k})
+           if not (isinstance(kpis[k], dict) and (k in GROUPS or study_info(k) is not None))]
+    out = [Group("", "Train and run", [Kpi(k, k, kpis[k], info_of(FOUNDATION.get(k))) for k in top])]
+    for key, title in GROUPS.items():
+        if isinstance(kpis.get(key), dict):
+            members = kpis[key]
+            out.append(Group(key, title, [Kpi(f"{key}.{k}", k, members[k],
+                                              info_of(FOUNDATION.get(f"{key}.{k}")))
+                                          for k in _ordered(members, FOUNDATION, f"{key}.")]))
+    for study in registry.studies():
+        if isinstance(kpis.get(study.name), dict):
+            title, table = study_info(study.name)
+            members = kpis[study.name]
+            out.append(Group(study.name, f"{title} ({study.name})",
+                             [Kpi(f"{study.name}.{k}", k, members[k], info_of(table.get(k)))
+                              for k in _ordered(members, table)]))
+    return out
+
+
+def undescribed(kpis: dict) -> list[str]:
+    """The dotted paths of the KPIs in `kpis` that have no entry."""
+    return [k.path for g in groups(kpis) for k in g.kpis if k.info is None]
