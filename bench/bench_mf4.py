@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_trace import DBC, rate, synthesise  # noqa: E402
+from bench_trace import DBC, best, rate, synthesise  # noqa: E402
 
 from hil.can.codec import Codec  # noqa: E402
 from hil.can.dbc import load_dbc  # noqa: E402
@@ -59,12 +59,7 @@ def _write(writer, messages) -> float:
 
 
 def _best(fn, repeat: int = 3) -> float:
-    out = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        out.append(time.perf_counter() - t0)
-    return min(out)
+    return best(fn, repeat)
 
 
 def run() -> list[tuple[str, str]]:
