@@ -41,6 +41,13 @@ def write_truth_csv(columns: dict[str, np.ndarray], path: Path) -> None:
             w.writerow([f"{x:.6g}" for x in row])
 
 
+def run_trace(folder: Path, meta: dict, scenario) -> tuple[Path, float, float]:
+    """The trace of a run folder and how its timestamps map to simulated time, from its run.json
+    (`meta`): (path, trace_t0_s, speed); simulated t = (trace t - trace_t0_s) * speed (lockstep: 0, 1)."""
+    speed = scenario.realtime.speed if meta.get("mode") == "realtime" else 1.0
+    return Path(folder) / meta.get("trace", "trace.blf"), float(meta.get("trace_t0_s") or 0.0), speed
+
+
 def read_truth_csv(path: Path) -> dict[str, np.ndarray]:
     """truth.csv (written by `write_truth_csv`) back as columns."""
     try:
@@ -165,11 +172,9 @@ class RunView:
         cols = read_truth_csv(folder / "truth.csv")
         db = load_dbc(Path(scenario.dbc) if scenario.dbc else DEFAULT_DBC)
         codec = Codec(db)
-        trace = folder / meta.get("trace", "trace.blf")
-        speed = scenario.realtime.speed if meta.get("mode") == "realtime" else 1.0
-        t0 = meta.get("trace_t0_s", 0.0)
+        trace, t0, speed = run_trace(folder, meta, scenario)
         wanted = {"r0": ("BCU_DEMAND", "TargetDecel")}
-        target = (read_signals(trace, db, codec, wanted, t0 or 0.0, speed)["r0"] if trace.exists()
+        target = (read_signals(trace, db, codec, wanted, t0, speed)["r0"] if trace.exists()
                   else NO_SIGNAL)
         return cls.of(scenario, cols, target, None, out_dir=folder, trace=trace, db=db, codec=codec,
                       trace_t0_s=t0, trace_speed=speed, mode=meta.get("mode", "lockstep"))

@@ -27,7 +27,7 @@ import numpy as np
 from hil.can.codec import Codec
 from hil.can.dbc import DEFAULT_DBC, closest, load_dbc
 from hil.errors import RailhilError
-from hil.report.kpis import read_truth_csv
+from hil.report.kpis import read_truth_csv, run_trace
 from hil.trace.decoded import DecodedTrace
 
 
@@ -148,9 +148,8 @@ class RunFolder(TraceView):
 
         self.folder, self.meta, self.kpis = folder, meta, kpis
         self.scenario = scenario_model().model_validate(meta["scenario"])
-        speed = self.scenario.realtime.speed if meta.get("mode") == "realtime" else 1.0
-        super().__init__(folder / meta.get("trace", "trace.blf"), meta.get("dbc") or None,
-                         t0_s=float(meta.get("trace_t0_s") or 0.0), speed=speed)
+        trace, t0, speed = run_trace(folder, meta, self.scenario)
+        super().__init__(trace, meta.get("dbc") or None, t0_s=t0, speed=speed)
 
     @cached_property
     def truth(self):

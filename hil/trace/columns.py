@@ -63,7 +63,7 @@ import numpy as np
 from can.io import blf
 from can.util import dlc2len
 
-from hil.trace.readers import STDIN, Salvage, Trace, TraceError, open_trace
+from hil.trace.readers import STDIN, Salvage, Trace, TraceError, mf4_can_frames, open_trace
 
 if TYPE_CHECKING:
     from hil.trace.timing import FrameArrays
@@ -470,7 +470,6 @@ def read_blf_columns(reader: blf.BLFReader) -> FrameArrays:
 
 
 # --- MF4 (ASAM MDF 4 bus logging) --------------------------------------------------------------------------
-_MF4_NAMES = ("CAN_DataFrame", "CAN_ErrorFrame", "CAN_RemoteFrame")
 
 
 def _is_mf4(path: str | pathlib.Path) -> bool:
@@ -486,7 +485,7 @@ def read_mf4_chunks(path: str | pathlib.Path, payload: bool = False, mdf=None) -
     merges them.  NotFast where python-can's result would not be plain columns of that: groups whose
     timestamps go back, variable-length data bytes."""
     from asammdf import MDF
-    from asammdf.blocks.v4_constants import BUS_TYPE_CAN, FLAG_CG_BUS_EVENT, SOURCE_BUS
+    from asammdf.blocks.v4_constants import SOURCE_BUS
 
     from hil.trace.timing import KIND_DATA, KIND_ERROR, KIND_REMOTE
 
@@ -496,15 +495,9 @@ def read_mf4_chunks(path: str | pathlib.Path, payload: bool = False, mdf=None) -
         start = mdf.header.start_time.timestamp()
         parts: list[dict[str, np.ndarray]] = []
         for index, group in enumerate(mdf.groups):
-            cg = group.channel_group
-            source = cg.acq_source
-            if not cg.flags & FLAG_CG_BUS_EVENT or cg.cycles_nr == 0 or source is None:
-                continue
-            if not source.source_type & SOURCE_BUS or source.bus_type != BUS_TYPE_CAN:
-                continue
-            names = [c.name for c in group.channels]
-            frame = next((n for n in _MF4_NAMES if n in names), None)   # python-can's order of tests
-            if frame is None:
+            frame = mf4_can_frames(group)                     # python-can's tests, in its order
+            if (frame is None or group.channel_group.cycles_nr == 0
+                    or not group.channel_group.acq_source.source_type & SOURCE_BUS):
                 continue
             sig = mdf.get(frame, index, raw=False)
             rec = sig.samples

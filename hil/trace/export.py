@@ -7,8 +7,9 @@
   conversion (CANape, asammdf's GUI and `MDF.get()` show the names; `raw=True` gives the numbers).  A
   multiplexed message's frames are grouped by the signals they carry: one channel group per set.
 * **Parquet** and **CSV**: one row per (frame, signal), the tidy layout every dataframe tool reads:
-  ``t`` [s], ``id`` (hex as `trace decode` prints it: ``0x028``, ``0x18FEF100``), ``message``, ``signal``, ``value`` (physical), ``unit``, ``choice`` (the
-  value-table name, empty where there is none).
+  ``t`` [s], ``id`` (hex as `trace decode` prints it: ``0x028``, ``0x18FEF100``), ``message``,
+  ``signal``, ``value`` (physical), ``unit``, ``choice`` (the value-table name, empty where there is
+  none).
 
 The file is written beside its destination under a temporary name and renamed when complete, so an
 interrupted or failed export leaves no half-written file in its place.

@@ -220,26 +220,37 @@ def _open_mf4(path: pathlib.Path, expected: str) -> can.io.MF4Reader:
         sys.unraisablehook = hook
 
 
+#: the channels of an MF4 CAN bus-logging channel group, in the order python-can's reader looks for them
+MF4_FRAME_CHANNELS = ("CAN_DataFrame", "CAN_ErrorFrame", "CAN_RemoteFrame")
+
+
+def mf4_can_frames(group) -> str | None:
+    """The frame channel (MF4_FRAME_CHANNELS) of an asammdf channel group flagged as bus events from a
+    CAN bus source, or None for any other group."""
+    from asammdf.blocks.v4_constants import BUS_TYPE_CAN, FLAG_CG_BUS_EVENT
+
+    source = group.channel_group.acq_source
+    if not group.channel_group.flags & FLAG_CG_BUS_EVENT or source is None or source.bus_type != BUS_TYPE_CAN:
+        return None
+    names = {c.name for c in group.channels}
+    return next((n for n in MF4_FRAME_CHANNELS if n in names), None)
+
+
 def mf4_check_bus_logging(path: pathlib.Path, mdf=None) -> None:
     """An MF4 file python-can reads frames from holds CAN bus logging: a channel group flagged as bus
     events from a CAN bus source, with CAN_DataFrame, CAN_ErrorFrame or CAN_RemoteFrame (ASAM MDF 4.1
     bus logging, as python-can and asammdf write it).  Another MF4 (a measurement of signals) is a
     TraceError naming what it holds instead."""
     from asammdf import MDF
-    from asammdf.blocks.v4_constants import BUS_TYPE_CAN, FLAG_CG_BUS_EVENT
 
     own = mdf is None                     # `mdf`: the file already open (python-can's reader's)
     mdf = MDF(str(path)) if own else mdf
     try:
         names: list[str] = []
         for group in mdf.groups:
-            channels = [c.name for c in group.channels]
-            source = group.channel_group.acq_source
-            if (group.channel_group.flags & FLAG_CG_BUS_EVENT and source is not None
-                    and source.bus_type == BUS_TYPE_CAN
-                    and {"CAN_DataFrame", "CAN_ErrorFrame", "CAN_RemoteFrame"} & set(channels)):
+            if mf4_can_frames(group):
                 return
-            names += [c for c in channels if c not in ("t", "time")]
+            names += [c.name for c in group.channels if c.name not in ("t", "time")]
     finally:
         if own:
             mdf.close()

@@ -122,7 +122,7 @@ def judge_run_dir(run_dir: Path) -> dict:
     import json
 
     from hil.can.dbc import load_dbc
-    from hil.report.kpis import read_signal
+    from hil.report.kpis import read_signal, run_trace
     from hil.runtime.run import TRACE_NAME, dbc_path_of
 
     run_dir = Path(run_dir)
@@ -135,9 +135,8 @@ def judge_run_dir(run_dir: Path) -> dict:
                             f"(run.json, truth.csv, {TRACE_NAME}): {' '.join(str(exc).split())}") from None
     spec_of(scenario)
     db = load_dbc(dbc_path_of(scenario))
-    speed = scenario.realtime.speed if meta.get("mode") == "realtime" else 1.0
-    t, req, _ = read_signal(run_dir / meta.get("trace", TRACE_NAME), db, Codec(db), "ACD_BRAKE_REQ",
-                            "Request", t0_s=float(meta.get("trace_t0_s", 0.0)), speed=speed)
+    trace, t0, speed = run_trace(run_dir, meta, scenario)
+    t, req, _ = read_signal(trace, db, Codec(db), "ACD_BRAKE_REQ", "Request", t0_s=t0, speed=speed)
     cols = {name: np.asarray(data[name]) for name in data.dtype.names}
     j = judge(scenario, cols, np.asarray(t), np.asarray(req))
     return {**j.as_dict(), "seed": scenario.seed, "prediction": spec_of(scenario).prediction,
