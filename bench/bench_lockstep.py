@@ -1,9 +1,10 @@
 """Lockstep real-time factor of the default scenario (simulated s per wall s), with and without trace.
 
-The same run with the trace writer off shows what writing the BLF trace costs.  One more, instrumented
-run splits its wall time into the plant (plant_sim: physics step and sensors), the controllers
-(firmware_py, the desk script), python-can's BLF writer, and the railhil runtime (event loop, bit-timed
-bus, node dispatch, codec, E2E, SecOC): the ceiling on what speeding up hil alone can give.
+The trace is written as `railhil run` writes it (hil.trace.writers.open_writer: python-can's BLF format,
+packed in bulk); the same run with the trace writer off shows what writing it costs.  One more,
+instrumented run splits its wall time into the plant (plant_sim: compiled physics step and sensors),
+the controllers (firmware_py, the desk script), the trace writer, and the railhil runtime (event loop,
+bit-timed bus, node dispatch, codec, E2E, SecOC): the ceiling on what speeding up hil alone can give.
 """
 
 from __future__ import annotations
@@ -14,8 +15,6 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import can
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -24,6 +23,7 @@ from hil.can.codec import Codec  # noqa: E402
 from hil.can.dbc import load_dbc  # noqa: E402
 from hil.runtime.lockstep import run_lockstep  # noqa: E402
 from hil.scenario import load_scenario  # noqa: E402
+from hil.trace.writers import open_writer  # noqa: E402
 
 
 def _once(with_trace: bool) -> tuple[float, float, int]:
@@ -33,7 +33,7 @@ def _once(with_trace: bool) -> tuple[float, float, int]:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         if with_trace:
-            with can.Logger(str(Path(tmp) / "trace.blf")) as writer:
+            with open_writer(Path(tmp) / "trace.blf", start_time_s=0.0) as writer:   # as railhil run
                 out = run_lockstep(scenario, db, codec, writer)
         else:
             out = run_lockstep(scenario, db, codec, None)
@@ -55,7 +55,7 @@ def split() -> tuple[float, dict[str, float]]:
     """(wall s, {part: s}) of one traced run whose plant, controllers and trace writer are timed
     (instance-level wrappers: about 0.2 µs per call, counted in the part they wrap)."""
     spent = {"plant_sim (physics, sensors)": 0.0, "controllers (firmware_py, desk)": 0.0,
-             "trace writer (python-can BLF)": 0.0}
+             "trace writer (railhil BLF, python-can's format)": 0.0}
     plant_part, ctrl_part, writer_part = spent
     build_node = lockstep.build_node
 
@@ -74,8 +74,9 @@ def split() -> tuple[float, dict[str, float]]:
     codec = Codec(db)
     lockstep.build_node = build_timed
     try:
-        with tempfile.TemporaryDirectory() as tmp, can.Logger(str(Path(tmp) / "trace.blf")) as writer:
-            writer.on_message_received = _timed(writer.on_message_received, writer_part, spent)
+        with tempfile.TemporaryDirectory() as tmp, \
+                open_writer(Path(tmp) / "trace.blf", start_time_s=0.0) as writer:
+            writer.write_frame = _timed(writer.write_frame, writer_part, spent)
             t0 = time.perf_counter()
             run_lockstep(scenario, db, codec, writer)
             wall = time.perf_counter() - t0

@@ -15,7 +15,14 @@ counting and smooth values), as BLF; the first 200 000 of them as candump -L tex
     the ratio grows with the trace, as start-up weighs less;
 (c) ``railhil timing X.blf --dbc dbc/train_brake.dbc`` on the 10⁶-frame BLF as a subprocess, end to
     end (interpreter start-up included); while the CLI still reads with ``frame_arrays(open_trace())``,
-    also the same command with ``read_trace_columns`` wired in (the outputs are checked equal).
+    also the same command with ``read_trace_columns`` wired in (the outputs are checked equal);
+(d) writing BLF, as the lockstep runner does a frame at a time: ``hil.trace.writers.BlfWriter.write_frame``
+    against python-can's ``BLFWriter.on_message_received`` with the ``can.Message`` built for it (as
+    hil/runtime/lockstep.py builds it), on the first 200 000 frames, side by side in one run (the
+    rounds alternate; best of 5 each; the files checked byte-identical), with the containers compressed
+    beside the writing thread (as ``open_writer`` makes it) and in it (as python-can does); and zlib
+    alone at python-can's level on the same containers, the floor for a writer that compresses in its
+    own thread.
 
     python bench/bench_trace.py [--large]
 """
@@ -33,6 +40,7 @@ from pathlib import Path
 
 import can
 import numpy as np
+from can.io import blf as blf_format
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
@@ -42,11 +50,14 @@ from hil.can.codec import Codec  # noqa: E402
 from hil.can.dbc import load_dbc  # noqa: E402
 from hil.trace.columns import read_columns  # noqa: E402
 from hil.trace.timing import frame_arrays  # noqa: E402
+from hil.trace.writers import BLF_COMPRESS_THREADS, BlfWriter  # noqa: E402
 
 DBC = ROOT / "dbc" / "train_brake.dbc"
 BIN = Path(sys.executable).parent
 BLF_FRAMES = 1_000_000
 LOG_FRAMES = 200_000
+WRITE_FRAMES = 200_000   # (d): frames written to BLF a frame at a time
+WRITE_ROUNDS = 5         # (d): rounds of python-can, write_frame (beside), write_frame (in the thread)
 POOL = 256  # payloads per message, used in turn: 8-bit and 4-bit counters count without a jump
 JITTER_S = 0.3e-3  # each frame late by up to this (uniform), like arbitration delay on a loaded bus
 SEED = 8
@@ -183,6 +194,69 @@ def decode_rows(log: Path, frames: int) -> list[tuple[str, str]]:
             (f"(b) ratio railhil / cantools, {size} frames (goal >= 5x)", f"{t_cant / t_rail:.1f}x")]
 
 
+def blf_write_rows(tmp: Path, t: np.ndarray, ids: np.ndarray, payloads: list[bytes]) -> list[tuple[str, str]]:
+    """(d): BLF written a frame at a time, `BlfWriter.write_frame` against Message + python-can."""
+    import zlib
+
+    frames = list(zip(t.tolist(), ids.tolist(), payloads, strict=True))
+    n = len(frames)
+    size = f"{n // 1000}k"
+    files = {"python-can": tmp / "python-can.blf", "beside": tmp / "beside.blf", "in": tmp / "in.blf"}
+
+    def python_can() -> None:
+        with can.BLFWriter(str(files["python-can"])) as writer:
+            for ts, arb, data in frames:
+                writer.on_message_received(can.Message(timestamp=ts, arbitration_id=arb, is_extended_id=False,
+                                                       data=data, dlc=len(data), channel=0, check=False))
+
+    def railhil(name: str, threads: int):
+        def write() -> None:
+            with BlfWriter(str(files[name]), compress_threads=threads) as writer:
+                write_frame = writer.write_frame
+                for ts, arb, data in frames:
+                    write_frame(ts, arb, False, data)
+        return write
+
+    runs = {"python-can": python_can, "beside": railhil("beside", BLF_COMPRESS_THREADS),
+            "in": railhil("in", 0)}
+    times: dict[str, list[float]] = {name: [] for name in runs}
+    cpu: dict[str, list[float]] = {name: [] for name in runs}   # this thread's CPU time: not the helper's
+    for _ in range(WRITE_ROUNDS):                       # side by side: a load that comes and goes hits all
+        for name, fn in runs.items():
+            c0 = time.thread_time()
+            times[name].append(best(fn, 1))
+            cpu[name].append(time.thread_time() - c0)
+    reference = files["python-can"].read_bytes()
+    for name in ("beside", "in"):                       # the same job, else no figure
+        assert files[name].read_bytes() == reference, f"{name}: not python-can's file"
+    us = {name: min(ts) / n * 1e6 for name, ts in times.items()}
+    cpu_us = {name: min(ts) / n * 1e6 for name, ts in cpu.items()}
+
+    containers = []                                     # zlib alone on the file's containers
+    with open(files["python-can"], "rb") as f:
+        f.seek(blf_format.FILE_HEADER_SIZE)
+        while head := f.read(blf_format.OBJ_HEADER_BASE_STRUCT.size):
+            obj_size = blf_format.OBJ_HEADER_BASE_STRUCT.unpack(head)[3]
+            body = f.read(obj_size - len(head))
+            f.read(obj_size % 4)                        # python-can's padding
+            containers.append(zlib.decompress(body[blf_format.LOG_CONTAINER_STRUCT.size:]))
+    t_zlib = best(lambda: [zlib.compress(c, -1) for c in containers], 3)
+
+    label = f"(d) BLF write {size}, a frame at a time (best of {WRITE_ROUNDS})"
+    return [(f"{label}: python-can on_message_received (incl. can.Message)",
+             f"{us['python-can']:.2f} µs/frame"),
+            (f"{label}: railhil write_frame, compressed beside (open_writer's)",
+             f"{us['beside']:.2f} µs/frame (the writing thread's CPU: {cpu_us['beside']:.2f} µs/frame, "
+             f"python-can's: {cpu_us['python-can']:.2f})"),
+            (f"{label}: railhil write_frame, compressed in the writing thread", f"{us['in']:.2f} µs/frame"),
+            (f"(d) of which zlib at python-can's level ({len(containers)} containers, best of 3)",
+             f"{t_zlib / n * 1e6:.2f} µs/frame"),
+            ("(d) BLF write: railhil write_frame vs python-can on_message_received (incl. can.Message) "
+             "(goal >= 3x)",
+             f"{us['python-can'] / us['beside']:.1f}x (compressed in the writing thread: "
+             f"{us['python-can'] / us['in']:.1f}x)")]
+
+
 def run(large: bool = False) -> list[tuple[str, str]]:
     rows: list[tuple[str, str]] = []
     with tempfile.TemporaryDirectory(prefix="railhil-bench-trace-") as tmp:
@@ -190,9 +264,10 @@ def run(large: bool = False) -> list[tuple[str, str]]:
         t, ids, payloads = synthesise(BLF_FRAMES)
         blf = write(Path(tmp) / "train_1M.blf", t, ids, payloads)
         log = write(Path(tmp) / "train_200k.log", t[:LOG_FRAMES], ids[:LOG_FRAMES], payloads[:LOG_FRAMES])
-        del t, ids, payloads  # 10⁶ payloads: not to weigh on what is measured next
         rows.append(("traces generated (python-can BLFWriter, CanutilsLogWriter)",
                      f"{BLF_FRAMES:,} + {LOG_FRAMES:,} frames in {time.perf_counter() - t0:.1f} s"))
+        write_rows = blf_write_rows(Path(tmp), t[:WRITE_FRAMES], ids[:WRITE_FRAMES], payloads[:WRITE_FRAMES])
+        del t, ids, payloads  # 10⁶ payloads: not to weigh on what is measured next
 
         # (a) the read path of `timing`, in this process
         ours = read_columns(blf)
@@ -233,6 +308,7 @@ def run(large: bool = False) -> list[tuple[str, str]]:
             rows.append(("(c) ratio wired / shipped", f"{t_cli / t_wired:.1f}x"))
         t_start = min(captured([BIN / "railhil", "timing", "--help"])[0] for _ in range(2))
         rows.append(("(c) of which start-up, imports (railhil timing --help, best of 2)", f"{t_start:.2f} s"))
+        rows += write_rows                              # (d), measured above
     return rows
 
 

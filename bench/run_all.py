@@ -15,8 +15,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-BENCHES = ("bench_codec", "bench_lockstep", "bench_trace", "bench_mf4", "bench_governor", "bench_gps",
-           "bench_campaign", "bench_realtime", "bench_bus")
+BENCHES = ("bench_codec", "bench_lockstep", "bench_plain", "bench_trace", "bench_mf4", "bench_governor",
+           "bench_gps", "bench_campaign", "bench_realtime", "bench_bus")
 
 
 def main() -> int:

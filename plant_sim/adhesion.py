@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba.extending import register_jitable
 
 from plant_sim.elementwise import elementwise
 from plant_sim.params import AdhesionParams
@@ -34,6 +35,7 @@ Theta = tuple[float, float, float]
 # ------------------------------------------------------------------------------------ scalar: one car
 # In the functions on the step's path, max(a, b) is written `b if b > a else a` and min(a, b) `b if b < a
 # else a` (the same value, NaN and ±0 included): the builtins cost ~0.1–0.25 µs a call, ~20 times a step.
+@register_jitable
 def slip_ratio_unclipped_scalar(s_mps: float, v_mps: float) -> float:
     """σ = s / max(v, V_EPS_MPS) [-] (seed 000 §2.1; s = v − rω, eq. (2) seed 001), not clipped: the plant
     keeps 0 ≤ s ≤ v, hence σ ∈ [0, 1] already."""
@@ -45,6 +47,7 @@ def slip_ratio_scalar(s_mps: float, v_mps: float) -> float:
     return min(max(slip_ratio_unclipped_scalar(s_mps, v_mps), 0.0), 1.0)
 
 
+@register_jitable
 def mu_slip_speed_scalar(s_mps: float, mu_peak: float, s_peak_mps: float) -> float:
     """μ(s) = 2 μ̂ x / (1 + x²), x = s/ŝ [-]: seed 001's adhesion as a function of the slip speed s ≥ 0
     (§II-A, eq. (3) f(s) = μ(s) N). Peak μ̂ at s = ŝ; μ(0) = 0; increasing below ŝ and decreasing above
@@ -61,21 +64,36 @@ def mu_slip_speed_slope_scalar(s_mps: float, mu_peak: float, s_peak_mps: float) 
 
 
 def mu_scalar(theta: Theta, sigma: float, v_mps: float, p: AdhesionParams) -> float:
-    """μ(θ, σ, v) = μ̄(θ, k2(v) σ) / k1(v) [-], eq. (1) seed 000, with k_i(v) = 1 + π_i v (v in m/s) and
-    μ̄(θ, σ) = √σ / (θ1 + θ2 σ + θ3 σ²), seed 000 §2.1; σ ≥ 0.
-
-    With p.slip_speed_peak = (μ̂, ŝ) the curve is seed 001's μ(s) instead (`mu_slip_speed_scalar`), at
-    the slip speed s = σ · max(v, V_EPS_MPS) (the inverse of `slip_ratio_unclipped_scalar`); θ is unused.
+    """μ(θ, σ, v) [-] of the curve `p` chooses, σ ≥ 0: seed 000's (`mu_theta_scalar`), or with
+    p.slip_speed_peak = (μ̂, ŝ) seed 001's μ(s) (`mu_slip_speed_scalar`) at the slip speed
+    s = σ · max(v, V_EPS_MPS) (the inverse of `slip_ratio_unclipped_scalar`; θ unused), or with
+    p.constant_mu a flat curve (`mu_constant_scalar`). The compiled step makes the same choice
+    (`plant_sim.kernel`).
     """
     if p.constant_mu is not None:
-        return p.constant_mu * min(sigma * _INV_RAMP, 1.0)  # flat μ (test hook)
+        return mu_constant_scalar(sigma, p.constant_mu)   # flat μ (test hook)
     if p.slip_speed_peak is not None:
         mu_pk, s_pk = p.slip_speed_peak
         return mu_slip_speed_scalar(sigma * (V_EPS_MPS if V_EPS_MPS > v_mps else v_mps), mu_pk, s_pk)
+    return mu_theta_scalar(theta, sigma, v_mps, p)
+
+
+@register_jitable
+def mu_theta_scalar(theta: Theta, sigma: float, v_mps: float, p: AdhesionParams) -> float:
+    """μ(θ, σ, v) = μ̄(θ, k2(v) σ) / k1(v) [-], eq. (1) seed 000, with k_i(v) = 1 + π_i v (v in m/s) and
+    μ̄(θ, σ) = √σ / (θ1 + θ2 σ + θ3 σ²), seed 000 §2.1; σ ≥ 0. Reads p.pi1_s_per_m and p.pi2_s_per_m."""
     t1, t2, t3 = theta
     k1 = p.pi1_s_per_m * v_mps + 1.0                        # k1(v) = 1 + π1 v, seed 000 §2.1
     ks = (p.pi2_s_per_m * v_mps + 1.0) * sigma              # k2(v) σ, k2(v) = 1 + π2 v
     return math.sqrt(ks) / (t1 + ks * (t2 + t3 * ks)) / k1  # μ̄(θ, k2 σ) / k1(v), eq. (1) seed 000
+
+
+@register_jitable
+def mu_constant_scalar(sigma: float, mu_c: float) -> float:
+    """The flat curve of AdhesionParams.constant_mu [-]: μ_c for σ ≥ CONST_MU_RAMP_SIGMA, rising linearly
+    from 0 below."""
+    ramp = sigma * _INV_RAMP
+    return mu_c * (1.0 if 1.0 < ramp else ramp)             # μ_c · min(σ / σ_ramp, 1)
 
 
 def mu_bar_scalar(theta: Theta, sigma: float) -> float:

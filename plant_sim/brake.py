@@ -12,6 +12,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from numba.extending import register_jitable
 
 from plant_sim.elementwise import elementwise
 from plant_sim.params import BrakeParams, PadParams
@@ -73,6 +74,7 @@ def valve_table(bp: BrakeParams, dt_s: float) -> ValveTable:
 # ------------------------------------------------------------------------------------ scalar: one car
 # max(a, b) is written `b if b > a else a` and min(a, b) `b if b < a else a` (the same value, NaN and ±0
 # included): the builtins cost ~0.1–0.25 µs a call, and these run for every car at every step.
+@register_jitable
 def cylinder_pressure_scalar(p_Pa: float, valve_cmd: float, wsp_valve: int, table: ValveTable) -> float:
     """Cylinder pressure [Pa] after one step, exact for inputs held over the step (table = valve_table).
 
@@ -82,15 +84,15 @@ def cylinder_pressure_scalar(p_Pa: float, valve_cmd: float, wsp_valve: int, tabl
     dumps it (dp/dt = −wsp_vent_rate). The result is clipped to [0, p̄] (eq. (5a) seed 001). A pressure
     controller closing the loop on the valve turns this into the first-order lag of eq. (4) seed 001.
     """
-    fill, vent, dump, vent_ge_fill, p_max = table
-    by_fill, by_vent = valve_cmd * fill[wsp_valve], valve_cmd * vent[wsp_valve]
+    by_fill, by_vent = valve_cmd * table.fill_Pa[wsp_valve], valve_cmd * table.vent_Pa[wsp_valve]
     # EP valve: u·fill for u > 0, u·vent for u < 0, i.e. the smaller product if vent ≥ fill, else the larger
-    if vent_ge_fill:
+    if table.vent_ge_fill:
         ep = by_vent if by_vent < by_fill else by_fill              # min(by_fill, by_vent)
     else:
         ep = by_vent if by_vent > by_fill else by_fill              # max(by_fill, by_vent)
-    p = p_Pa + ep + dump[wsp_valve]
+    p = p_Pa + ep + table.dump_Pa[wsp_valve]
     p = 0.0 if 0.0 > p else p                                       # 0 ≤ p ...
+    p_max = table.p_max_Pa
     return p_max if p_max < p else p                                # ... ≤ p̄, eq. (5a) seed 001
 
 
@@ -99,6 +101,7 @@ def lag_factor(bp: BrakeParams, dt_s: float) -> float:
     return math.exp(-float(dt_s) / bp.tp_s)
 
 
+@register_jitable
 def cylinder_lag_scalar(p_Pa: float, p_set_Pa: float, wsp_valve: int, phi: float, p_max_Pa: float) -> float:
     """Cylinder pressure [Pa] after one step of the "lag" model (BrakeParams.pressure_model), exact for a
     set-point held over the step: p⁺ = u + (p − u) φ with φ = lag_factor (eq. (4) with Tp, seed 001 §IV).
@@ -115,6 +118,7 @@ def cylinder_lag_scalar(p_Pa: float, p_set_Pa: float, wsp_valve: int, phi: float
     return p_max_Pa if p_max_Pa < p else p                                        # 0 ≤ p ≤ p̄, eq. (5a)
 
 
+@register_jitable
 def hysteresis_torque_scalar(tau_prev_Nm: float, p_Pa: float, bp: BrakeParams) -> float:
     """Brake torque τ ≥ 0 [N·m] at cylinder pressure p [Pa], eq. (10a) seed 001 as a play operator.
 
@@ -133,6 +137,7 @@ def hysteresis_torque_scalar(tau_prev_Nm: float, p_Pa: float, bp: BrakeParams) -
     return 0.0 if 0.0 > tau else tau                           # hold case leaves τ⁻; torque never negative
 
 
+@register_jitable
 def pad_friction_scalar(omega_rad_s: float, temp_rise_K: float, pp: PadParams) -> float:
     """μ_d [-] of the pad on the disc, eq. (25) seed 004: μ_d0 (n_v e^{m_v v_d} + 1)(n_T e^{m_T T_d} + 1),
     v_d = |ω| r_f the sliding speed [m/s], T_d the disc's temperature rise [K]."""
@@ -141,6 +146,7 @@ def pad_friction_scalar(omega_rad_s: float, temp_rise_K: float, pp: PadParams) -
             * (pp.n_T * math.exp(pp.m_T_per_K * temp_rise_K) + 1.0))
 
 
+@register_jitable
 def disc_temperature_scalar(temp_rise_K: float, tau_Nm: float, omega_rad_s: float, dt_s: float,
                             pp: PadParams) -> float:
     """Disc temperature rise [K] after dt_s: C dT/dt = η τ |ω| − G T (braking power in, conduction and

@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba.extending import register_jitable
 
 from plant_sim.elementwise import elementwise
 from plant_sim.params import TrainParams
@@ -62,17 +63,20 @@ def car_constants(tp: TrainParams) -> CarConstants:
 
 
 # ------------------------------------------------------------------------ scalar: one car or coupler
+@register_jitable
 def coupler_extension_scalar(x_front_m: float, x_rear_m: float, pitch_m: float) -> float:
     """Δl = x_i − x_{i+1} − (2d + l0) [m] of the coupler between cars i and i+1, eq. (1) seed 003, > 0
     stretched."""
     return x_front_m - x_rear_m - pitch_m  # x_i − x_{i+1} − (2d + l0), eq. (1) seed 003
 
 
+@register_jitable
 def coupler_rate_scalar(v_front_mps: float, v_rear_mps: float) -> float:
     """dΔl/dt = v_i − v_{i+1} [m/s], > 0 stretching."""
     return v_front_mps - v_rear_mps
 
 
+@register_jitable
 def coupler_force_scalar(dl_m: float, dl_rate_mps: float, cc: CarConstants) -> float:
     """Φ [N], > 0 in tension: hardening spring, eq. (2) seed 003, + damping + solid end stop (chosen)."""
     phi = ((cc.k_N_per_m + cc.k_eps_N_per_m3 * (dl_m * dl_m)) * dl_m   # κ(1 + εΔl²)Δl, eq. (2) seed 003
@@ -84,6 +88,7 @@ def coupler_force_scalar(dl_m: float, dl_rate_mps: float, cc: CarConstants) -> f
     return phi
 
 
+@register_jitable
 def davis_resistance_scalar(v_mps: float, c0_N: float, c1_Ns_per_m: float, c2_Ns2_per_m2: float) -> float:
     """f_r = c0 + c1 v + c2 v² [N], eq. (4) seed 003 (v ≥ 0)."""
     return c0_N + v_mps * (c1_Ns_per_m + c2_Ns2_per_m2 * v_mps)  # eq. (4), seed 003
@@ -95,6 +100,7 @@ def grade_curvature_resistance_scalar(mass_kg: float, sin_grade: float, curvatur
     return mass_kg * (g_mps2 * sin_grade + 0.004 * curvature_deg)  # eq. (5), seed 003
 
 
+@register_jitable
 def other_force_scalar(v_mps: float, phi_front_N: float, phi_rear_N: float, static_force_N: float,
                        c1_Ns_per_m: float, c2_Ns2_per_m2: float) -> float:
     """F_other,i = Φ_{i−1} − Φ_i − f_r,i − f_c,i [N]: every force on car i but adhesion, eq. (3) seed 003.
@@ -123,6 +129,7 @@ def wheel_acceleration_scalar(f_adh_N: float, tau_Nm: float, r_m: float, inv_J: 
     return (r_m * f_adh_N - tau_Nm) * inv_J  # eq. (1b), seed 001
 
 
+@register_jitable
 def slip_rate_scalar(f_other_N: float, f_adh_N: float, tau_Nm: float, inv_mass_per_kg: float, r_over_J: float,
                      slip_gain_per_kg: float) -> float:
     """ṡ = v̇ − r ω̇ = F_other/M + (r/J) τ − (1/M + r²/J) f [m/s²], eq. (3) seed 001 plus the car's other

@@ -21,17 +21,14 @@ Integrator (one step of dt = dt_us, 1 ms by default):
 tests/plant/test_plant_integrator.py checks the step against a reference at dt = 0.1 ms,
 tests/plant/test_plant_regression.py pins a trajectory of the default train.
 
-Why the step is scalar, against the style guide's "vectorise over cars with numpy": at n ≤ 8 cars a
-numpy call costs its fixed overhead (~0.45 µs) whatever the array size, and the vectorised step made ~62 of
-them: 37–40 µs per step on its own, 50–60 µs inside the lockstep HIL, which then ran the default scenario
-at 8–9.5x real time, short of the 10x acceptance point. The step is therefore a loop over the cars calling
-scalar functions on Python floats (the `*_scalar` functions of `brake`, `dynamics`, `adhesion` and
-`integrate_car_scalar` below): ~16 µs per step on its own, ~24 µs in the HIL (11–12x real time), with
-results bit-identical to the vectorised step's (same equations, same order of operations). Each equation
-has this one implementation; the array functions of those modules wrap it (`plant_sim.elementwise`) for
-tests and for `truth()`, which runs every 10 ms. What the step still spends above a fully inlined loop
-(~12 µs) is Python's call overhead, ~60 calls a step: the price of keeping one function per equation.
-The state is kept as lists of Python floats and turned into numpy arrays only by `sense()` and `truth()`.
+Why the step is compiled, against the style guide's "vectorise over cars with numpy": at n ≤ 8 cars a
+numpy call costs its fixed overhead (~0.45 µs) whatever the array size, and a vectorised step made ~62 of
+them (37–40 µs a step). The per-car scalar functions on Python floats (the `*_scalar` functions of
+`brake`, `dynamics`, `adhesion`) took ~16 µs a step, 25 % of a lockstep run's wall. `plant_sim.kernel`
+compiles those same functions into one step over all cars with numba, bit-identical (same equations,
+same order of operations): ~1 µs a step. The state lives in a few float arrays (rows named in
+`plant_sim.kernel`); `snapshot()` copies it out as lists of Python floats, `sense()` and `truth()` as
+numpy arrays.
 
 Time is an integer count of microseconds, t_us = n_steps · dt_us.
 """
@@ -44,69 +41,25 @@ from typing import NamedTuple
 
 import numpy as np
 
-from plant_sim.adhesion import mu, mu_scalar, slip_ratio, slip_ratio_unclipped_scalar
+from plant_sim import kernel
+from plant_sim.adhesion import mu, slip_ratio
 from plant_sim.adhesion import mu_opt as _mu_opt
 from plant_sim.adhesion import sigma_opt as _sigma_opt
-from plant_sim.brake import (
-    WSP_STATES,
-    cylinder_lag_scalar,
-    cylinder_pressure_scalar,
-    disc_temperature_scalar,
-    hysteresis_torque_scalar,
-    lag_factor,
-    pad_friction_scalar,
-    sanitize_valve_cmd,
-    sanitize_wsp_valve,
-    valve_table,
-)
+from plant_sim.brake import lag_factor, sanitize_wsp_valve, valve_table
 from plant_sim.dynamics import (
     car_constants,
     coupler_extension,
-    coupler_extension_scalar,
     coupler_force,
-    coupler_force_scalar,
     coupler_rate,
-    coupler_rate_scalar,
     grade_curvature_resistance_scalar,
-    other_force_scalar,
-    slip_rate_scalar,
 )
 from plant_sim.errors import PlantConfigError
-from plant_sim.params import PlantParams
+from plant_sim.params import PadParams, PlantParams
 from plant_sim.sensors import SensorModel, Sensors
 from plant_sim.track import Track
 
-# Adhesion is evaluated at s + S_EPS_MPS (chosen): the chord slope f/s is then finite and, at s = 0,
-# very large (μ ∝ √s), so a braked car at rest is held by the static force the linearised step finds
-# (up to τ/r) instead of creeping off and back to 0 every other step. The bias is ≲ 50 N per car on a
-# free-rolling wheel, against c0 = 800 N of rolling resistance.
-S_EPS_MPS = 1e-9
-
-
-def integrate_car_scalar(x_m: float, v_mps: float, s_mps: float, s_reg_mps: float, f_N: float,
-                         f_other_N: float, tau_Nm: float, inv_mass_per_kg: float, r_over_J: float,
-                         slip_gain_per_kg: float, inv_dt_per_s: float, inv_mass_dt: float,
-                         dt_s: float) -> tuple[float, float, float]:
-    """One integrator step of one car (module docstring): (x [m], v [m/s], s [m/s]) at the end of the step.
-
-    f is the adhesion force [N] at slip speed s_reg = s + S_EPS_MPS, f_other every other force on the car
-    [N], tau the brake torque [N·m] over the step; inv_mass_dt = dt/m. Speeds: linearly-implicit Euler with
-    the standstill handling, v ≥ 0 (a car cannot reverse) and 0 ≤ s ≤ v (0 ≤ ω ≤ v/r); position:
-    symplectic Euler.
-    """
-    s_dot = slip_rate_scalar(f_other_N, f_N, tau_Nm, inv_mass_per_kg, r_over_J,
-                             slip_gain_per_kg)                    # explicit ṡ, eq. (3) seed 001
-    chord = f_N / s_reg_mps                                        # f(s) ≈ c·s, c > 0
-    ds = s_dot / (inv_dt_per_s + slip_gain_per_kg * chord)         # (1 + dt (1/M + r²/J) c) Δs = dt ṡ
-    f_new = f_N + chord * ds                                       # adhesion force over the step
-    # v̇ = (F_other − f)/m, eq. (3) seed 003; a car cannot reverse: v ≥ 0
-    # (max/min written out, `b if b > a else a` = max(a, b): the builtins cost ~0.1–0.25 µs a call)
-    v_new = v_mps + (f_other_N - f_new) * inv_mass_dt
-    v_new = 0.0 if 0.0 > v_new else v_new
-    s_new = s_mps + ds
-    s_new = 0.0 if 0.0 > s_new else s_new
-    s_new = v_new if v_new < s_new else s_new                      # 0 ≤ s ≤ v, i.e. 0 ≤ ω ≤ v/r
-    return x_m + v_new * dt_s, v_new, s_new                        # ẋ = v at the new v: symplectic Euler
+S_EPS_MPS = kernel.S_EPS_MPS                 # adhesion at s + S_EPS_MPS (plant_sim.kernel)
+integrate_car_scalar = kernel.integrate_car_scalar   # one car's integrator step (plant_sim.kernel)
 
 
 class TruthSnapshot(NamedTuple):
@@ -149,60 +102,70 @@ class Plant:
         self._tp, self._ap, self._bp = tp, params.adhesion, params.brake
         self._dt_us = params.dt_us
         self._dt = dt = params.dt_us * 1e-6
-        self._inv_dt = 1.0 / dt
-        self._valve_table = valve_table(params.brake, dt)
         self._lag = params.brake.pressure_model == "lag"      # cylinder follows CylPressureSet, eq. (4)
-        self._phi = lag_factor(params.brake, dt)
         self._cc = cc = car_constants(tp)
-        # per car, what the step needs besides the track: (1/m, 1/M + r²/J, dt/m, N = m g, Davis c2)
-        self._car_k = tuple(zip(cc.inv_mass_per_kg, cc.slip_gain_per_kg,
-                                [im * dt for im in cc.inv_mass_per_kg], cc.normal_force_N, cc.c2_Ns2_per_m2,
-                                strict=True))
+        self._pad = params.pad                  # variable pad friction, seed 004 eqs. (24)-(25), or None
         self._n_steps = 0
         self.bad_inputs = 0                     # non-finite valve commands and invalid WSP states received
-
-        # state, lists of Python floats (one per car): car centre x, speed v, wheel slip speed s = v − rω,
-        # cylinder pressure p, brake torque τ
-        self._x = [float(x0_m) - tp.car_pitch_m * float(i) for i in range(n)]
-        self._v = [float(v0_mps)] * n
-        self._v_prev = self._v                  # for v̇ of the last step
-        self._s = [0.0] * n                     # rolling: ω = v/r
-        self._p = [0.0] * n
-        self._tau = [0.0] * n
-        self._u_list: list = [0.0] * n          # inputs of the last step, as applied
-        self._ps_list: list = [0.0] * n         # pressure set-points of the last step ("lag" model)
-        self._s_max: list = [0.0] * n           # running max of s over every step (seed 001: s ≤ s̄ always)
-        self._w_list: list = [0] * n
         self._shape = (n,)
-        self._f_other = [0.0] * n               # every force but adhesion over the last step
-        # variable pad friction (seed 004 eqs. (24)-(25)): friction coefficient and disc temperature rise
-        self._pad = params.pad
-        self._mu_pad: list = [params.pad.mu_nominal] * n if params.pad else []
-        self._temp: list = [params.pad.initial_temp_rise_K] * n if params.pad else []
-        self._tau_brake: list = self._tau
+        k = kernel
+        # the state (rows of plant_sim.kernel): car centre x, speed v, wheel slip speed s = v − rω, cylinder
+        # pressure p, brake torque τ, ... and the inputs of the last step as applied
+        st = self._st = np.zeros((k.N_STATE, n))
+        st[k.X] = [float(x0_m) - tp.car_pitch_m * float(i) for i in range(n)]
+        st[k.V] = float(v0_mps)
+        st[k.V_PREV] = st[k.V]                  # for v̇ of the last step
+        if self._pad is not None:
+            st[k.MU_PAD] = self._pad.mu_nominal
+            st[k.TEMP] = self._pad.initial_temp_rise_K
+        # per car, what the step needs besides the track: (1/m, 1/M + r²/J, dt/m, N = m g, Davis c2)
+        car = self._car = np.zeros((k.N_CAR, n))
+        car[k.INV_M], car[k.GAIN] = cc.inv_mass_per_kg, cc.slip_gain_per_kg
+        car[k.INV_M_DT] = [im * dt for im in cc.inv_mass_per_kg]
+        car[k.NORMAL], car[k.C2] = cc.normal_force_N, cc.c2_Ns2_per_m2
+        ap, bp = params.adhesion, params.brake
+        ks = self._k = np.zeros(k.N_SCALAR)
+        ks[k.DT], ks[k.INV_DT] = dt, 1.0 / dt
+        ks[k.LAG], ks[k.LAG_PHI], ks[k.P_MAX] = float(self._lag), lag_factor(bp, dt), bp.p_max_Pa
+        ks[k.PAD] = float(self._pad is not None)
+        ks[k.INV_PAD_NOMINAL] = 1.0 / self._pad.mu_nominal if self._pad is not None else 0.0
+        ks[k.INV_R] = 1.0 / cc.r_m
+        if ap.constant_mu is not None:
+            ks[k.ADHESION], ks[k.CONST_MU] = k.ADHESION_CONSTANT, ap.constant_mu
+        elif ap.slip_speed_peak is not None:
+            ks[k.ADHESION] = k.ADHESION_SLIP_SPEED
+            ks[k.MU_PEAK], ks[k.S_PEAK] = ap.slip_speed_peak
+        else:
+            ks[k.ADHESION] = k.ADHESION_THETA
+        ks[k.PI1], ks[k.PI2] = ap.pi1_s_per_m, ap.pi2_s_per_m
+        ks[k.C1], ks[k.R_OVER_J], ks[k.PITCH] = cc.c1_Ns_per_m, cc.r_over_J, cc.car_pitch_m
+        self._recs = (k.as_record(bp), k.as_record(valve_table(bp, dt)), k.as_record(cc), k.as_record(ap),
+                      k.as_record(self._pad if self._pad is not None else PadParams()))
+        self._tr = np.zeros((k.N_TRACK, n))
+        self._no_set = np.zeros(n)
         self._sensors = SensorModel(params.sensors, int(seed))
         self._refresh_track()
 
     # ------------------------------------------------------------------------------------------------- track
     def _refresh_track(self) -> None:
-        """Look the track up at the cars' positions and cache what stays constant until a car meets a knot."""
-        x = np.array(self._x)
+        """Look the track up at the cars' positions and keep what stays constant until a car meets a knot."""
+        k, tr = kernel, self._tr
+        x = self._st[k.X].copy()
         smp = self.track.sample(x)
-        self._theta = [tuple(row) for row in smp.theta.tolist()]       # θ = (θ1, θ2, θ3) per car
+        tr[k.THETA1:k.THETA3 + 1] = smp.theta.T                       # θ = (θ1, θ2, θ3) per car
         self._sin = smp.sin_grade
         cc, g = self._cc, self._tp.g_mps2
-        # −(c0 + f_c), eqs. (4)–(5) seed 003, joined to the car's constants for the step
-        static_force = [-(cc.c0_N + grade_curvature_resistance_scalar(m, sg, dc, g))
+        # −(c0 + f_c), eqs. (4)–(5) seed 003, per car
+        tr[k.STATIC] = [-(cc.c0_N + grade_curvature_resistance_scalar(m, sg, dc, g))
                         for m, sg, dc in zip(cc.mass_kg, smp.sin_grade.tolist(), smp.curvature_deg.tolist(),
                                              strict=True)]
-        self._car = [(static,) + k for static, k in zip(static_force, self._car_k, strict=True)]
-        self._budget_m = float(np.min(smp.next_change_m - x))          # > 0: no car on a new interval before
+        self._k[k.BUDGET] = float(np.min(smp.next_change_m - x))       # > 0: no car on a new interval before
         # θ is affine in x on each interval: for the cars inside a smooth blend it is updated every step,
         # θ = θ_anchor + dθ/dx · (x − anchor), as `Track.sample` does
-        self._theta_live = [
-            (i, xa, *th, *dth) for i, (xa, th, dth) in enumerate(zip(
-                smp.anchor_m.tolist(), smp.theta_anchor.tolist(), smp.dtheta_per_m.tolist(), strict=True))
-            if any(dth)]
+        tr[k.LIVE] = np.any(smp.dtheta_per_m != 0.0, axis=1)
+        tr[k.ANCHOR] = smp.anchor_m
+        tr[k.TA1:k.TA3 + 1] = smp.theta_anchor.T
+        tr[k.DTH1:k.DTH3 + 1] = smp.dtheta_per_m.T
 
     # ------------------------------------------------------------------------------------------------- step
     @property
@@ -213,11 +176,16 @@ class Plant:
     @property
     def lead_position_m(self) -> float:
         """Track position of car 1's front [m] (the truth's x of car 1)."""
-        return self._x[0]
+        return float(self._st[kernel.X, 0])
 
     @property
     def n_cars(self) -> int:
         return self._n
+
+    @property
+    def max_slip_mps(self) -> np.ndarray:
+        """Largest slip speed v − rω of each car over EVERY step since the start [m/s] (a live view)."""
+        return self._st[kernel.S_MAX]
 
     def step(self, valve_cmd: np.ndarray, wsp_valve: np.ndarray,
              pressure_set: np.ndarray | None = None) -> None:
@@ -228,126 +196,53 @@ class Plant:
         With BrakeParams.pressure_model = "lag" the cylinders follow `pressure_set` [Pa] per car instead
         (first-order lag, eq. (4) seed 001; `brake.cylinder_lag_scalar`) and valve_cmd is not used.
         """
-        u = np.asarray(valve_cmd, dtype=float)
-        w = np.asarray(wsp_valve)
+        u = valve_cmd if valve_cmd.__class__ is np.ndarray and valve_cmd.dtype == np.float64 else \
+            np.asarray(valve_cmd, dtype=float)
+        w = wsp_valve if wsp_valve.__class__ is np.ndarray else np.asarray(wsp_valve)
         if u.shape != self._shape or w.shape != self._shape:
             raise PlantConfigError(f"Plant.step: need {self._n} valve commands and WSP states, "
                                    f"got shapes {u.shape} and {w.shape}")
-        u_list, w_list = u.tolist(), w.tolist()
-        # inputs equal to the last ones applied are valid (the controllers update them every 10 ms)
-        if u_list != self._u_list and not (-1.0 <= min(u_list) and max(u_list) <= 1.0
-                                           and math.isfinite(sum(u_list))):  # NaN too
-            u, n_bad = sanitize_valve_cmd(u)
-            self.bad_inputs += n_bad
-            u_list = u.tolist()
-        if w.dtype.kind not in "iu" or (w_list != self._w_list and not WSP_STATES.issuperset(w_list)):
+        if w.dtype.kind not in "iufb":                                 # not numbers at all
             w, n_bad = sanitize_wsp_valve(w)
             self.bad_inputs += n_bad
-            w_list = w.tolist()
-        if self._lag:
-            ps = [0.0] * self._n if pressure_set is None else np.asarray(pressure_set, dtype=float).tolist()
-            if len(ps) != self._n:
-                raise PlantConfigError(f"Plant.step: need {self._n} pressure set-points, got {len(ps)}")
-            self._ps_list = ps
-            phi, p_max, bp = self._phi, self._bp.p_max_Pa, self._bp
-            p, tau = [], []
-            for p_i, tau_i, ps_i, w_i in zip(self._p, self._tau, ps, w_list, strict=True):
-                p_i = cylinder_lag_scalar(p_i, ps_i, w_i, phi, p_max)   # eq. (4)-(5) seed 001
-                p.append(p_i)
-                tau.append(hysteresis_torque_scalar(tau_i, p_i, bp))    # eq. (10a) seed 001
-        elif any(u_list) or any(w_list):                                # else p and τ stay as they are
-            table, bp = self._valve_table, self._bp
-            p, tau = [], []
-            for p_i, tau_i, u_i, w_i in zip(self._p, self._tau, u_list, w_list, strict=True):
-                p_i = cylinder_pressure_scalar(p_i, u_i, w_i, table)
-                p.append(p_i)
-                tau.append(hysteresis_torque_scalar(tau_i, p_i, bp))    # eq. (10a) seed 001
-        else:
-            p, tau = self._p, self._tau
-
-        x, v, s = self._x, self._v, self._s
-        tau_line = tau                         # the hysteresis state: torque at the nominal pad friction
-        if self._pad is not None:
-            tau = self._pad_step(tau, v, s)
-        # forces at the start of the step: couplers (Φ = 0 ahead of the first and behind the last car) ...
-        cc = self._cc
-        pitch = cc.car_pitch_m
-        phi = [0.0]
-        phi += [coupler_force_scalar(coupler_extension_scalar(x_f, x_r, pitch), coupler_rate_scalar(v_f, v_r),
-                                     cc)
-                for x_f, x_r, v_f, v_r in zip(x, x[1:], v, v[1:], strict=False)]   # coupler i: cars i, i+1
-        phi.append(0.0)
-        # ... then per car: other forces, adhesion, and the integrator step
-        ap, c1, r_over_J, inv_dt, dt = self._ap, cc.c1_Ns_per_m, cc.r_over_J, self._inv_dt, self._dt
-        x_new, v_new, s_new, f_others = [], [], [], []
-        for x_i, v_i, s_i, tau_i, theta_i, phi_f, phi_r, (static, inv_m, gain, inv_m_dt, normal, c2) in zip(
-                x, v, s, tau, self._theta, phi, phi[1:], self._car, strict=False):   # phi: n + 1 entries
-            f_other = other_force_scalar(v_i, phi_f, phi_r, static, c1, c2)
-            s_reg = s_i + S_EPS_MPS                                     # > 0 (see S_EPS_MPS)
-            # f = μN, eq. (1a) seed 001
-            f = mu_scalar(theta_i, slip_ratio_unclipped_scalar(s_reg, v_i), v_i, ap) * normal
-            x_i, v_i, s_i = integrate_car_scalar(x_i, v_i, s_i, s_reg, f, f_other, tau_i, inv_m, r_over_J,
-                                                 gain, inv_dt, inv_m_dt, dt)
-            x_new.append(x_i)
-            v_new.append(v_i)
-            s_new.append(s_i)
-            f_others.append(f_other)
-
-        self._x, self._v_prev, self._v, self._s = x_new, v, v_new, s_new
-        self._s_max = list(map(max, self._s_max, s_new))
-        self._p, self._tau, self._tau_brake, self._f_other = p, tau_line, tau, f_others
-        self._u_list, self._w_list = u_list, w_list
+        ps = self._no_set
+        if self._lag and pressure_set is not None:
+            ps = np.asarray(pressure_set, dtype=float)
+            if ps.shape != self._shape:
+                raise PlantConfigError(f"Plant.step: need {self._n} pressure set-points, got {ps.size}")
+        refresh, n_bad = kernel.step_cars(self._st, self._tr, self._car, self._k, self._recs, u, w, ps)
+        self.bad_inputs += n_bad
         self._n_steps += 1
-        self._budget_m -= dt * max(v_new)                               # the farthest any car moved
-        if self._budget_m <= 0.0:
+        if refresh:
             self._refresh_track()
-        elif self._theta_live:                                          # θ(x) on the current intervals
-            theta = self._theta
-            for i, xa, a1, a2, a3, d1, d2, d3 in self._theta_live:
-                dx = x_new[i] - xa
-                theta[i] = (a1 + d1 * dx, a2 + d2 * dx, a3 + d3 * dx)
-
-    def _pad_step(self, tau_line: list, v: list, s: list) -> list:
-        """Brake torques [N m] with the pad's friction now (eq. (24) seed 004: τ = τ_line μ_d/μ_nominal,
-        μ_d from eq. (25) at the wheel's speed and the disc's temperature); advances the temperatures."""
-        pp, dt, inv_r = self._pad, self._dt, 1.0 / self._cc.r_m
-        ratio = 1.0 / pp.mu_nominal
-        mus, temps, taus = [], [], []
-        for tau_i, v_i, s_i, temp_i in zip(tau_line, v, s, self._temp, strict=True):
-            omega = (v_i - s_i) * inv_r
-            mu_d = pad_friction_scalar(omega, temp_i, pp)                    # eq. (25), seed 004
-            tau_i = tau_i * mu_d * ratio                                     # eq. (24), seed 004
-            mus.append(mu_d)
-            taus.append(tau_i)
-            temps.append(disc_temperature_scalar(temp_i, tau_i, omega, dt, pp))
-        self._mu_pad, self._temp = mus, temps
-        return taus
 
     # ----------------------------------------------------------------------------------------------- outputs
     @property
     def stopped(self) -> bool:
         """Every car at standstill."""
-        return not any(self._v)
+        return not self._st[kernel.V].any()
 
     def _accel(self) -> np.ndarray:
-        return (np.array(self._v) - np.array(self._v_prev)) * (1.0 / self._dt)
+        return (self._st[kernel.V] - self._st[kernel.V_PREV]) * (1.0 / self._dt)
 
     def _omega(self) -> np.ndarray:
-        return (np.array(self._v) - np.array(self._s)) * (1.0 / self._cc.r_m)
+        return (self._st[kernel.V] - self._st[kernel.S]) * (1.0 / self._cc.r_m)
 
     def sense(self) -> Sensors:
         """What the cars' sensors report now (noisy, quantised, seeded)."""
-        return self._sensors.read(self._omega(), np.array(self._p), self._accel(), self._sin, self._tp.g_mps2)
+        return self._sensors.read(self._omega(), self._st[kernel.P].copy(), self._accel(), self._sin,
+                                  self._tp.g_mps2)
 
     def snapshot(self) -> TruthSnapshot:
-        """The raw state behind `truth()`, cheap enough to take every sample of a run.
-
-        The step replaces its state lists rather than changing them, so they are shared, not copied;
-        θ is copied because a blend updates it in place. `truth_series` turns snapshots into truth.
-        """
-        return TruthSnapshot(self._x, self._v_prev, self._v, self._s, self._p, self._tau, self._f_other,
-                             self._u_list, self._w_list, list(self._theta), self._s_max, self._ps_list,
-                             self._tau_brake, self._mu_pad, self._temp)
+        """The raw state behind `truth()`, cheap enough to take every sample of a run: lists of Python
+        floats (a copy). `truth_series` turns snapshots into truth."""
+        k = kernel
+        rows = self._st.tolist()
+        pad = self._pad is not None
+        return TruthSnapshot(rows[k.X], rows[k.V_PREV], rows[k.V], rows[k.S], rows[k.P], rows[k.TAU],
+                             rows[k.F_OTHER], rows[k.U], [int(w) for w in rows[k.W]],
+                             self._tr[k.THETA1:k.THETA3 + 1].T.tolist(), rows[k.S_MAX], rows[k.PS],
+                             rows[k.TAU_BRAKE], rows[k.MU_PAD] if pad else [], rows[k.TEMP] if pad else [])
 
     def truth_series(self, snaps: Sequence[TruthSnapshot]) -> dict[str, np.ndarray]:
         """Ground truth for a sequence of snapshots: the keys of `truth()`, arrays (k, n) per car and

@@ -21,8 +21,8 @@ class Sensors:
     accel_mps2: np.ndarray         # body-fixed longitudinal accelerometer, + forward, eq. (1) seed 004
 
 
-def quantise(x: np.ndarray, quantum: float) -> np.ndarray:
-    """Nearest multiple of quantum (an ADC or a fixed-point signal)."""
+def quantise(x: np.ndarray, quantum: float | np.ndarray) -> np.ndarray:
+    """Nearest multiple of quantum (an ADC or a fixed-point signal); quantum may broadcast against x."""
     return np.round(x / quantum) * quantum
 
 
@@ -33,7 +33,7 @@ class SensorModel:
         self._rng = np.random.Generator(np.random.PCG64(seed))
         self._std = np.array([[sp.axle_speed_noise_std_rad_s], [sp.pressure_noise_std_Pa],
                               [sp.accel_noise_std_mps2]])
-        self._q = (sp.axle_speed_quantum_rad_s, sp.pressure_quantum_Pa, sp.accel_quantum_mps2)
+        self._q = np.array([[sp.axle_speed_quantum_rad_s], [sp.pressure_quantum_Pa], [sp.accel_quantum_mps2]])
 
     def read(self, omega_rad_s: np.ndarray, p_Pa: np.ndarray, a_mps2: np.ndarray, sin_grade: np.ndarray,
              g_mps2: float) -> Sensors:
@@ -41,7 +41,6 @@ class SensorModel:
         # the accelerometer reads a + g sin θ, eq. (1) seed 004
         noisy = np.stack([omega_rad_s, p_Pa, a_mps2 + g_mps2 * sin_grade])
         noisy += self._std * self._rng.standard_normal(noisy.shape)
-        q_w, q_p, q_a = self._q
-        return Sensors(axle_speed_rad_s=np.maximum(quantise(noisy[0], q_w), 0.0),
-                       cyl_pressure_Pa=np.maximum(quantise(noisy[1], q_p), 0.0),
-                       accel_mps2=quantise(noisy[2], q_a))
+        out = quantise(noisy, self._q)                  # each row to its sensor's quantum, in one pass
+        np.maximum(out[:2], 0.0, out=out[:2])           # wheel speed and pressure read ≥ 0
+        return Sensors(axle_speed_rad_s=out[0], cyl_pressure_Pa=out[1], accel_mps2=out[2])

@@ -29,6 +29,9 @@ from __future__ import annotations
 import heapq
 from dataclasses import dataclass, field
 
+import numba
+import numpy as np
+
 from hil.can.busload import frame_bits
 
 __all__ = ["STUFFING_MODES", "BitTimedBus", "FrameBits", "Pending", "arbitration_key", "crc15",
@@ -97,6 +100,10 @@ def _stuff_tables() -> list[list[tuple[int, int]]]:
 
 
 _STUFF = _stuff_tables()
+# the tables as arrays, for compiled code (`_payload_bits`)
+_CRC_NP = np.array(_CRC_TABLE, dtype=np.int64)
+_STUFF8_STATE, _STUFF8_N = (np.array(col, dtype=np.int64) for col in zip(*_STUFF[8], strict=True))
+_STUFF7_STATE, _STUFF7_N = (np.array(col, dtype=np.int64) for col in zip(*_STUFF[7], strict=True))
 
 
 def _stuff_run(state: int, value: int, nbits: int) -> tuple[int, int]:
@@ -149,17 +156,20 @@ class FrameBits:
 
     def bits(self, payload: bytes) -> int:
         """Bit times of the frame with this payload (`payload_bytes` long), interframe space included."""
-        crc, state, total = self._crc, self._state, self._stuffs
-        crc_table, stuff8 = _CRC_TABLE, _STUFF8
-        for byte in payload:
-            crc = ((crc << 8) & 0x7FFF) ^ crc_table[((crc >> 7) ^ byte) & 0xFF]
-            state, n = stuff8[(state << 8) | byte]
-            total += n
-        state, n = _STUFF[7][(state << 7) | (crc >> 8)]         # the 15 CRC bits: 7, then 8
-        return self._fixed + total + n + stuff8[(state << 8) | (crc & 0xFF)][1]
+        return _payload_bits(self._crc, self._state, self._stuffs, self._fixed, payload)
 
 
-_STUFF8 = _STUFF[8]
+@numba.njit(cache=True)
+def _payload_bits(crc: int, state: int, total: int, fixed: int, payload: bytes) -> int:
+    """`FrameBits.bits` compiled (numba: ~0.3 µs a frame against ~2.5 µs interpreted): the CRC-15 and
+    the stuffing state machine over the payload a byte at a time, then over the 15 CRC bits (7, then 8)."""
+    for byte in payload:
+        crc = ((crc << 8) & 0x7FFF) ^ _CRC_NP[((crc >> 7) ^ byte) & 0xFF]
+        k = (state << 8) | byte
+        state, total = _STUFF8_STATE[k], total + _STUFF8_N[k]
+    k = (state << 7) | (crc >> 8)
+    state, total = _STUFF7_STATE[k], total + _STUFF7_N[k]
+    return fixed + total + _STUFF8_N[(state << 8) | (crc & 0xFF)]
 
 
 def exact_frame_bits(frame_id: int, extended: bool, data: bytes, remote: bool = False,

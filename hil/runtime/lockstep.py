@@ -60,6 +60,8 @@ class LockstepBus:
 
     def __init__(self, nodes: list[Node], writer: can.Listener | None) -> None:
         self.writer = writer
+        # hil.trace.writers.BlfWriter takes a frame's fields as they are (no can.Message a frame)
+        self._write_frame = getattr(writer, "write_frame", None)
         self.subscribers: dict[int, list[Node]] = {}
         for node in nodes:
             for fid in node.rx_ids:
@@ -68,7 +70,9 @@ class LockstepBus:
 
     def send(self, t_ns: int, fc: FrameCodec, data: bytes) -> None:
         self.frames += 1
-        if self.writer is not None:
+        if self._write_frame is not None:
+            self._write_frame(t_ns / 1e9, fc.frame_id, fc.is_extended_id, data)
+        elif self.writer is not None:
             self.writer.on_message_received(Message(
                 timestamp=t_ns / 1e9, arbitration_id=fc.frame_id, is_extended_id=fc.is_extended_id,
                 data=data, dlc=len(data), channel=0, check=False))

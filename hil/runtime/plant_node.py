@@ -62,7 +62,8 @@ class TruthLog:
         self.t_us: list[int] = []
         self.snaps: list[TruthSnapshot] = []
         # largest slip speed over EVERY plant step, per car [m/s]; kept for "lag" plants (seed 001 runs,
-        # whose acceptance is s ≤ s̄ at every step), None otherwise (the 10 ms samples are all there is)
+        # whose acceptance is s ≤ s̄ at every step), None otherwise (the 10 ms samples are all there is);
+        # the plant's own running max, copied when the log crosses a process boundary
         self.max_slip_mps: np.ndarray | None = None
 
     def record(self, t_us: int, snap: TruthSnapshot) -> None:
@@ -176,7 +177,7 @@ class PlantController:
         self.sense_count = 0
         self.truth = TruthLog(plant)
         if self.lag:
-            self.truth.max_slip_mps = np.zeros(n_cars)
+            self.truth.max_slip_mps = plant.max_slip_mps     # the plant's running max (a live view)
         self._rx_version = -1
         # _failsafe: until _quiet_until_us [µs] no command can be stale, if rx has not changed since
         self._quiet_until_us, self._quiet_rx, self._quiet_version = -1, None, -1
@@ -272,9 +273,6 @@ class PlantController:
         self._failsafe(now_us, rx)
         if self.lag:
             self.plant.step(self._valve, self._wsp, self._pset)
-            s, top = self.plant.snapshot().s, self.truth.max_slip_mps
-            if max(s) > top.min():
-                self.truth.max_slip_mps = np.maximum(top, s)
         else:
             self.plant.step(self._valve, self._wsp)
         if self.btm is not None:
