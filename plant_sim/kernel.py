@@ -57,6 +57,7 @@ from plant_sim.dynamics import (
     other_force_scalar,
     slip_rate_scalar,
 )
+from plant_sim.sensors import sensor_readings
 
 # Adhesion is evaluated at s + S_EPS_MPS (chosen): the chord slope f/s is then finite and, at s = 0,
 # very large (μ ∝ √s), so a braked car at rest is held by the static force the linearised step finds
@@ -65,7 +66,7 @@ from plant_sim.dynamics import (
 S_EPS_MPS = 1e-9
 
 #: the sources compiled into `step_cars`: their hash names the cache folder
-PHYSICS_SOURCES = ("adhesion.py", "brake.py", "dynamics.py", "kernel.py")
+PHYSICS_SOURCES = ("adhesion.py", "brake.py", "dynamics.py", "sensors.py", "kernel.py")
 
 
 def cache_dir() -> Path:
@@ -274,3 +275,4 @@ def step_cars(st, tr, car, k, recs, u_in, w_in, ps_in):
 
 
 step_cars = _compiled(step_cars)
+readings = _compiled(sensor_readings)

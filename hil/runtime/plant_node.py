@@ -264,13 +264,16 @@ class PlantController:
             self.sense_count += 1
             self.next_sense_us += self.sensor_period_us
         if now_us >= self.next_truth_us:
-            snap = self.plant.snapshot()
+            snap = self.plant.truth_record()
             self.truth.record(now_us, snap)
-            self.standstill = max(snap.v) < STANDSTILL_MPS
+            self.standstill = bool(snap.v.max() < STANDSTILL_MPS)
             self.next_truth_us += TRUTH_PERIOD_US
         if rx.version != self._rx_version:
             self._actuators(rx)
-        self._failsafe(now_us, rx)
+        if now_us <= self._quiet_until_us and rx is self._quiet_rx and rx.version == self._quiet_version:
+            self._last_us = now_us               # _failsafe's quick case, inlined: no command can be stale
+        else:
+            self._failsafe(now_us, rx)
         if self.lag:
             self.plant.step(self._valve, self._wsp, self._pset)
         else:

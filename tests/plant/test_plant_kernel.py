@@ -79,3 +79,26 @@ def test_as_record_reads_like_the_dataclass() -> None:
     assert "pressure_model" not in rec.dtype.names   # a string: not for compiled code
     cc = Plant(PlantParams(), TRACK, 0.0)._recs[2][0]
     assert cc.mass_kg.shape == (6,)
+
+
+def test_sensor_readings_compiled_interpreted_and_numpy_agree_bit_for_bit() -> None:
+    """The compiled readings, the interpreted ones and numpy on the (3, n) arrays with one draw per read
+    (the model before the draws came in blocks): the same bits, read after read."""
+    from plant_sim.params import SensorParams
+    from plant_sim.sensors import NOISE_BLOCK, SensorModel
+
+    sp, n = SensorParams(), 6
+    compiled, interpreted = SensorModel(sp, 11, kernel.readings), SensorModel(sp, 11)
+    rng, gen = np.random.default_rng(3), np.random.Generator(np.random.PCG64(11))
+    std = np.array([[sp.axle_speed_noise_std_rad_s], [sp.pressure_noise_std_Pa], [sp.accel_noise_std_mps2]])
+    q = np.array([[sp.axle_speed_quantum_rad_s], [sp.pressure_quantum_Pa], [sp.accel_quantum_mps2]])
+    for _ in range(NOISE_BLOCK + 50):                 # across the end of a block of draws
+        omega, p = rng.uniform(-0.01, 90.0, n), rng.uniform(-5.0, 450e3, n)
+        a, sin_grade = rng.normal(0.0, 1.0, n), rng.uniform(-0.03, 0.03, n)
+        got = compiled.read(omega, p, a, sin_grade, 9.81)
+        again = interpreted.read(omega, p, a, sin_grade, 9.81)
+        noisy = np.stack([omega, p, a + 9.81 * sin_grade]) + std * gen.standard_normal((3, n))
+        want = np.round(noisy / q) * q
+        want[:2] = np.maximum(want[:2], 0.0)
+        for k, field in enumerate(("axle_speed_rad_s", "cyl_pressure_Pa", "accel_mps2")):
+            assert getattr(got, field).tobytes() == getattr(again, field).tobytes() == want[k].tobytes()
