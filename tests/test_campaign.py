@@ -209,3 +209,39 @@ def test_parquet_table_matches_csv_when_pyarrow_is_installed(capsys, tmp_path):
     table = pq.read_table(tmp_path / "out" / "results.parquet").to_pylist()
     assert [t["stopping_distance_m"] for t in table] == [float(r["stopping_distance_m"])
                                                        for r in read_rows(tmp_path / "out")]
+
+
+def test_points_leave_no_figures_unless_plots_then_cached_points_get_theirs_without_running(capsys, tmp_path):
+    """A point's run folder: trace, truth.csv, kpis.json, run.json (and point.json); `--plots` adds its
+    figures and report.html, drawn from the folder for points already cached (issue #18)."""
+    f = write_campaign(tmp_path / "c.toml", grid={"seed": [1, 2]})
+    out = tmp_path / "out"
+    code, stdout, err = railhil(capsys, "campaign", f, "-o", out, "-q")
+    assert code == 0, err
+    rows = read_rows(out)
+    for r in rows:
+        assert sorted(p.name for p in (out / r["run_dir"]).iterdir()) == [
+            "kpis.json", "point.json", "run.json", "trace.blf", "truth.csv"]
+        assert 0 < float(r["sim_wall_s"]) <= float(r["wall_s"])
+        assert f'href="{r["run_dir"]}/"' in (out / "report.html").read_text()   # no point report: its folder
+    assert "2 points ran:" in stdout and "of it the lockstep simulation" in stdout
+    kpis = {r["run_dir"]: (out / r["run_dir"] / "kpis.json").read_text() for r in rows}
+    code, stdout, err = railhil(capsys, "campaign", f, "-o", out, "-q", "--plots")
+    assert code == 0, err
+    assert "(2 ok, 2 from cache, 0 failed)" in stdout                 # drawn, not run again
+    for r in read_rows(out):
+        folder = out / r["run_dir"]
+        assert (folder / "plot.png").stat().st_size > 0 and (folder / "report.html").stat().st_size > 0
+        assert (folder / "kpis.json").read_text() == kpis[r["run_dir"]]
+        assert r["cached"] == "True" and float(r["sim_wall_s"]) > 0   # the original run's figures
+        assert f'href="{r["run_dir"]}/report.html"' in (out / "report.html").read_text()
+    shutil.rmtree(out / rows[0]["run_dir"])                           # lost: runs again, with its figures
+    code, stdout, err = railhil(capsys, "campaign", f, "-o", out, "-q", "--plots")
+    assert code == 0 and "(2 ok, 1 from cache, 0 failed)" in stdout, err
+    assert (out / rows[0]["run_dir"] / "report.html").is_file()
+
+
+def test_plots_option_has_help(capsys):
+    with pytest.raises(SystemExit):
+        railhil(capsys, "campaign", "--help")
+    assert "--plots" in capsys.readouterr().out

@@ -64,3 +64,96 @@ def test_one_and_eight_cars_run(tmp_path, cars):
     assert len(report.kpis["wsp_activations"]) == cars
     assert set(report.kpis["frames_sent_by_node"]) == {"PLANT", "DESK", "BCU"} | {
         f"BECU{i}" for i in range(1, cars + 1)}
+
+
+# --- a run folder without figures, the trace read once, the DBC loaded once per process (issue #18) ---
+
+
+def short_stop(seconds=1.5, name="stop_30kmh", **update):
+    """A shipped scenario cut to `seconds`, with `update` on top (stop_30kmh: 2 cars)."""
+    from hil.scenario import parse_scenario
+
+    base = load_scenario(DEFAULT.parent / f"{name}.toml").model_dump()
+    if name == "stop_30kmh":
+        base["train"]["cars"] = 2
+    return parse_scenario({**base, "max_duration_s": seconds, **update})
+
+
+def test_a_run_reads_its_trace_once_and_kpis_match_pythons_can_reader(tmp_path, monkeypatch):
+    """finish_run reads the trace once, as columns, for the demand, the frame count, the plausibility
+    flags and the studies' signals (the wheel-slip governor's here); the figures agree with reading the
+    file frame by frame with python-can's reader, as finish_run did before."""
+    import hil.report.kpis as kpis_module
+    from hil.can.codec import Codec
+    from hil.can.dbc import load_dbc
+    from hil.report.kpis import read_signal, read_signals
+    from hil.runtime.run import plausibility_events
+
+    reads, opened = [], []
+    block_reader, log_reader = kpis_module.BlockReader, can.LogReader
+
+    def counted(path, *a, **kw):
+        reads.append(path)
+        return block_reader(path, *a, **kw)
+
+    def counted_log_reader(path, *a, **kw):         # every way python-can opens a trace to read it
+        opened.append(path)
+        return log_reader(path, *a, **kw)
+
+    monkeypatch.setattr(kpis_module, "BlockReader", counted)
+    monkeypatch.setattr(can, "LogReader", counted_log_reader)
+    sensor = {"kind": "sensor", "car": 1, "sensor": "wheel_speed", "mode": "stuck", "value": 0.0,
+              "from_s": 0.5, "to_s": 60.0}
+    report = run_scenario_lockstep(short_stop(3.0, "rg_low_adhesion", faults=[sensor]), tmp_path / "run")
+    assert reads == [tmp_path / "run" / "trace.blf"]
+    assert len(opened) == 1                          # BlockReader's open_trace, and nothing else
+    assert "wheel_slip" in report.kpis and report.kpis["plausibility_flags"]["SpeedSensorFault"]
+    monkeypatch.undo()
+    db = load_dbc(DEFAULT_DBC)
+    codec = Codec(db)
+    trace = tmp_path / "run" / "trace.blf"
+    t, v, total = read_signal(trace, db, codec, "BCU_DEMAND", "TargetDecel")
+    assert total == report.kpis["frames_recorded"]
+    assert report.kpis["plausibility_flags"] == plausibility_events(trace, db, codec, 1)
+    again = kpis_module.read_run_trace(trace, db, codec)
+    got = read_signal(again, db, codec, "BCU_DEMAND", "TargetDecel")
+    assert got[2] == total and got[0].tolist() == t.tolist() and got[1].tolist() == v.tolist()
+    wanted = {"r": ("BECU1_DIAG", "GovernedDecel"), "none": ("NO_SUCH_MESSAGE", "X")}
+    by_file, by_columns = read_signals(trace, db, codec, wanted), read_signals(again, db, codec, wanted)
+    for name in wanted:
+        assert [a.tolist() for a in by_file[name]] == [b.tolist() for b in by_columns[name]]
+
+
+def test_without_plots_a_run_folder_keeps_trace_truth_and_kpis_and_figures_come_later(tmp_path):
+    from hil.runtime.run import has_figures, write_figures
+
+    scenario = short_stop()
+    bare = run_scenario_lockstep(scenario, tmp_path / "bare", plots=False)
+    full = run_scenario_lockstep(scenario, tmp_path / "full")
+    assert sorted(p.name for p in (tmp_path / "bare").iterdir()) == ["kpis.json", "run.json", "trace.blf",
+                                                                     "truth.csv"]
+    assert [f.name for f in bare.files] == ["trace.blf", "truth.csv", "kpis.json", "run.json"]
+    assert [f.name for f in full.files] == ["trace.blf", "truth.csv", "kpis.json", "plot.png", "run.json",
+                                            "report.html"]
+    assert (tmp_path / "bare" / "kpis.json").read_text() == (tmp_path / "full" / "kpis.json").read_text()
+    assert not has_figures(tmp_path / "bare") and has_figures(tmp_path / "full")
+    files = write_figures(tmp_path / "bare")
+    assert [f.name for f in files] == ["plot.png", "report.html"] and has_figures(tmp_path / "bare")
+    assert all(f.stat().st_size > 0 for f in files)
+
+
+def test_the_dbc_is_loaded_once_per_process_while_the_file_is_unchanged(tmp_path):
+    import os
+
+    from hil.errors import DbcError
+    from hil.runtime.run import loaded_dbc
+
+    dbc = tmp_path / "copy.dbc"
+    dbc.write_bytes(DEFAULT_DBC.read_bytes())
+    first = loaded_dbc(dbc)
+    assert loaded_dbc(dbc) is first                      # the same Database and Codec
+    st = dbc.stat()
+    os.utime(dbc, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))     # touched: loaded again
+    assert loaded_dbc(dbc) is not first
+    with pytest.raises(DbcError, match="no such DBC file"):
+        loaded_dbc(tmp_path / "missing.dbc")

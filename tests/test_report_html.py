@@ -221,7 +221,7 @@ def test_campaign_folder_gets_its_report(tmp_path):
     spec = tmp_path / "c.toml"
     spec.write_text(f'base = "{ROOT / "scenarios" / "stop_30kmh.toml"}"\nname = "tiny"\n'
                     f'[set]\nmax_duration_s = 1.0\n[grid]\n"train.mass_kg" = [30000.0, 40000.0]\n')
-    result = run_campaign(load_campaign(spec), tmp_path / "out")
+    result = run_campaign(load_campaign(spec), tmp_path / "out", plots=True)   # --plots: point reports
     files = write_table(result) + write_plots(result)
     report = tmp_path / "out" / "report.html"
     assert report in files

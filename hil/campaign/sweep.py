@@ -29,16 +29,21 @@ Every point is validated (the keys and values, like `--set`) before anything run
 key is the SHA-256 of its resolved scenario as canonical JSON (sorted keys, the DBC path replaced by
 the SHA-256 of the DBC file's bytes) plus the railhil version: a point whose scenario, DBC or railhil
 changed runs again, an unchanged one is read from its cache.  Each point runs in lockstep into the run
-folder ``<out>/points/<key[:16]>/`` (trace, truth, kpis.json, plot, run.json as `railhil run`); when
-it finishes, the campaign process writes ``point.json`` there (atomically), which is the cache: an
-interrupted campaign keeps every finished point, a rerun runs only the others.  A point that raises is
-recorded with its error, is not cached (a rerun tries it again) and does not stop the others.
+folder ``<out>/points/<key[:16]>/``: the trace, truth.csv, kpis.json and run.json as `railhil run`
+writes them, but no figures and no report.html unless asked (``plots``, `railhil campaign --plots`:
+then plot.png, the studies' figures and report.html as `railhil run`; a point cached without them gets
+them drawn from its run folder, not run again).  When a point finishes, the campaign process writes
+``point.json`` there (atomically), which is the cache: an interrupted campaign keeps every finished
+point, a rerun runs only the others.  A point that raises is recorded with its error, is not cached (a
+rerun tries it again) and does not stop the others.
 
 Results: ``results.csv`` (and ``results.parquet`` when pyarrow is installed: the ``parquet`` extra),
 one row per point: ``point``, the swept keys, ``status`` (ok / failed), ``cached``, ``error``,
-``wall_s`` (the run's wall time [s]), ``run_dir`` (relative to ``<out>``), then every KPI of
-kpis.json, nested ones flattened with dots (``bus.load``), a per-car list as JSON text plus its largest
-value (``max_slip_speed_mps.max``); and ``plot_<key>.png`` per numeric swept key: each plotted KPI against it.
+``wall_s`` (the point's wall time [s] in its worker), ``sim_wall_s`` (of which the lockstep simulation
+itself, RunOutcome.wall_s; the rest is writing the run folder and its KPIs), ``run_dir`` (relative to
+``<out>``), then every KPI of kpis.json, nested ones flattened with dots (``bus.load``), a per-car list
+as JSON text plus its largest value (``max_slip_speed_mps.max``); and ``plot_<key>.png`` per numeric
+swept key: each plotted KPI against it.
 
 Execution goes through any ``concurrent.futures.Executor``: local processes (`--jobs N`), or a Dask
 distributed cluster through ``Client.get_executor()`` (`--dask tcp://host:8786`, the ``dask`` extra).
@@ -71,15 +76,15 @@ from hil.resources import campaigns_dir
 from hil.scenario import Scenario, apply_set, load_scenario, parse_scenario
 
 __all__ = ["Campaign", "CampaignError", "CampaignResult", "Point", "PointResult", "check_positive", "draw",
-           "executor_for", "expand", "load_campaign", "point_key", "rows", "run_campaign", "run_point",
-           "shown", "summary_lines", "write_plots", "write_table"]
+           "draw_point", "executor_for", "expand", "load_campaign", "point_key", "rows", "run_campaign",
+           "run_point", "shown", "summary_lines", "write_plots", "write_table"]
 
 TOP_KEYS = ("base", "name", "description", "seed", "plot", "set", "grid", "random")
 DISTRIBUTIONS = ("uniform", "integers", "normal", "loguniform", "choice")
 DEFAULT_PLOT = ("stopping_distance_m", "time_to_stop_s", "max_slip_speed_mps.max",
                 "mean_abs_decel_error_mps2")
 POINT_FILE = "point.json"         # a finished point's cached result, in its run folder
-FIXED_COLUMNS = ("point", "status", "cached", "error", "wall_s", "run_dir")
+FIXED_COLUMNS = ("point", "status", "cached", "error", "wall_s", "sim_wall_s", "run_dir")
 
 
 class CampaignError(ScenarioError):
@@ -300,23 +305,41 @@ def expand(campaign: Campaign) -> list[Point]:
 
 
 # -------------------------------------------------------------------------------------- running them
-def run_point(scenario_json: str, run_dir: str) -> dict:
+def run_point(scenario_json: str, run_dir: str, plots: bool = False) -> dict:
     """Run one point in lockstep into `run_dir` (the worker's job; never raises): {"status": "ok",
-    "kpis": ..., "wall_s": ...} or {"status": "failed", "error": "Type: message", "wall_s": ...}."""
+    "kpis": ..., "wall_s": ..., "sim_wall_s": ...} or {"status": "failed", "error": "Type: message",
+    "wall_s": ...}.  `wall_s` is the point's wall time [s] from here (the runtime imported: once per
+    worker process, not per point) to its KPIs; `sim_wall_s` the lockstep simulation's part of it
+    (RunOutcome.wall_s).  The run folder keeps the trace, truth.csv, kpis.json and run.json; `plots` adds
+    plot.png, the studies' figures and report.html."""
+    from hil.runtime.run import run_scenario_lockstep
+
     t0 = time.perf_counter()
     try:
-        from hil.runtime.run import run_scenario_lockstep
-
         report = run_scenario_lockstep(Scenario.model_validate_json(scenario_json), Path(run_dir),
-                                       interactive_report=False)    # 4.8 MB of plotly.js a point is too much
+                                       interactive_report=False, plots=plots)  # 4.8 MB of plotly.js: no
         if report.outcome.reason == "interrupted":       # a cut-short run is no result to cache
             raise KeyboardInterrupt
         kpis = json.loads(json.dumps(report.kpis, default=str))
-        return {"status": "ok", "kpis": kpis, "error": "", "wall_s": time.perf_counter() - t0}
+        return {"status": "ok", "kpis": kpis, "error": "", "wall_s": time.perf_counter() - t0,
+                "sim_wall_s": report.outcome.wall_s}
     except Exception as exc:           # one failing point is recorded, the others go on
         text = " ".join(str(exc).split())
         return {"status": "failed", "kpis": {}, "error": f"{type(exc).__name__}: {text}",
                 "wall_s": time.perf_counter() - t0}
+
+
+def draw_point(scenario_json: str, run_dir: str, cached: dict) -> dict:
+    """The figures and report.html of a point cached without them (`--plots` now), drawn from its run
+    folder: `cached` (its point.json) with "drawn": True; a folder they cannot be drawn from is run
+    again with plots (run_point).  Never raises."""
+    from hil.runtime.run import write_figures
+
+    try:
+        write_figures(Path(run_dir))
+    except Exception:                  # a damaged folder: the point runs again, with its figures
+        return run_point(scenario_json, run_dir, plots=True)
+    return {**cached, "drawn": True}
 
 
 @dataclass
@@ -328,6 +351,7 @@ class PointResult:
     wall_s: float                      # wall time of the point's run [s] (of the original run if cached)
     run_dir: Path
     kpis: dict = field(default_factory=dict)
+    sim_wall_s: float | None = None    # of which the lockstep simulation [s] (None: failed, older cache)
 
 
 @dataclass
@@ -393,49 +417,65 @@ def executor_for(jobs: int = 1, dask: str | None = None,
 
 def run_campaign(campaign: Campaign, out_dir: Path, executor: Executor | None = None,
                  points: list[Point] | None = None,
-                 progress: Callable[[PointResult], None] | None = None) -> CampaignResult:
+                 progress: Callable[[PointResult], None] | None = None,
+                 plots: bool = False) -> CampaignResult:
     """Run every point not already cached in `out_dir`, through `executor` (None: in this process).
-    Cached points are reported first (progress too).  Ctrl-C stops the campaign, keeps every finished
-    point cached and returns the result so far with `interrupted` set."""
+    Cached points are reported first (progress too).  `plots`: each point's run folder gets its figures
+    and report.html too, and a cached point without them gets them drawn from its folder (draw_point).
+    Ctrl-C stops the campaign, keeps every finished point cached and returns the result so far with
+    `interrupted` set."""
     from hil.report.kpis import check_out_dir
 
     t0 = time.perf_counter()
     out_dir = check_out_dir(out_dir)
     points = expand(campaign) if points is None else points
+    if plots:
+        from hil.runtime.run import has_figures
     done: dict[int, PointResult] = {}
     todo: dict[str, list[Point]] = {}               # key -> points with that scenario (duplicates run once)
+    undrawn: dict[str, dict] = {}                   # key -> point.json of a cached point to draw (plots)
     for p in points:
         run_dir = out_dir / "points" / p.key[:16]
         cached = _read_cache(run_dir, p.key)
-        if cached is not None:
+        if cached is not None and plots and not has_figures(run_dir):
+            undrawn[p.key] = cached
+            todo.setdefault(p.key, []).append(p)
+        elif cached is not None:
             done[p.index] = PointResult(p, "ok", True, "", float(cached.get("wall_s", 0.0)), run_dir,
-                                        cached.get("kpis", {}))
+                                        cached.get("kpis", {}), cached.get("sim_wall_s"))
             if progress:
                 progress(done[p.index])
         else:
             todo.setdefault(p.key, []).append(p)
 
+    def job(key: str) -> tuple[Callable[..., dict], tuple]:
+        args = (todo[key][0].scenario.model_dump_json(), str(out_dir / "points" / key[:16]))
+        return (draw_point, (*args, undrawn[key])) if key in undrawn else (run_point, (*args, plots))
+
     def finish(key: str, outcome: dict) -> None:
         first = todo[key][0]
         run_dir = out_dir / "points" / key[:16]
-        if outcome["status"] == "ok":
+        drawn = bool(outcome.get("drawn"))           # a cached point, its figures drawn now
+        if outcome["status"] == "ok" and not drawn:
             _write_cache(run_dir, key, first, outcome)
         for p in todo[key]:
-            done[p.index] = PointResult(p, outcome["status"], False, outcome["error"], outcome["wall_s"],
-                                        run_dir, outcome["kpis"])
+            done[p.index] = PointResult(p, outcome["status"], drawn, outcome["error"],
+                                        float(outcome.get("wall_s", 0.0)), run_dir, outcome["kpis"],
+                                        outcome.get("sim_wall_s"))
             if progress:
                 progress(done[p.index])
 
     interrupted = False
     try:
         if executor is None:
-            for key, same in todo.items():
-                finish(key, run_point(same[0].scenario.model_dump_json(), str(out_dir / "points" / key[:16])))
+            for key in todo:
+                fn, args = job(key)
+                finish(key, fn(*args))
         else:
-            futures: dict[Future, str] = {
-                executor.submit(run_point, same[0].scenario.model_dump_json(),
-                                str(out_dir / "points" / key[:16])): key
-                for key, same in todo.items()}
+            futures: dict[Future, str] = {}
+            for key in todo:
+                fn, args = job(key)
+                futures[executor.submit(fn, *args)] = key
             try:
                 for fut in as_completed(futures):
                     try:
@@ -478,6 +518,7 @@ def rows(result: CampaignResult) -> tuple[list[str], list[dict]]:
         kpi_cols.update(dict.fromkeys(kpis))
         table.append({"point": r.point.index, **r.point.values, "status": r.status, "cached": r.cached,
                       "error": r.error, "wall_s": round(r.wall_s, 3),
+                      "sim_wall_s": None if r.sim_wall_s is None else round(r.sim_wall_s, 3),
                       "run_dir": str(r.run_dir.relative_to(result.out_dir)), **kpis})
     columns = ["point", *swept, *FIXED_COLUMNS[1:], *(k for k in kpi_cols if k not in swept)]
     return columns, table
@@ -567,6 +608,12 @@ def summary_lines(result: CampaignResult) -> list[str]:
     n_cached = sum(r.cached for r in result.results)
     lines = [f"campaign {result.campaign.name}: {len(result.results)} of {result.total} points finished "
              f"({n_ok} ok, {n_cached} from cache, {len(result.failed)} failed) in {result.wall_s:.1f} s"]
+    ran = [r for r in result.results if r.status == "ok" and not r.cached and r.sim_wall_s is not None]
+    if ran:
+        wall = sum(r.wall_s for r in ran)
+        sim = sum(r.sim_wall_s for r in ran)
+        lines.append(f"  {len(ran)} points ran: {wall / len(ran):.2f} s wall each, {sim / len(ran):.2f} s "
+                     f"of it the lockstep simulation ({100 * sim / max(wall, 1e-9):.0f} %)")
     ok = [_flatten(r.kpis) for r in result.results if r.status == "ok"]
     stats = []
     for metric in result.campaign.plot:

@@ -2,10 +2,11 @@
 lockstep through local worker processes (`--jobs N`) or a Dask distributed cluster (`--dask ADDRESS`);
 resumable.  File format and definitions in hil.campaign.sweep.
 
-Writes results.csv (results.parquet with pyarrow), plot_<key>.png and one run folder per point under
-the output folder, prints a short table.  Exit 0 when every point ran, 1 when some failed (each is
-recorded with its error; the others finish), 2 for bad input, 130 when interrupted (finished points
-stay cached: run the same command again to resume).
+Writes results.csv (results.parquet with pyarrow), plot_<key>.png, report.html and one run folder per
+point under the output folder (trace, truth.csv, kpis.json, run.json; with --plots also the point's
+plot.png, study figures and report.html), prints a short table.  Exit 0 when every point ran, 1 when
+some failed (each is recorded with its error; the others finish), 2 for bad input, 130 when interrupted
+(finished points stay cached: run the same command again to resume).
 """
 
 from __future__ import annotations
@@ -27,8 +28,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                     "resolved scenario, DBC and railhil version, so a rerun (after Ctrl-C, or with "
                     "more points) runs only what is not finished. A failing point is recorded with "
                     "its error and the others go on. Writes results.csv (and results.parquet when "
-                    "pyarrow is installed), plot_<key>.png and report.html. Exit 0 when every point ran, "
-                    "1 when some failed, 2 for bad input, 130 when interrupted.",
+                    "pyarrow is installed), plot_<key>.png and report.html. A point's run folder keeps "
+                    "its trace, truth.csv, kpis.json and run.json; its figures and report.html only with "
+                    "--plots. Exit 0 when every point ran, 1 when some failed, 2 for bad input, 130 when "
+                    "interrupted.",
     )
     p.add_argument("campaign", type=Path, help="campaign TOML file (e.g. campaigns/mass_sweep.toml) or a "
                                                "shipped campaign's name (mass_sweep)")
@@ -45,6 +48,11 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--out", type=Path, default=None, metavar="DIR",
                    help="campaign folder: results, plots, point run folders and their cache (default "
                         "runs/campaign-<name>; the same folder again resumes)")
+    p.add_argument("--plots", action="store_true",
+                   help="also write each point's figures (plot.png, the studies' <study>.png) and its "
+                        "report.html, as `railhil run` does; off by default, a point then keeps its "
+                        "trace, truth.csv, kpis.json and run.json (points cached without figures get them "
+                        "drawn from their run folders, without running again)")
     p.add_argument("--list", action="store_true",
                    help="print the points, their swept values and whether each is cached, run nothing")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
@@ -101,7 +109,7 @@ def campaign(args: argparse.Namespace) -> int:
         with executor_for(args.jobs, args.dask, args.dask_timeout) as executor:    # connects first
             if not args.quiet:
                 bar = tqdm(total=len(points), unit="point", file=sys.stderr, desc=f"campaign {spec.name}")
-            result = run_campaign(spec, out, executor, points, progress)
+            result = run_campaign(spec, out, executor, points, progress, plots=args.plots)
     finally:
         if bar is not None:
             bar.close()

@@ -823,7 +823,8 @@ def _read_results_csv(path: Path) -> tuple[list[str], list[dict]]:
 def render_campaign_report(out_dir: Path, table: tuple[list[str], list[dict]] | None = None,
                            name: str | None = None, description: str = "") -> str:
     """The HTML page of a campaign folder: counts, the results table (`table` = (columns, rows), else
-    read from results.csv) with each point's status and a link to its run report, the summary plots."""
+    read from results.csv) with each point's status and a link to its run report (to its run folder
+    when it has none: a point run without --plots), the summary plots."""
     out_dir = Path(out_dir)
     columns, rows = table if table is not None else _read_results_csv(out_dir / "results.csv")
     name = name or out_dir.name
@@ -843,8 +844,8 @@ def render_campaign_report(out_dir: Path, table: tuple[list[str], list[dict]] | 
             if c == "status":
                 cells.append(_verdict_cell(None if v == "" else v == "ok").replace(">pass<", ">ok<")
                              .replace(">FAIL<", f">{_e(v)}<"))
-            elif c == "run_dir" and v:
-                link = f"{v}/{REPORT_NAME}"
+            elif c == "run_dir" and v:        # a point run without --plots has no report: its folder
+                link = f"{v}/{REPORT_NAME}" if (out_dir / v / REPORT_NAME).is_file() else f"{v}/"
                 cells.append(f"<td><a href=\"{_e(link)}\">{_e(v)}</a></td>")
             else:
                 cells.append(f"<td>{_e(_fmt(v))}</td>")

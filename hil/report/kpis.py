@@ -5,6 +5,11 @@ the demand the controllers were given is read back from the trace, decoded with 
 tracking, frames); `study_kpis` asks each study that is part of the run for its own
 (hil/studies/<name>/kpis.py), each under the study's name in kpis.json.  A study's KPI function gets
 the run as a `RunView`: the scenario, the truth columns, the demand, the braking window and the trace.
+
+A finished run's trace is read once (`read_run_trace`: every frame as columns, hil.trace.decoded, each
+message decoded on first use, with the values the codec and cantools give); the demand, the frame count
+(`read_signal`), the plausibility flags and every study's signals (`RunView.signals`) are taken from that
+one read.
 """
 
 from __future__ import annotations
@@ -23,6 +28,9 @@ from hil.can.codec import Codec
 from hil.errors import RailhilError
 from hil.runtime.plant_node import STANDSTILL_MPS
 from hil.scenario import registry
+from hil.trace.columns import BlockReader, FrameBlock
+from hil.trace.decoded import DecodedTrace
+from hil.trace.readers import TraceError
 
 if TYPE_CHECKING:
     from hil.scenario.model import ScenarioBase as Scenario
@@ -32,13 +40,14 @@ NO_SIGNAL = (np.zeros(0), np.zeros(0))
 
 
 def write_truth_csv(columns: dict[str, np.ndarray], path: Path) -> None:
+    """truth.csv: a header of the column names, then one line per sample, every value to 6 significant
+    digits (`%.6g`), as csv.writer writes them (CRLF line ends); one format operation per line."""
     names = list(columns)
     rows = np.column_stack([columns[n] for n in names])
+    line = ",".join(["%.6g"] * len(names)) + "\r\n"
     with path.open("w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(names)
-        for row in rows:
-            w.writerow([f"{x:.6g}" for x in row])
+        csv.writer(f).writerow(names)
+        f.write("".join([line % tuple(row) for row in rows.tolist()]))
 
 
 def run_trace(folder: Path, meta: dict, scenario) -> tuple[Path, float, float]:
@@ -57,10 +66,35 @@ def read_truth_csv(path: Path) -> dict[str, np.ndarray]:
     return {name: np.asarray(data[name], dtype=float) for name in data.dtype.names}
 
 
-def read_signal(trace: Path, db: Database, codec: Codec, message: str, signal: str,
+def read_run_trace(trace: Path, db: Database, codec: Codec) -> DecodedTrace:
+    """Every frame of a run's trace, read once as columns (hil.trace.columns: the fast BLF, MF4 and
+    candump paths), each message decoded on first use.  As python-can's reader, which finish_run used
+    before, a trace cut short or without a frame gives the frames before the end (nothing recorded is
+    lost); a missing file or an unknown format is a TraceError."""
+    reader = BlockReader(trace)
+    blocks: list[FrameBlock] = []
+    try:
+        for block in reader:
+            blocks.append(block)
+    except TraceError:          # cut short (BLF), or no frame at all: the frames read before
+        pass
+    frames = (blocks[0] if len(blocks) == 1 else FrameBlock.join(blocks) if blocks
+              else FrameBlock.from_messages([]))
+    return DecodedTrace(Path(trace), db, frames, codec)
+
+
+def _series(table, signal: str, t0_s: float, speed: float) -> tuple[np.ndarray, np.ndarray]:
+    """Simulated times [s] and values of one signal of a decoded message (hil.trace.decoded)."""
+    return (table.t - t0_s) * speed, table.columns[signal]
+
+
+def read_signal(trace: Path | DecodedTrace, db: Database, codec: Codec, message: str, signal: str,
                 t0_s: float = 0.0, speed: float = 1.0) -> tuple[np.ndarray, np.ndarray, int]:
     """Simulated times [s] ((timestamp - t0) * speed) and values of one signal in a trace, and the
-    number of frames in the whole trace (one pass over the file)."""
+    number of frames in the whole trace: from a trace already read (`read_run_trace`), or in one pass
+    over the file at `trace`."""
+    if isinstance(trace, DecodedTrace):
+        return (*_series(trace.table(message), signal, t0_s, speed), len(trace.frames))
     fid = db.get_message_by_name(message).frame_id
     fc = codec[fid]
     ts, vs = [], []
@@ -74,10 +108,21 @@ def read_signal(trace: Path, db: Database, codec: Codec, message: str, signal: s
     return np.asarray(ts), np.asarray(vs), total
 
 
-def read_signals(trace: Path, db: Database, codec: Codec, wanted: dict[str, tuple[str, str]],
+def read_signals(trace: Path | DecodedTrace, db: Database, codec: Codec, wanted: dict[str, tuple[str, str]],
                  t0_s: float = 0.0, speed: float = 1.0) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Several signals of a trace in one pass: name -> (message, signal) in, name -> (simulated times
-    [s], values) out (a message the DBC lacks gives empty arrays)."""
+    """Several signals of a trace (already read, `read_run_trace`, or in one pass over the file):
+    name -> (message, signal) in, name -> (simulated times [s], values) out (a message the DBC lacks
+    gives empty arrays)."""
+    if isinstance(trace, DecodedTrace):
+        out = {}
+        for name, (message, signal) in wanted.items():
+            try:
+                table = trace.table(message)
+            except KeyError:
+                out[name] = NO_SIGNAL
+                continue
+            out[name] = _series(table, signal, t0_s, speed)
+        return out
     by_id: dict[int, list[tuple[str, str]]] = {}
     for name, (message, signal) in wanted.items():
         try:
@@ -127,7 +172,8 @@ class RunView:
     `cols`: the truth columns (t_s, then `<quantity>_<car>`); `target`: BCU_DEMAND.TargetDecel from the
     trace (times [s], values [m/s²]); `t_brake`: the first brake command [s] (the start of the run when
     there is none); `i_stop`: the truth sample of the standstill (the last one when the train did not
-    stop).  `signals()` reads more signals from the trace, in simulated seconds."""
+    stop).  `signals()` takes more signals from the trace, in simulated seconds; `decoded` is the trace
+    read once (`read_run_trace`; read on the first `signals()` when not given)."""
 
     scenario: Scenario
     cols: dict[str, np.ndarray]
@@ -142,6 +188,7 @@ class RunView:
     trace_t0_s: float | None = 0.0       # the trace's timestamp at simulated time 0 (None: not known)
     trace_speed: float = 1.0
     mode: str = "lockstep"
+    decoded: DecodedTrace | None = field(default=None, repr=False)
     _cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -173,11 +220,12 @@ class RunView:
         db = load_dbc(Path(scenario.dbc) if scenario.dbc else DEFAULT_DBC)
         codec = Codec(db)
         trace, t0, speed = run_trace(folder, meta, scenario)
+        decoded = read_run_trace(trace, db, codec) if trace.exists() else None
         wanted = {"r0": ("BCU_DEMAND", "TargetDecel")}
-        target = (read_signals(trace, db, codec, wanted, t0, speed)["r0"] if trace.exists()
+        target = (read_signals(decoded, db, codec, wanted, t0, speed)["r0"] if decoded is not None
                   else NO_SIGNAL)
         return cls.of(scenario, cols, target, None, out_dir=folder, trace=trace, db=db, codec=codec,
-                      trace_t0_s=t0, trace_speed=speed, mode=meta.get("mode", "lockstep"))
+                      trace_t0_s=t0, trace_speed=speed, mode=meta.get("mode", "lockstep"), decoded=decoded)
 
     @property
     def t(self) -> np.ndarray:
@@ -190,16 +238,18 @@ class RunView:
         return np.interp(t, tt, tv, left=0.0) if tt.size else np.zeros_like(t)
 
     def signals(self, wanted: dict[str, tuple[str, str]]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """name -> (message, signal) in; name -> (simulated times [s], values) out, read from the trace in
-        one pass.  Empty arrays where there is no trace, the DBC lacks the message, or a real-time trace
-        came without its t0 (wall-clock timestamps cannot be aligned with the truth)."""
+        """name -> (message, signal) in; name -> (simulated times [s], values) out, from the trace read
+        once.  Empty arrays where there is no trace, the DBC lacks the message, or a real-time trace came
+        without its t0 (wall-clock timestamps cannot be aligned with the truth)."""
         key = tuple(sorted(wanted.items()))
         if key in self._cache:
             return self._cache[key]
         empty = {name: NO_SIGNAL for name in wanted}
-        if self.trace is None or not self.trace.exists() or self.db is None or self.codec is None:
-            return empty
-        sig = read_signals(self.trace, self.db, self.codec, wanted,
+        if self.decoded is None:
+            if self.trace is None or not self.trace.exists() or self.db is None or self.codec is None:
+                return empty
+            self.decoded = read_run_trace(self.trace, self.db, self.codec)
+        sig = read_signals(self.decoded, self.db, self.codec, wanted,
                            0.0 if self.trace_t0_s is None else self.trace_t0_s, self.trace_speed)
         end = float(self.t[-1]) + 1.0 if len(self.t) else 0.0
         if self.trace_t0_s is None and any(ts.size and ts[0] > end for ts, _ in sig.values()):

@@ -1,22 +1,33 @@
-"""One run of a scenario, in lockstep or real time, and the run folder it leaves."""
+"""One run of a scenario, in lockstep or real time, and the run folder it leaves.
+
+A run folder holds the trace, truth.csv, kpis.json and run.json, and, unless the caller turns them off
+(`plots=False`: a campaign's points, `railhil campaign` without --plots), the figures (plot.png, each
+study's <study>.png) and report.html; `write_figures` draws those later from the folder's own files.
+The trace is read back once (hil.report.kpis.read_run_trace) for everything the KPIs take from it.
+"""
 
 from __future__ import annotations
 
 import json
+import os
 import platform
 import sys
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import can
+import numpy as np
+from cantools.database.can import Database
 
 from hil.can.codec import Codec
 from hil.can.dbc import DEFAULT_DBC, load_dbc
-from hil.report.html import run_metadata, write_run_report
+from hil.report.html import REPORT_NAME, run_metadata, write_run_report
 from hil.report.kpis import (
     RunView,
     check_out_dir,
     compute_kpis,
+    read_run_trace,
     read_signal,
     study_kpis,
     write_kpis,
@@ -28,9 +39,11 @@ from hil.runtime.desk import DeskScript
 from hil.runtime.lockstep import prepare_lockstep, run_lockstep
 from hil.runtime.outcome import RunOutcome, realtime_verdict
 from hil.scenario import Scenario
+from hil.trace.decoded import DecodedTrace
 from hil.trace.writers import open_writer
 
 TRACE_NAME = "trace.blf"       # the default trace's name; [trace] format chooses another (trace_name)
+PLOT_NAME = "plot.png"         # the run's figure of the truth (hil.report.plots.plot_run)
 
 
 def trace_name(scenario: Scenario) -> str:
@@ -53,60 +66,94 @@ class RunReport:
         return [head] + summary_lines(self.kpis, self.files)
 
 
-def plausibility_events(trace: Path, db, codec: Codec, n_cars: int, t0_s: float = 0.0,
+def plausibility_events(trace: DecodedTrace | Path, db, codec: Codec, n_cars: int, t0_s: float = 0.0,
                         speed: float = 1.0) -> dict[str, dict[str, float]]:
-    """When the ECUs first flagged a sensor or a car (issue #9), from the trace: simulated time [s]
-    of the first BECUn_DIAG frame with SpeedSensorFault / AccelSensorFault = 1 and of the first
-    BCU_STATUS frame with a car's CarsImplausible bit, by flag and car ("car2")."""
-    watch: dict[int, tuple[object, str]] = {}
+    """When the ECUs first flagged a sensor or a car (issue #9), from the trace (read once:
+    hil.report.kpis.read_run_trace; a path is read here): simulated time [s] of the first BECUn_DIAG
+    frame with SpeedSensorFault / AccelSensorFault = 1 and of the first BCU_STATUS frame with a car's
+    CarsImplausible bit, by flag and car ("car2"), in the order the trace has them."""
+    decoded = trace if isinstance(trace, DecodedTrace) else read_run_trace(trace, db, codec)
+    hits: list[tuple[int, int, str, str, float]] = []    # (frame row, order in the frame, flag, car, t)
+
+    def first(message: str, on: np.ndarray, order: int, kind: str, car: str) -> None:
+        k = np.flatnonzero(on)
+        if k.size:
+            table = decoded.table(message)
+            hits.append((int(_rows(decoded, message)[k[0]]), order, kind, car,
+                         float((table.t[k[0]] - t0_s) * speed)))
+
     for i in range(1, n_cars + 1):
-        watch[db.get_message_by_name(f"BECU{i}_DIAG").frame_id] = (codec.by_name(f"BECU{i}_DIAG"), f"car{i}")
-    status = db.get_message_by_name("BCU_STATUS").frame_id
-    watch[status] = (codec.by_name("BCU_STATUS"), "")
-    first: dict[str, dict[str, float]] = {}
+        name = f"BECU{i}_DIAG"
+        columns = decoded.table(name).columns
+        for order, sig in enumerate(("SpeedSensorFault", "AccelSensorFault")):
+            if sig in columns:
+                first(name, columns[sig] >= 0.5, order, sig, f"car{i}")
+    status = decoded.table("BCU_STATUS").columns
+    if "CarsImplausible" in status:
+        bits = status["CarsImplausible"].astype(np.int64)
+        for k in range(n_cars):
+            first("BCU_STATUS", bits >> k & 1 == 1, k, "CarsImplausible", f"car{k + 1}")
+    flagged: dict[str, dict[str, float]] = {}
+    for _, _, kind, car, t in sorted(hits):
+        flagged.setdefault(kind, {}).setdefault(car, round(t, 4))
+    return flagged
 
-    def flag(kind: str, car: str, t: float) -> None:
-        first.setdefault(kind, {}).setdefault(car, round(t, 4))
 
-    with can.LogReader(str(trace)) as reader:
-        for msg in reader:
-            hit = watch.get(msg.arbitration_id)
-            if hit is None or msg.is_error_frame or msg.is_remote_frame:
-                continue
-            fc, car = hit
-            values = fc.decode(bytes(msg.data))
-            t = (msg.timestamp - t0_s) * speed
-            if msg.arbitration_id == status:
-                bits = int(values.get("CarsImplausible", 0))
-                for k in range(n_cars):
-                    if bits >> k & 1:
-                        flag("CarsImplausible", f"car{k + 1}", t)
-                continue
-            for sig in ("SpeedSensorFault", "AccelSensorFault"):
-                if values.get(sig, 0) >= 0.5:
-                    flag(sig, car, t)
-    return first
+def _rows(decoded: DecodedTrace, message: str) -> np.ndarray:
+    """The trace rows of a decoded message's frames, in the order of its table (its frames of the right
+    kind and length), so that flags of different messages keep the trace's order."""
+    msg = decoded.db.get_message_by_name(message)
+    f = decoded.frames
+    rows = np.flatnonzero((f.arbitration_id == msg.frame_id) & ~f.remote & ~f.error
+                          & (f.extended == bool(msg.is_extended_frame)) & (f.length >= msg.length))
+    if len(rows) != len(decoded.table(message).t):      # the codec's frame-by-frame path: order by time
+        return np.searchsorted(f.t, decoded.table(message).t)
+    return rows
 
 
 def dbc_path_of(scenario: Scenario) -> Path:
     return Path(scenario.dbc) if scenario.dbc else DEFAULT_DBC
 
 
+@lru_cache(maxsize=4)
+def _compiled(path: str, resolved: str, mtime_ns: int, size: int) -> tuple[Database, Codec]:
+    db = load_dbc(path)
+    return db, Codec(db)
+
+
+def loaded_dbc(path: Path) -> tuple[Database, Codec]:
+    """The DBC at `path` and its compiled codec, loaded once per process while the file stays the same
+    (its resolved path, modification time and size): a campaign worker runs many points of one DBC, and
+    loading and compiling it costs more than a short point's KPIs.  Nothing in a run changes either (the
+    codec's `clamped` count only grows; a node reads its own increments).  A DBC that does not load is
+    the DbcError of load_dbc, every time."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        db = load_dbc(path)                  # the DbcError naming the file
+        return db, Codec(db)
+    return _compiled(str(path), os.path.realpath(path), st.st_mtime_ns, st.st_size)
+
+
 def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec: Codec,
                trace_t0_s: float = 0.0, trace_speed: float = 1.0, extra: dict | None = None,
-               interactive_report: bool = True) -> RunReport:
+               interactive_report: bool = True, plots: bool = True) -> RunReport:
+    """Write the run folder of a finished run: truth.csv, kpis.json (the trace read back once), run.json,
+    and with `plots` plot.png, the studies' figures and report.html."""
     trace = out_dir / trace_name(scenario)
     cols = outcome.truth.columns()
     truth_csv = out_dir / "truth.csv"
     write_truth_csv(cols, truth_csv)
-    *target, recorded = read_signal(trace, db, codec, "BCU_DEMAND", "TargetDecel", t0_s=trace_t0_s,
+    decoded = read_run_trace(trace, db, codec)                  # the one read of the trace
+    *target, recorded = read_signal(decoded, db, codec, "BCU_DEMAND", "TargetDecel", t0_s=trace_t0_s,
                                     speed=trace_speed)
     brake_us = DeskScript(scenario.desk).first_brake_us()
     brake_s = None if brake_us is None else brake_us / 1e6
     kpis = compute_kpis(scenario, cols, target, brake_s, outcome.frames_by_node, recorded,
                         outcome.frames_in_flight, outcome.frames_overwritten, outcome.frames_faulted)
     view = RunView.of(scenario, cols, tuple(target), brake_s, out_dir=out_dir, trace=trace, db=db,
-                      codec=codec, trace_t0_s=trace_t0_s, trace_speed=trace_speed, mode=outcome.mode)
+                      codec=codec, trace_t0_s=trace_t0_s, trace_speed=trace_speed, mode=outcome.mode,
+                      decoded=decoded)
     kpis.update(study_kpis(view))                    # each study's own, under its name
     if outcome.bus is not None:
         worst = max(outcome.bus["messages"].items(), key=lambda kv: kv[1]["response_max_us"],
@@ -126,7 +173,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     kpis["protection_events"] = dict(sorted(detected.items()))
     if outcome.faults is not None:
         kpis["faults_injected"] = dict(sorted(outcome.faults["counts"].items()))
-    flagged = plausibility_events(trace, db, codec, scenario.train.cars, trace_t0_s, trace_speed)
+    flagged = plausibility_events(decoded, db, codec, scenario.train.cars, trace_t0_s, trace_speed)
     if flagged or outcome.faults is not None:
         kpis["plausibility_flags"] = flagged       # first time [s] each sensor / car was flagged
     if outcome.mode == "realtime":
@@ -137,9 +184,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     kpis["end_reason"] = outcome.reason
     kpis_json = out_dir / "kpis.json"
     write_kpis(kpis, kpis_json)
-    plot = plot_run(scenario, cols, out_dir / "plot.png",
-                    f"{scenario.name} ({outcome.mode}, seed {scenario.seed})")
-    figures = study_plots(view)
+    figures = _draw(view, outcome.mode) if plots else []
     meta = {
         "scenario": scenario.model_dump(mode="json"),
         "mode": outcome.mode,
@@ -158,18 +203,41 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     }
     run_json = out_dir / "run.json"
     run_json.write_text(json.dumps(meta, indent=2, default=str) + "\n")
-    report = write_run_report(out_dir, interactive_report)       # report.html: one self-contained page
-    return RunReport(out_dir, outcome, kpis, [trace, truth_csv, kpis_json, plot, *figures, run_json, report])
+    report = [write_run_report(out_dir, interactive_report)] if plots else []   # one self-contained page
+    return RunReport(out_dir, outcome, kpis, [trace, truth_csv, kpis_json, *figures, run_json, *report])
+
+
+def _draw(view: RunView, mode: str) -> list[Path]:
+    """plot.png and each study's figures of a run, into its folder; the files written."""
+    s = view.scenario
+    plot = plot_run(s, view.cols, view.out_dir / PLOT_NAME, f"{s.name} ({mode}, seed {s.seed})")
+    return [plot, *study_plots(view)]
+
+
+def has_figures(folder: Path) -> bool:
+    """Whether a run folder has its figures and report.html (a campaign point run without --plots has
+    not)."""
+    return (Path(folder) / PLOT_NAME).is_file() and (Path(folder) / REPORT_NAME).is_file()
+
+
+def write_figures(folder: Path, interactive_report: bool = False) -> list[Path]:
+    """plot.png, the studies' figures and report.html of a run folder that has none (a campaign point run
+    without plots), drawn from its own files: run.json, truth.csv (6 significant digits) and the trace;
+    the files written."""
+    view = RunView.from_folder(folder)
+    return [*_draw(view, view.mode), write_run_report(Path(folder), interactive_report)]
 
 
 def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None,
-                          interactive_report: bool = True) -> RunReport:
+                          interactive_report: bool = True, plots: bool = True) -> RunReport:
+    """Run `scenario` in lockstep into the run folder `out_dir` (finish_run: `plots` False leaves out the
+    figures and report.html)."""
     dbc_path = dbc_path_of(scenario)
-    db = load_dbc(dbc_path)
-    codec = Codec(db)
+    db, codec = loaded_dbc(dbc_path)
     setup = prepare_lockstep(scenario, db, codec, str(dbc_path))   # bad input: no run folder is left
     out_dir = check_out_dir(out_dir)
     with open_writer(out_dir / trace_name(scenario), start_time_s=0.0) as writer:   # simulated s from 0
         outcome = run_lockstep(scenario, db, codec, writer, progress=progress, dbc_name=str(dbc_path),
                                setup=setup)
-    return finish_run(scenario, outcome, out_dir, db, codec, interactive_report=interactive_report)
+    return finish_run(scenario, outcome, out_dir, db, codec, interactive_report=interactive_report,
+                      plots=plots)
