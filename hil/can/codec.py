@@ -50,18 +50,21 @@ encode(values)
 
 from __future__ import annotations
 
+import functools
 import math
 import operator
+import os
 import struct
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from cantools.database.can import Database, Message, Signal
 from cantools.database.conversion import BaseConversion, IdentityConversion, LinearIntegerConversion
 from cantools.database.errors import DecodeError
 
-from hil.can.dbc import closest
+from hil.can.dbc import DEFAULT_DBC, closest, load_dbc
 from hil.errors import RailhilError
 
 __all__ = ["Codec", "FrameCodec", "FrameError"]
@@ -575,3 +578,24 @@ class Codec:
     def clamped(self) -> int:
         """Values saturated or replaced by all the frame codecs since they were built."""
         return sum(fc.clamped for fc in self._by_name.values())
+
+
+@functools.lru_cache(maxsize=4)
+def _loaded(path: str, resolved: str, mtime_ns: int, size: int) -> tuple[Database, Codec]:
+    db = load_dbc(path)
+    return db, Codec(db)
+
+
+def loaded_dbc(path: str | Path | None = None) -> tuple[Database, Codec]:
+    """The DBC at `path` (None: the project's, DEFAULT_DBC) and its codec, loaded once per process while
+    the file stays the same (its resolved path, modification time and size): a campaign worker or the
+    threat matrix runs many lockstep runs of one DBC, and loading and compiling it (~115 ms) costs more
+    than a short run's KPIs.  Runs change neither (the codec's `clamped` count only grows; a node reads
+    its own increments).  A DBC that does not load is the DbcError of load_dbc, every time."""
+    path = DEFAULT_DBC if path is None else Path(path)
+    try:
+        st = os.stat(path)
+    except OSError:
+        db = load_dbc(path)                  # the DbcError naming the file
+        return db, Codec(db)
+    return _loaded(str(path), os.path.realpath(path), st.st_mtime_ns, st.st_size)

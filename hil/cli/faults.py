@@ -85,7 +85,7 @@ def markdown(cells, baseline: dict, scenario_name: str) -> str:
 def matrix(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hil.can.dbc import load_dbc
+    from hil.can.codec import loaded_dbc
     from hil.report.kpis import check_out_dir
     from hil.safety.injection import MESSAGE_THREATS
     from hil.safety.threat_matrix import as_rows, run_matrix, safety_messages
@@ -94,7 +94,7 @@ def matrix(args: argparse.Namespace) -> int:
     if args.jobs < 1:
         raise FaultsArgError(f"--jobs {args.jobs}: expected at least 1")
     scenario = load_scenario(args.scenario)
-    db = load_dbc(scenario.dbc) if scenario.dbc else load_dbc()
+    db, _ = loaded_dbc(scenario.dbc)            # the DBC the matrix's runs use (once per process)
     available = safety_messages(scenario, db)
     bad = [m for m in args.message if m not in available]
     if bad:

@@ -9,19 +9,16 @@ The trace is read back once (hil.report.kpis.read_run_trace) for everything the 
 from __future__ import annotations
 
 import json
-import os
 import platform
 import sys
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 
 import can
 import numpy as np
-from cantools.database.can import Database
 
-from hil.can.codec import Codec
-from hil.can.dbc import DEFAULT_DBC, load_dbc
+from hil.can.codec import Codec, loaded_dbc
+from hil.can.dbc import DEFAULT_DBC
 from hil.report.html import REPORT_NAME, run_metadata, write_run_report
 from hil.report.kpis import (
     RunView,
@@ -113,26 +110,6 @@ def _rows(decoded: DecodedTrace, message: str) -> np.ndarray:
 
 def dbc_path_of(scenario: Scenario) -> Path:
     return Path(scenario.dbc) if scenario.dbc else DEFAULT_DBC
-
-
-@lru_cache(maxsize=4)
-def _compiled(path: str, resolved: str, mtime_ns: int, size: int) -> tuple[Database, Codec]:
-    db = load_dbc(path)
-    return db, Codec(db)
-
-
-def loaded_dbc(path: Path) -> tuple[Database, Codec]:
-    """The DBC at `path` and its compiled codec, loaded once per process while the file stays the same
-    (its resolved path, modification time and size): a campaign worker runs many points of one DBC, and
-    loading and compiling it costs more than a short point's KPIs.  Nothing in a run changes either (the
-    codec's `clamped` count only grows; a node reads its own increments).  A DBC that does not load is
-    the DbcError of load_dbc, every time."""
-    try:
-        st = os.stat(path)
-    except OSError:
-        db = load_dbc(path)                  # the DbcError naming the file
-        return db, Codec(db)
-    return _compiled(str(path), os.path.realpath(path), st.st_mtime_ns, st.st_size)
 
 
 def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec: Codec,

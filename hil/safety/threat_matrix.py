@@ -30,8 +30,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from cantools.database.can import Database
 
-from hil.can.codec import Codec
-from hil.can.dbc import load_dbc
+from hil.can.codec import Codec, loaded_dbc
 from hil.report.kpis import compute_kpis
 from hil.runtime.desk import DeskScript
 from hil.runtime.node import e2e_config
@@ -68,11 +67,17 @@ class Cell:
     error: str = ""
 
 
+def _codec(scenario: Scenario, db: Database) -> Codec:
+    """The codec of `db`: the one loaded once per process when `db` is the scenario's DBC."""
+    cached_db, codec = loaded_dbc(scenario.dbc)
+    return codec if db is cached_db else Codec(db)
+
+
 def safety_messages(scenario: Scenario, db: Database) -> list[str]:
     """E2E-protected messages that some node of the scenario sends and another receives."""
     from hil.runtime.assembly import build_node, node_names
 
-    codec = Codec(db)
+    codec = _codec(scenario, db)
     nodes = [build_node(n, scenario, db, codec) for n in node_names(scenario)]
     sent = {fc.name for node in nodes for fc in (tx.codec for tx in node.tx)}
     received = {db.get_message_by_frame_id(fid).name for node in nodes for fid in node.rx_ids}
@@ -82,7 +87,7 @@ def safety_messages(scenario: Scenario, db: Database) -> list[str]:
 def _receivers(scenario: Scenario, db: Database, message: str) -> tuple[str, ...]:
     from hil.runtime.assembly import build_node, node_names
 
-    codec = Codec(db)
+    codec = _codec(scenario, db)
     fid = db.get_message_by_name(message).frame_id
     return tuple(n for n in node_names(scenario) if fid in build_node(n, scenario, db, codec).rx_ids)
 
@@ -104,8 +109,8 @@ def fault_for(scenario: Scenario, db: Database, message: str, threat: str) -> di
 def _run(scenario: Scenario) -> tuple:
     from hil.runtime.lockstep import run_lockstep
 
-    db = load_dbc(scenario.dbc) if scenario.dbc else load_dbc()
-    outcome = run_lockstep(scenario, db, Codec(db), writer=None)
+    db, codec = loaded_dbc(scenario.dbc)
+    outcome = run_lockstep(scenario, db, codec, writer=None)
     cols = outcome.truth.columns()
     brake_us = DeskScript(scenario.desk).first_brake_us()
     kpis = compute_kpis(scenario, cols, (np.array([]), np.array([])),
@@ -119,7 +124,7 @@ def _pressures(cols: dict, cars: int) -> tuple[np.ndarray, np.ndarray]:
 
 def run_cell(scenario: Scenario, message: str, threat: str, baseline: tuple | None = None) -> Cell:
     """One cell of the matrix (module docstring); `baseline` = the fault-free (kpis, t, p) if known."""
-    db = load_dbc(scenario.dbc) if scenario.dbc else load_dbc()
+    db, _ = loaded_dbc(scenario.dbc)
     fault = fault_for(scenario, db, message, threat)
     receivers = _receivers(scenario, db, message)
     if baseline is None:
@@ -171,7 +176,7 @@ def run_matrix(scenario: Scenario, messages: Iterable[str] | None = None,
                threats: Iterable[str] = MESSAGE_THREATS, jobs: int = 1,
                progress: Callable[[Cell], None] | None = None) -> tuple[list[Cell], dict]:
     """Every (message, threat) cell, in parallel processes when jobs > 1; returns cells and baseline."""
-    db = load_dbc(scenario.dbc) if scenario.dbc else load_dbc()
+    db, _ = loaded_dbc(scenario.dbc)
     messages = list(messages) if messages is not None else safety_messages(scenario, db)
     _, cols0, kpis0 = _run(scenario)
     baseline = (kpis0, *_pressures(cols0, scenario.train.cars))

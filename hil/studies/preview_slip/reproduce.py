@@ -18,7 +18,6 @@ controller): Lf, Bd, Dp, the α each slip loop achieves (`achieved_alpha`), and 
 from __future__ import annotations
 
 import argparse
-import functools
 import json
 import math
 import time
@@ -96,13 +95,10 @@ def run_case(c: Case, with_truth: bool = False) -> dict:
     return res
 
 
-@functools.cache
 def _db_codec():
-    """The project DBC and its codec, built once per process (the codec compiles a function per frame)."""
-    from hil.can.codec import Codec
-    from hil.can.dbc import load_dbc
-    db = load_dbc()
-    return db, Codec(db)
+    """The project DBC and its codec, built once per process (hil.can.codec.loaded_dbc)."""
+    from hil.can.codec import loaded_dbc
+    return loaded_dbc()
 
 
 # ------------------------------------------------------------------------------------ full mode
