@@ -146,6 +146,7 @@ class Plant:
         self._no_set = np.zeros(n)
         self._sensors = SensorModel(params.sensors, int(seed), kernel.readings)
         self._refresh_track()
+        kernel.warm_up(self._st, self._tr, self._car, self._k, self._recs)   # machine code loaded here
 
     # ------------------------------------------------------------------------------------------------- track
     def _refresh_track(self) -> None:

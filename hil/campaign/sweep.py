@@ -308,21 +308,30 @@ def expand(campaign: Campaign) -> list[Point]:
 def run_point(scenario_json: str, run_dir: str, plots: bool = False) -> dict:
     """Run one point in lockstep into `run_dir` (the worker's job; never raises): {"status": "ok",
     "kpis": ..., "wall_s": ..., "sim_wall_s": ...} or {"status": "failed", "error": "Type: message",
-    "wall_s": ...}.  `wall_s` is the point's wall time [s] from here (the runtime imported: once per
-    worker process, not per point) to its KPIs; `sim_wall_s` the lockstep simulation's part of it
-    (RunOutcome.wall_s).  The run folder keeps the trace, truth.csv, kpis.json and run.json; `plots` adds
-    plot.png, the studies' figures and report.html."""
-    from hil.runtime.run import run_scenario_lockstep
+    "wall_s": ...}.  `wall_s` is the point's wall time [s] from here (the runtime imported and the
+    worker prepared, hil.runtime.run.prepare_worker: the DBC and the compiled plant loaded, once per worker
+    process, not per point; those seconds are `startup_s`) to its KPIs; `sim_wall_s` the lockstep
+    simulation's part of it (RunOutcome.wall_s).  The run folder keeps the trace, truth.csv, kpis.json and
+    run.json; `plots` adds plot.png, the studies' figures and report.html."""
+    from hil.runtime.run import prepare_worker, run_scenario_lockstep
 
+    startup_s = 0.0
+    try:
+        scenario = Scenario.model_validate_json(scenario_json)
+        startup_s = prepare_worker(scenario)
+    except Exception:                  # the run below reports it
+        scenario = None
     t0 = time.perf_counter()
     try:
-        report = run_scenario_lockstep(Scenario.model_validate_json(scenario_json), Path(run_dir),
+        if scenario is None:
+            scenario = Scenario.model_validate_json(scenario_json)
+        report = run_scenario_lockstep(scenario, Path(run_dir),
                                        interactive_report=False, plots=plots)  # 4.8 MB of plotly.js: no
         if report.outcome.reason == "interrupted":       # a cut-short run is no result to cache
             raise KeyboardInterrupt
         kpis = json.loads(json.dumps(report.kpis, default=str))
         return {"status": "ok", "kpis": kpis, "error": "", "wall_s": time.perf_counter() - t0,
-                "sim_wall_s": report.outcome.wall_s}
+                "sim_wall_s": report.outcome.wall_s, "startup_s": startup_s}
     except Exception as exc:           # one failing point is recorded, the others go on
         text = " ".join(str(exc).split())
         return {"status": "failed", "kpis": {}, "error": f"{type(exc).__name__}: {text}",
@@ -352,6 +361,7 @@ class PointResult:
     run_dir: Path
     kpis: dict = field(default_factory=dict)
     sim_wall_s: float | None = None    # of which the lockstep simulation [s] (None: failed, older cache)
+    startup_s: float | None = None     # the worker's one-time preparation before it (prepare_worker) [s]
 
 
 @dataclass
@@ -461,7 +471,7 @@ def run_campaign(campaign: Campaign, out_dir: Path, executor: Executor | None = 
         for p in todo[key]:
             done[p.index] = PointResult(p, outcome["status"], drawn, outcome["error"],
                                         float(outcome.get("wall_s", 0.0)), run_dir, outcome["kpis"],
-                                        outcome.get("sim_wall_s"))
+                                        outcome.get("sim_wall_s"), outcome.get("startup_s"))
             if progress:
                 progress(done[p.index])
 

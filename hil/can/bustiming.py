@@ -251,6 +251,8 @@ class BitTimedBus:
         self._worst = {}          # (dlc, extended) -> bits, for the "worst"/"none" models
         self._exact: dict[int, FrameBits] = {}   # (id, extended, length) -> its FrameBits
         self._spans: dict[int, tuple[int, int]] = {}   # bits -> (until delivery, until idle) [ns]
+        if not getattr(_payload_bits, "signatures", True):   # its machine code loaded now, not in the run
+            _payload_bits(0, 0, 0, 0, b"")
 
     def duration_ns(self, bits: int) -> int:
         """Bit times -> ns at the bitrate, rounded to the nearest ns."""
