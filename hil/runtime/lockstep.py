@@ -152,9 +152,18 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
     heap: list[tuple] = []
     nominal = [0] * len(nodes)
     window = [0] * len(nodes)
+    # The plant's 1 ms cycles (a fixed clock: no jitter, drift or delay) live outside the heap too, at
+    # `plant_at`: a third of a run's events, each then without a heap push and pop or a release draw.
+    # At equal times the plant (CYCLE, node 0) comes after a delivery and before everything in the heap.
+    lane = plant_node is nodes[0] and releases[0].exact
+    plant_at = NEVER
+    plant_period_ns, plant_period_us = releases[0].period_us * 1000, releases[0].period_us
     for k, rel in enumerate(releases):
         t_ns, nominal[k], window[k] = rel.next()
-        heap.append((t_ns, CYCLE, k, None))
+        if lane and k == 0:
+            plant_at = t_ns
+        else:
+            heap.append((t_ns, CYCLE, k, None))
     heapq.heapify(heap)
     seq = len(nodes)                     # tie-breaker of heap events after every node index
     # The bus's own two events live outside the heap: at most one frame is on the wire (delivered at
@@ -206,46 +215,51 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
             if heap:
                 top = heap[0]
                 t_top = top[0]
-            elif deliver_at == NEVER and arbitration_at == NEVER:
+            elif deliver_at == NEVER and arbitration_at == NEVER and plant_at == NEVER:
                 break
             else:
                 top, t_top = None, NEVER
-            if deliver_at <= t_top and deliver_at != NEVER:           # DELIVER: first at equal times
+            if deliver_at <= t_top and deliver_at <= plant_at and deliver_at != NEVER:   # DELIVER: first
                 now = deliver_at
                 if now > max_ns:
                     break                                              # not run: still in flight
                 frame, on_wire, deliver_at = on_wire, None, NEVER
                 delivery.send(now, frame.item, frame.data)
                 continue
-            if arbitration_at < t_top or (arbitration_at == t_top != NEVER and top[1] > ARBITRATE):
-                now = arbitration_at
+            if plant_at <= t_top and plant_at <= arbitration_at and plant_at != NEVER:   # the plant's cycle
+                now, k = plant_at, 0
                 if now > max_ns:
                     break
-                arbitration_at = NEVER
-                started = bus.arbitrate(now)
-                if started is not None:
-                    on_wire, deliver_at, idle_ns = started
-                    if bus.pending():
-                        arbitration_at = idle_ns
-                continue
-            now, phase, k, item = heappop(heap)
-            if now > max_ns:
-                heappush(heap, (now, phase, k, item))     # not run: still in flight
-                break
-            if phase == RELEASE:
-                release(now, *item)
-                continue
-            if phase == BABBLE:
-                end_ns, node_k, fc = item
-                if not bus.is_waiting(node_k, fc.frame_id, fc.is_extended_id):
-                    release(now, node_k, fc, bytes(injector.babble_rng.getrandbits(8) for _ in range(8)),
-                            now, inject=False)
-                    injector.log.add(now, "babbling", nodes[node_k].name)
-                    faulted += 1
-                if now + babble_step_ns < end_ns:
-                    seq += 1
-                    heappush(heap, (now + babble_step_ns, BABBLE, seq, item))
-                continue
+            else:
+                if arbitration_at < t_top or (arbitration_at == t_top != NEVER and top[1] > ARBITRATE):
+                    now = arbitration_at
+                    if now > max_ns:
+                        break
+                    arbitration_at = NEVER
+                    started = bus.arbitrate(now)
+                    if started is not None:
+                        on_wire, deliver_at, idle_ns = started
+                        if bus.pending():
+                            arbitration_at = idle_ns
+                    continue
+                now, phase, k, item = heappop(heap)
+                if now > max_ns:
+                    heappush(heap, (now, phase, k, item))     # not run: still in flight
+                    break
+                if phase == RELEASE:
+                    release(now, *item)
+                    continue
+                if phase == BABBLE:
+                    end_ns, node_k, fc = item
+                    if not bus.is_waiting(node_k, fc.frame_id, fc.is_extended_id):
+                        release(now, node_k, fc, bytes(injector.babble_rng.getrandbits(8) for _ in range(8)),
+                                now, inject=False)
+                        injector.log.add(now, "babbling", nodes[node_k].name)
+                        faulted += 1
+                    if now + babble_step_ns < end_ns:
+                        seq += 1
+                        heappush(heap, (now + babble_step_ns, BABBLE, seq, item))
+                    continue
             node = nodes[k]
             frames = node.cycle(now // 1000, nominal[k])
             for fc, data in frames:
@@ -260,8 +274,12 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                         arbitration_at = max(now, bus.idle_at_ns)
                 else:
                     release(now, k, fc, data, window[k])
-            t_next, nominal[k], window[k] = releases[k].next()
-            heappush(heap, (t_next, CYCLE, k, None))
+            if k == 0 and lane:                        # the next cycle on the plant's fixed clock
+                plant_at = window[0] = plant_at + plant_period_ns
+                nominal[0] += plant_period_us
+            else:
+                t_next, nominal[k], window[k] = releases[k].next()
+                heappush(heap, (t_next, CYCLE, k, None))
             if node is plant_node:
                 if plant.standstill:
                     stopped_since = now if stopped_since is None else stopped_since
