@@ -53,6 +53,12 @@ class RxTable(Mapping[str, float]):
     def __len__(self) -> int:
         return len(self._values)
 
+    @property
+    def latest(self) -> dict[str, float]:
+        """The table itself as a dict, name -> latest value (read it, do not change it): a reader of many
+        names at once looks them up without a Mapping call each."""
+        return self._values
+
     def age_us(self, name: str, now_us: int) -> int | None:
         t = self._times.get(name)
         return None if t is None else now_us - t

@@ -220,12 +220,13 @@ class PlantController:
             return
         self._rx_version = rx.version
         isfinite = math.isfinite
-        valve = [rx[vk] for vk in self.valve_keys]
-        wsp = [rx[wk] for wk in self.wsp_keys]
+        latest = getattr(rx, "latest", rx)        # an RxTable's dict, else the mapping itself
+        valve = [latest[vk] for vk in self.valve_keys]
+        wsp = [latest[wk] for wk in self.wsp_keys]
         self._valve[:] = [v if isfinite(v) else 0.0 for v in valve]        # nothing received yet: closed
         self._wsp[:] = [int(w) if isfinite(w) else 0 for w in wsp]
         if self.set_keys:
-            self._pset[:] = [ps if isfinite(ps) else 0.0 for ps in (rx[key] for key in self.set_keys)]
+            self._pset[:] = [ps if isfinite(ps) else 0.0 for ps in (latest[key] for key in self.set_keys)]
 
     def _failsafe(self, now_us: int, rx) -> None:
         """Cars whose command went stale apply the brake (class docstring)."""
@@ -266,7 +267,7 @@ class PlantController:
         if now_us >= self.next_truth_us:
             snap = self.plant.truth_record()
             self.truth.record(now_us, snap)
-            self.standstill = bool(snap.v.max() < STANDSTILL_MPS)
+            self.standstill = max(snap.v.tolist()) < STANDSTILL_MPS    # 6 floats: faster than ndarray.max
             self.next_truth_us += TRUTH_PERIOD_US
         if rx.version != self._rx_version:
             self._actuators(rx)
