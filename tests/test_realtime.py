@@ -435,3 +435,35 @@ def test_the_run_ends_at_the_last_truth_sample_of_any_plant():
     for t in (0.0, 0.01, 15.83):
         study.record(t, 100.0, 10.0, -2.0, (0.01, 0.01), (0.01, 0.01), (0.02, 0.02), (0.1, 0.1))
     assert truth_end_us(study) == 15_830_000
+
+
+def test_grouped_hosting_runs_every_ecu_in_one_process_with_the_same_result(tmp_path):
+    """[realtime] hosting = "grouped" (--hosting grouped): the plant, one process for every other node
+    and the recorder; every node's frames reach the trace and their receivers (no protection event: a
+    frame the bus echoes back to its host is not delivered twice), the stop agrees with lockstep."""
+    from hil.runtime.run import run_scenario_lockstep
+    from hil.scenario import load_scenario
+
+    scenario = ROOT / "scenarios" / "stop_30kmh.toml"
+    lock = run_scenario_lockstep(load_scenario(scenario), tmp_path / "lockstep", plots=False)
+    for _ in range(ATTEMPTS):
+        out = tmp_path / "grouped"
+        proc = subprocess.run([sys.executable, "-m", "hil", "run", str(scenario), "--realtime", "--hosting",
+                               "grouped", "--out", str(out), "-q"], cwd=ROOT, capture_output=True, text=True,
+                              timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        if realtime_held(out):
+            break
+    pids = proc.stderr.split("pids ", 1)[1].splitlines()[0].split()
+    assert sorted(p.split("=")[0] for p in pids) == ["ECUS", "PLANT", "RECORDER"], proc.stderr
+    kpis = json.loads((out / "kpis.json").read_text())
+    stats = json.loads((out / "run.json").read_text())["node_stats"]
+    assert {n for n, s in stats.items() if s.get("host") == "ECUS"} == \
+        {"DESK", "BCU"} | {f"BECU{i}" for i in range(1, 7)}
+    assert all((s["frames_received"] > 0 or n == "DESK") and s["bad_frames"] == s["unknown_frames"] == 0
+               for n, s in stats.items()), stats                # the desk receives nothing
+    assert kpis["protection_events"] == {}, kpis["protection_events"]
+    assert kpis["frames_lost"] == 0 and kpis["stopped"], kpis
+    with excused_unless_realtime_held(out):
+        d0 = lock.kpis["stopping_distance_m"]
+        assert abs(kpis["stopping_distance_m"] - d0) / d0 < 0.02, (d0, kpis["stopping_distance_m"])

@@ -35,6 +35,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                       help="one OS process per node on a real python-can bus, wall-clock time")
     p.add_argument("--fallback-lockstep", action="store_true",
                    help="with --realtime: if the bus cannot be opened here, say so and run lockstep instead")
+    p.add_argument("--hosting", choices=("per-node", "grouped"), default=None,
+                   help="with --realtime: per-node = one OS process per node (the default, [realtime] "
+                        "hosting); grouped = the plant in its own process and every other node in one, "
+                        "with one bus connection (each frame received and decoded once)")
     p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="override one scenario value (repeatable): a dotted key as in the TOML file and a "
@@ -85,7 +89,8 @@ class Progress:
 
 def run(args: argparse.Namespace) -> int:
     overrides = {"seed": args.seed} if args.seed is not None else None
-    scenario = load_scenario(args.scenario, overrides, args.sets)
+    sets = list(args.sets) + ([f"realtime.hosting={args.hosting}"] if args.hosting else [])
+    scenario = load_scenario(args.scenario, overrides, sets)
     mode = args.mode
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = args.out or Path("runs") / f"{scenario.name}-{mode}-{stamp}"

@@ -1,6 +1,8 @@
-"""Real-time runner: one OS process per node (PLANT, DESK, BCU, each BECU) plus a recorder writing
-the trace, all on one python-can bus — `udp_multicast` by default (no kernel module, no root),
-`socketcan` on vcan0 where the kernel has it, or any python-can interface.
+"""Real-time runner: one OS process per node (PLANT, DESK, BCU, each BECU), or with [realtime] hosting
+= "grouped" the plant in one and every other node in another (`_group_process`: one bus connection,
+each frame received and decoded once), plus a recorder writing the trace, all on one python-can bus —
+`udp_multicast` by default (no kernel module, no root), `socketcan` on vcan0 where the kernel has it,
+or any python-can interface.
 
 Bus configuration follows python-can's precedence: command-line flags, then python-can's own
 configuration (CAN_* environment variables, ~/.canrc, /etc/can.conf), then the scenario's
@@ -38,6 +40,7 @@ from pathlib import Path
 
 import can
 
+from hil.can.codec import FrameError
 from hil.errors import BusError, NodeDied, RailhilError
 from hil.runtime.gctune import LOOP_THRESHOLDS
 from hil.runtime.outcome import RunOutcome
@@ -247,6 +250,167 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
             bus.shutdown()
 
 
+ECHO_DEPTH = 4     # a grouped host's last frames per id it sent, to know them when the bus echoes them
+
+
+class GroupDelivery:
+    """The frames a grouped host receives, each decoded once and handed to the hosted nodes that take
+    it (as the lockstep bus does).  Its own nodes' frames are handed over as they are sent (`sent`),
+    since not every bus returns a socket's own frames (SocketCAN does not, udp_multicast on one host
+    does); one that does comes back, is recognised among the last ECHO_DEPTH frames sent with its id,
+    and is not delivered twice.  The nodes' counts are what one process per node would count: a frame
+    the DBC does not define is unknown to every node, a malformed one bad for each node that takes its
+    id."""
+
+    def __init__(self, nodes: list, codec) -> None:
+        self.nodes = nodes
+        self.codec = codec
+        self.subscribers: dict[int, list] = {}
+        for node in nodes:
+            for fid in node.rx_ids:
+                self.subscribers.setdefault(fid, []).append(node)
+        self._echo: dict[int, list[bytes]] = {}      # id -> its last frames sent from here, oldest first
+
+    def sent(self, node, frame_id: int, data: bytes, t_us: int) -> None:
+        """A hosted node sent this frame: the other hosted nodes get it now."""
+        recent = self._echo.setdefault(frame_id, [])
+        recent.append(data)
+        if len(recent) > ECHO_DEPTH:
+            del recent[0]
+        self._deliver(frame_id, data, t_us, node)
+
+    def receive(self, frame_id: int, data: bytes, t_us: int) -> None:
+        """A frame from the bus."""
+        recent = self._echo.get(frame_id)
+        if recent and data in recent:                # the bus returned a frame sent from here
+            recent.remove(data)
+            return
+        self._deliver(frame_id, data, t_us, None)
+
+    def _deliver(self, frame_id: int, data: bytes, t_us: int, sender) -> None:
+        subs = self.subscribers.get(frame_id)
+        if subs is None:
+            if sender is None and frame_id not in self.codec:
+                for node in self.nodes:
+                    node.stats.unknown_frames += 1
+            return
+        try:
+            values = self.codec[frame_id].decode(data)
+        except FrameError:           # short or malformed frame on a real bus: counted, not raised
+            for node in subs:
+                if node is not sender:
+                    node.stats.bad_frames += 1
+            return
+        for node in subs:
+            if node is not sender:
+                node.receive_values(frame_id, values, t_us, data)
+
+
+def _group_process(group: str, names: tuple[str, ...], scenario_json: str, dbc_path: str, cfg: dict,
+                   t0_ns, go, stop, results) -> None:
+    """Several nodes (not the plant) in one process on one bus connection: each node's cycles keep their
+    own absolute deadlines (the earliest due runs next; lateness, catch-up and skipping per node as in
+    `_node_process`), the frames between them are received once (`GroupDelivery`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)         # the parent coordinates shutdown
+    bus = None
+    try:
+        import heapq
+
+        from hil.can.codec import Codec
+        from hil.can.dbc import load_dbc
+        from hil.runtime.assembly import build_node
+        from hil.runtime.release import node_release
+        from hil.scenario import Scenario as _Scenario
+        from hil.scenario.params import secoc_keys
+
+        scenario = _Scenario.model_validate_json(scenario_json)
+        db = load_dbc(dbc_path)
+        codec = Codec(db)
+        nodes = [build_node(name, scenario, db, codec, dbc_path) for name in names]
+        releases = [node_release(scenario, db, node) for node in nodes]
+        keys = secoc_keys(scenario)
+        for node in nodes:
+            node.use_keys(keys, scenario.secoc.window)
+        delivery = GroupDelivery(nodes, codec)
+        bus = open_bus(cfg)
+        _raise_priority(REALTIME_NICE)
+        gc.collect()
+        gc.freeze()
+        gc.set_threshold(*LOOP_THRESHOLDS)
+        results.put(("ready", group, None))
+        while not go.wait(PARENT_CHECK_S):
+            if _orphaned():
+                return
+        t0 = t0_ns.value
+        speed = scenario.realtime.speed
+        n = len(nodes)
+        nominal = [0] * n
+        schedule = []                                     # (release ns, node index): the next cycle of each
+        for i, release in enumerate(releases):
+            release_ns, nominal[i], _ = release.next()
+            schedule.append((release_ns, i))
+        heapq.heapify(schedule)
+        late, missed, max_lag, max_lag_at = [0] * n, [0] * n, [0] * n, [0] * n
+        next_parent_check_us = 0
+        next_us = 0
+        while not stop.is_set():
+            release_ns, i = schedule[0]
+            next_us = release_ns // 1000
+            if next_us >= next_parent_check_us:          # a runner killed (-9) must not leave us running
+                next_parent_check_us = next_us + round(PARENT_CHECK_S * 1e6)
+                if _orphaned():
+                    return
+            _wait_and_receive(bus, delivery, t0 + round(release_ns / speed), t0, speed)
+            node = nodes[i]
+            frames = node.cycle(next_us, nominal[i])
+            for fc, data in frames:
+                bus.send(can.Message(arbitration_id=fc.frame_id, is_extended_id=fc.is_extended_id,
+                                     data=data, check=False))
+                delivery.sent(node, fc.frame_id, data, _monotonic_us(t0, speed))
+            release = releases[i]
+            release_ns, nominal[i], _ = release.next()
+            due_us = release_ns // 1000
+            lag_us = _monotonic_us(t0, speed) - due_us
+            if lag_us > 0:
+                late[i] += 1
+                if lag_us > max_lag[i]:
+                    max_lag[i], max_lag_at[i] = lag_us, due_us
+                if lag_us > CATCH_UP_CYCLES * node.period_us:
+                    skipped = lag_us // node.period_us
+                    missed[i] += skipped
+                    for _ in range(skipped):
+                        release_ns, nominal[i], _ = release.next()
+            heapq.heapreplace(schedule, (release_ns, i))
+        for i, node in enumerate(nodes):
+            stats = vars(node.stats).copy()
+            stats["late_cycles"] = late[i]
+            stats["missed_cycles"] = missed[i]
+            stats["max_lag_us"] = max_lag[i]
+            stats["max_lag_at_us"] = max_lag_at[i]
+            stats["host"] = group
+            results.put(("result", node.name, {"stats": stats, "end_us": next_us}))
+    except BaseException as exc:  # report, then exit non-zero: the parent names the host
+        detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
+        if not isinstance(exc, RailhilError):
+            detail += " | " + traceback.format_exc().strip().splitlines()[-3].strip()
+        results.put(("error", group, detail))
+        raise SystemExit(1) from None
+    finally:
+        if bus is not None:
+            bus.shutdown()
+
+
+GROUP_NAME = "ECUS"                # the process that hosts every node but the plant ([realtime] hosting)
+
+
+def hosts(scenario: Scenario, names: list[str]) -> dict[str, tuple[str, ...]]:
+    """Process name -> the nodes it runs: one process per node, or (hosting "grouped") the plant alone
+    and GROUP_NAME with every other node."""
+    if scenario.realtime.hosting == "grouped" and len(names) > 2:
+        return {"PLANT": ("PLANT",), GROUP_NAME: tuple(n for n in names if n != "PLANT")}
+    return {name: (name,) for name in names}
+
+
 RECORDER_RCVBUF_BYTES = 4 << 20    # the recorder's socket receive buffer: ~30,000 frames of slack (chosen)
 
 
@@ -310,7 +474,8 @@ def truth_end_us(truth) -> int:
 
 def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                  progress: Callable[[int, dict], None] | None = None) -> tuple[RunOutcome, float]:
-    """Run every node in its own process; returns the outcome and the trace's epoch at t0."""
+    """Run the nodes in their processes ([realtime] hosting: one per node, or grouped); returns the
+    outcome and the trace's epoch at t0."""
     from hil.report.kpis import check_out_dir
     from hil.runtime.assembly import node_names
 
@@ -327,10 +492,17 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     names = node_names(scenario)
     procs = {"RECORDER": ctx.Process(target=_recorder_process, name="railhil-RECORDER",
                                      args=(str(trace_path), cfg, go, stop, results), daemon=True)}
-    for name in names:
-        procs[name] = ctx.Process(target=_node_process, name=f"railhil-{name}", daemon=True,
-                                  args=(name, scenario_json, dbc_path, cfg, t0_ns, end_at_us, go, stop,
-                                        results, progress_q if name == "PLANT" else None))
+    hosted = {"RECORDER": ("RECORDER",)}
+    for host, members in hosts(scenario, names).items():
+        hosted[host] = members
+        if len(members) > 1:
+            procs[host] = ctx.Process(target=_group_process, name=f"railhil-{host}", daemon=True,
+                                      args=(host, members, scenario_json, dbc_path, cfg, t0_ns, go, stop,
+                                            results))
+            continue
+        procs[host] = ctx.Process(target=_node_process, name=f"railhil-{host}", daemon=True,
+                                  args=(host, scenario_json, dbc_path, cfg, t0_ns, end_at_us, go, stop,
+                                        results, progress_q if host == "PLANT" else None))
 
     old_term = signal.getsignal(signal.SIGTERM)
 
@@ -381,13 +553,16 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
             try:
                 kind, name, detail = results.get(timeout=0.05 if death else 0.2)
             except queue.Empty:
-                dead = [n for n, p in procs.items() if p.exitcode is not None and n not in payloads]
+                dead = [n for n, p in procs.items()
+                        if p.exitcode is not None and not all(m in payloads for m in hosted[n])]
                 if dead and death is None:
                     code = procs[dead[0]].exitcode
-                    death = f"node {dead[0]} died (exit code {code}); run ended"
+                    what = (f"node {dead[0]}" if len(hosted[dead[0]]) == 1 else
+                            f"host {dead[0]} (nodes {', '.join(hosted[dead[0]])})")
+                    death = f"{what} died (exit code {code}); run ended"
                     if dead[0] == "PLANT":                # nothing left to observe
                         raise NodeDied(death) from None
-                    print(f"realtime: node {dead[0]} died; the others run on for "
+                    print(f"realtime: {what} died; the others run on for "
                           f"{OBSERVE_AFTER_DEATH_S:g} s so their reaction is recorded", file=sys.stderr)
                     speed = scenario.realtime.speed
                     end_at_us.value = _monotonic_us(t0, speed) + round(OBSERVE_AFTER_DEATH_S * 1e6)
@@ -413,7 +588,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         stop.set()
         go.set()
         end = time.monotonic() + JOIN_TIMEOUT_S
-        while len(payloads) < len(procs) and time.monotonic() < end:
+        while len(payloads) < len(names) + 1 and time.monotonic() < end:     # every node and the recorder
             try:
                 kind, name, detail = results.get(timeout=0.2)
             except queue.Empty:

@@ -125,6 +125,9 @@ class RealtimeSpec(_Strict):
     channel: str | None = None        # None: a channel of this run's own (udp_multicast group/port)
     # simulated seconds per wall second: 1.0 = real time, 0.5 = half speed (for slow or loaded hosts)
     speed: Annotated[float, Field(gt=0, le=1)] = 1.0
+    # "per-node": one OS process per node (isolation: kill -9 of one ECU); "grouped": the plant in its
+    # own process, every other node in one process with one bus connection, each frame decoded once
+    hosting: Literal["per-node", "grouped"] = "per-node"
 
 
 class TraceSpec(_Strict):
