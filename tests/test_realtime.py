@@ -439,8 +439,8 @@ def test_the_run_ends_at_the_last_truth_sample_of_any_plant():
 
 def test_grouped_hosting_runs_every_ecu_in_one_process_with_the_same_result(tmp_path):
     """[realtime] hosting = "grouped" (--hosting grouped): the plant, one process for every other node
-    and the recorder; every node's frames reach the trace and their receivers (no protection event: a
-    frame the bus echoes back to its host is not delivered twice), the stop agrees with lockstep."""
+    and the recorder; every node's frames reach the trace and their receivers (no E2E or SecOC rejection:
+    a frame the bus echoes back to its host is not delivered twice), the stop agrees with lockstep."""
     from hil.runtime.run import run_scenario_lockstep
     from hil.scenario import load_scenario
 
@@ -462,7 +462,9 @@ def test_grouped_hosting_runs_every_ecu_in_one_process_with_the_same_result(tmp_
         {"DESK", "BCU"} | {f"BECU{i}" for i in range(1, 7)}
     assert all((s["frames_received"] > 0 or n == "DESK") and s["bad_frames"] == s["unknown_frames"] == 0
                for n, s in stats.items()), stats                # the desk receives nothing
-    assert kpis["protection_events"] == {}, kpis["protection_events"]
+    # a frame delivered twice would be REPEATED (E2E) or SECOC_STALE_FRESHNESS; NONEWDATA is timing (a
+    # frame 1.5 of its cycles late on a loaded machine), informational in real time
+    assert set(kpis["protection_events"]) <= {"NONEWDATA"}, kpis["protection_events"]
     assert kpis["frames_lost"] == 0 and kpis["stopped"], kpis
     with excused_unless_realtime_held(out):
         d0 = lock.kpis["stopping_distance_m"]
