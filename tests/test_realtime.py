@@ -465,6 +465,9 @@ def test_grouped_hosting_runs_every_ecu_in_one_process_with_the_same_result(tmp_
     # a frame delivered twice would be REPEATED (E2E) or SECOC_STALE_FRESHNESS; NONEWDATA is timing (a
     # frame 1.5 of its cycles late on a loaded machine), informational in real time
     assert set(kpis["protection_events"]) <= {"NONEWDATA"}, kpis["protection_events"]
+    lateness = kpis["realtime"]["lateness_us"]                 # every cycle's release lateness, per node
+    assert set(lateness) == set(stats) and all(v["cycles"] > 0 and 0 <= v["p50"] <= v["p99"] <= v["max"]
+                                               for v in lateness.values()), lateness
     assert kpis["frames_lost"] == 0 and kpis["stopped"], kpis
     with excused_unless_realtime_held(out):
         d0 = lock.kpis["stopping_distance_m"]

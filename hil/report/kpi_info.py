@@ -112,6 +112,9 @@ FOUNDATION: dict[str, tuple] = {
     "realtime.missed_cycles": ("skipped cycles by node", "count",
                                "cycles each node skipped after falling behind"),
     "realtime.worst_node": ("worst node", "text", "the node with the largest lag"),
+    "realtime.lateness_us": ("cycle release lateness by node", "µs",
+                             "p50, p99 and max of how late each cycle's wait returned after its absolute "
+                             "deadline (its frames follow right after), and the cycles counted"),
 }
 
 #: the foundation's groups of KPIs (a dict in kpis.json) and their titles

@@ -26,6 +26,7 @@ class RunOutcome:
     frames_overwritten: int = 0               # replaced in a transmit queue by a newer instance
     frames_faulted: int = 0                   # frames added (+) or removed (-) by injected faults
     faults: dict | None = None                # what the fault injector did: counts and events
+    lateness_us: dict = field(default_factory=dict)   # real time: node -> each cycle's release lateness [µs]
 
 
 def realtime_verdict(node_stats: dict[str, dict]) -> dict:
@@ -37,5 +38,6 @@ def realtime_verdict(node_stats: dict[str, dict]) -> dict:
     held = (all(s.get("max_lag_us", 0) <= HELD_MAX_LAG_US for s in node_stats.values())
             and not any(missed.values()))
     worst = max(lag, key=lag.get, default=None)
+    lateness = {n: s["lateness_us"] for n, s in node_stats.items() if s.get("lateness_us")}
     return {"held": held, "max_lag_ms": lag, "missed_cycles": missed, "worst_node": worst,
-            "limit_ms": HELD_MAX_LAG_US / 1e3}
+            "limit_ms": HELD_MAX_LAG_US / 1e3, "lateness_us": lateness}

@@ -35,6 +35,7 @@ import socket
 import sys
 import time
 import traceback
+from array import array
 from collections.abc import Callable
 from pathlib import Path
 
@@ -143,6 +144,18 @@ def _wait_and_receive(bus: can.BusABC, node, deadline_ns: int, t0_ns: int, speed
 PARENT_CHECK_S = 0.5     # how often a node or recorder process checks that its runner is alive [s]
 
 
+def lateness_summary(lateness_us) -> dict:
+    """p50 / p99 / max [µs] and the number of a node's cycle releases after their deadlines (the wait for
+    the cycle returned this late; the cycle's frames follow right after)."""
+    import numpy as np
+
+    a = np.asarray(lateness_us, dtype=float)
+    if not a.size:
+        return {"p50": None, "p99": None, "max": None, "cycles": 0}
+    p50, p99 = np.percentile(a, [50, 99])
+    return {"p50": round(float(p50)), "p99": round(float(p99)), "max": int(a.max()), "cycles": int(a.size)}
+
+
 def _orphaned() -> bool:
     """True when the runner process that started this one has died (e.g. kill -9): its children stop
     instead of running on with nobody to tell them to."""
@@ -189,12 +202,15 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         next_progress = 0
         next_parent_check_us = 0
         late = missed = max_lag = max_lag_at = 0
+        lateness = array("q")                            # each cycle's release after its deadline [µs]
         while not stop.is_set():
             if next_us >= next_parent_check_us:          # a runner killed (-9) must not leave us running
                 next_parent_check_us = next_us + round(PARENT_CHECK_S * 1e6)
                 if _orphaned():
                     return
-            _wait_and_receive(bus, node, t0 + round(release_ns / speed), t0, speed)
+            deadline_ns = t0 + round(release_ns / speed)
+            _wait_and_receive(bus, node, deadline_ns, t0, speed)
+            lateness.append((time.monotonic_ns() - deadline_ns) // 1000)   # released this late [µs]
             frames = node.cycle(release_ns // 1000, nominal_us)
             for fc, data in frames:
                 bus.send(can.Message(arbitration_id=fc.frame_id, is_extended_id=fc.is_extended_id,
@@ -235,7 +251,8 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         stats["missed_cycles"] = missed      # skipped after falling more than CATCH_UP_CYCLES behind
         stats["max_lag_us"] = max_lag        # the latest a cycle was due when the one before ended
         stats["max_lag_at_us"] = max_lag_at  # ... and that cycle's time in the run
-        payload = {"stats": stats, "end_us": next_us}
+        stats["lateness_us"] = lateness_summary(lateness)
+        payload = {"stats": stats, "end_us": next_us, "lateness_us": lateness}
         if is_plant:
             payload["truth"] = node.controller.truth
         results.put(("result", name, payload))
@@ -351,6 +368,7 @@ def _group_process(group: str, names: tuple[str, ...], scenario_json: str, dbc_p
             schedule.append((release_ns, i))
         heapq.heapify(schedule)
         late, missed, max_lag, max_lag_at = [0] * n, [0] * n, [0] * n, [0] * n
+        lateness = [array("q") for _ in range(n)]         # each cycle's release after its deadline [µs]
         next_parent_check_us = 0
         next_us = 0
         while not stop.is_set():
@@ -360,7 +378,9 @@ def _group_process(group: str, names: tuple[str, ...], scenario_json: str, dbc_p
                 next_parent_check_us = next_us + round(PARENT_CHECK_S * 1e6)
                 if _orphaned():
                     return
-            _wait_and_receive(bus, delivery, t0 + round(release_ns / speed), t0, speed)
+            deadline_ns = t0 + round(release_ns / speed)
+            _wait_and_receive(bus, delivery, deadline_ns, t0, speed)
+            lateness[i].append((time.monotonic_ns() - deadline_ns) // 1000)
             node = nodes[i]
             frames = node.cycle(next_us, nominal[i])
             for fc, data in frames:
@@ -388,7 +408,9 @@ def _group_process(group: str, names: tuple[str, ...], scenario_json: str, dbc_p
             stats["max_lag_us"] = max_lag[i]
             stats["max_lag_at_us"] = max_lag_at[i]
             stats["host"] = group
-            results.put(("result", node.name, {"stats": stats, "end_us": next_us}))
+            stats["lateness_us"] = lateness_summary(lateness[i])
+            results.put(("result", node.name, {"stats": stats, "end_us": next_us,
+                                               "lateness_us": lateness[i]}))
     except BaseException as exc:  # report, then exit non-zero: the parent names the host
         detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
         if not isinstance(exc, RailhilError):
@@ -618,7 +640,8 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     outcome = RunOutcome(
         mode="realtime", end_us=end_us, reason=reason, truth=truth,
         frames_by_node={n: payloads[n]["stats"]["frames_sent"] for n in names if n in payloads},
-        node_stats={n: payloads[n]["stats"] for n in names if n in payloads}, wall_s=wall)
+        node_stats={n: payloads[n]["stats"] for n in names if n in payloads}, wall_s=wall,
+        lateness_us={n: payloads[n]["lateness_us"] for n in names if n in payloads})
     return outcome, epoch_t0, failure
 
 
