@@ -163,33 +163,68 @@ def _orphaned() -> bool:
     return parent is not None and not parent.is_alive()
 
 
+def _hosted_nodes(names, scenario_json: str, dbc_path: str) -> tuple:
+    """(scenario, codec, nodes, their releases) of the nodes a process hosts, keyed for SecOC."""
+    from hil.can.codec import Codec
+    from hil.can.dbc import load_dbc
+    from hil.runtime.assembly import build_node
+    from hil.runtime.release import node_release
+    from hil.scenario import Scenario as _Scenario
+    from hil.scenario.params import secoc_keys
+
+    scenario = _Scenario.model_validate_json(scenario_json)
+    db = load_dbc(dbc_path)
+    codec = Codec(db)
+    nodes = [build_node(name, scenario, db, codec, dbc_path) for name in names]
+    releases = [node_release(scenario, db, node) for node in nodes]   # jitter, drift, start delay
+    keys = secoc_keys(scenario)
+    for node in nodes:
+        node.use_keys(keys, scenario.secoc.window)
+    return scenario, codec, nodes, releases
+
+
+def _ready_to_go(name: str, go, results) -> bool:
+    """Report ready, then wait for the start; False: the runner died meanwhile."""
+    _raise_priority(REALTIME_NICE)
+    gc.collect()                                     # before ready, not after go: nine processes
+    gc.freeze()                                      # collecting at once made the first cycles up to
+    gc.set_threshold(*LOOP_THRESHOLDS)               # 80 ms late; setup objects leave the scans
+    results.put(("ready", name, None))
+    while not go.wait(PARENT_CHECK_S):
+        if _orphaned():
+            return False
+    return True
+
+
+def _timing_stats(node, late: int, missed: int, max_lag: int, max_lag_at: int, lateness) -> dict:
+    """The node's stats with its real-time figures."""
+    stats = vars(node.stats).copy()
+    stats["late_cycles"] = late          # started after their deadline
+    stats["missed_cycles"] = missed      # skipped after falling more than CATCH_UP_CYCLES behind
+    stats["max_lag_us"] = max_lag        # the latest a cycle was due when the one before ended
+    stats["max_lag_at_us"] = max_lag_at  # ... and that cycle's time in the run
+    stats["lateness_us"] = lateness_summary(lateness)
+    return stats
+
+
+def _report_failure(results, name: str, exc: BaseException) -> None:
+    """Tell the runner why this process ends (it names the node or host), then exit non-zero."""
+    detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
+    if not isinstance(exc, RailhilError):
+        detail += " | " + traceback.format_exc().strip().splitlines()[-3].strip()
+    results.put(("error", name, detail))
+    raise SystemExit(1) from None
+
+
 def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns, end_at_us, go, stop,
                   results, progress) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)         # the parent coordinates shutdown
     bus = None
     try:
-        from hil.can.codec import Codec
-        from hil.can.dbc import load_dbc
-        from hil.runtime.assembly import build_node
-        from hil.runtime.release import node_release
-        from hil.scenario import Scenario as _Scenario
-        from hil.scenario.params import secoc_keys
-
-        scenario = _Scenario.model_validate_json(scenario_json)
-        db = load_dbc(dbc_path)
-        codec = Codec(db)
-        node = build_node(name, scenario, db, codec, dbc_path)
-        release = node_release(scenario, db, node)       # jitter, drift, start delay (hil.runtime.release)
-        node.use_keys(secoc_keys(scenario), scenario.secoc.window)
+        scenario, _, (node,), (release,) = _hosted_nodes((name,), scenario_json, dbc_path)
         bus = open_bus(cfg)
-        _raise_priority(REALTIME_NICE)
-        gc.collect()                                     # before ready, not after go: nine processes
-        gc.freeze()                                      # collecting at once made the first cycles up to
-        gc.set_threshold(*LOOP_THRESHOLDS)               # 80 ms late; setup objects leave the scans
-        results.put(("ready", name, None))
-        while not go.wait(PARENT_CHECK_S):
-            if _orphaned():
-                return
+        if not _ready_to_go(name, go, results):
+            return
         t0 = t0_ns.value
         is_plant = name == "PLANT"
         plant = node.controller if is_plant else None
@@ -246,22 +281,13 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
                 if progress is not None and now >= next_progress:
                     progress.put((now, plant.glance()))
                     next_progress += 250_000
-        stats = vars(node.stats).copy()
-        stats["late_cycles"] = late          # started after their deadline
-        stats["missed_cycles"] = missed      # skipped after falling more than CATCH_UP_CYCLES behind
-        stats["max_lag_us"] = max_lag        # the latest a cycle was due when the one before ended
-        stats["max_lag_at_us"] = max_lag_at  # ... and that cycle's time in the run
-        stats["lateness_us"] = lateness_summary(lateness)
+        stats = _timing_stats(node, late, missed, max_lag, max_lag_at, lateness)
         payload = {"stats": stats, "end_us": next_us, "lateness_us": lateness}
         if is_plant:
             payload["truth"] = node.controller.truth
         results.put(("result", name, payload))
     except BaseException as exc:  # report, then exit non-zero: the parent names the node
-        detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
-        if not isinstance(exc, RailhilError):
-            detail += " | " + traceback.format_exc().strip().splitlines()[-3].strip()
-        results.put(("error", name, detail))
-        raise SystemExit(1) from None
+        _report_failure(results, name, exc)
     finally:
         if bus is not None:
             bus.shutdown()
@@ -333,31 +359,11 @@ def _group_process(group: str, names: tuple[str, ...], scenario_json: str, dbc_p
     try:
         import heapq
 
-        from hil.can.codec import Codec
-        from hil.can.dbc import load_dbc
-        from hil.runtime.assembly import build_node
-        from hil.runtime.release import node_release
-        from hil.scenario import Scenario as _Scenario
-        from hil.scenario.params import secoc_keys
-
-        scenario = _Scenario.model_validate_json(scenario_json)
-        db = load_dbc(dbc_path)
-        codec = Codec(db)
-        nodes = [build_node(name, scenario, db, codec, dbc_path) for name in names]
-        releases = [node_release(scenario, db, node) for node in nodes]
-        keys = secoc_keys(scenario)
-        for node in nodes:
-            node.use_keys(keys, scenario.secoc.window)
+        scenario, codec, nodes, releases = _hosted_nodes(names, scenario_json, dbc_path)
         delivery = GroupDelivery(nodes, codec)
         bus = open_bus(cfg)
-        _raise_priority(REALTIME_NICE)
-        gc.collect()
-        gc.freeze()
-        gc.set_threshold(*LOOP_THRESHOLDS)
-        results.put(("ready", group, None))
-        while not go.wait(PARENT_CHECK_S):
-            if _orphaned():
-                return
+        if not _ready_to_go(group, go, results):
+            return
         t0 = t0_ns.value
         speed = scenario.realtime.speed
         n = len(nodes)
@@ -402,21 +408,12 @@ def _group_process(group: str, names: tuple[str, ...], scenario_json: str, dbc_p
                         release_ns, nominal[i], _ = release.next()
             heapq.heapreplace(schedule, (release_ns, i))
         for i, node in enumerate(nodes):
-            stats = vars(node.stats).copy()
-            stats["late_cycles"] = late[i]
-            stats["missed_cycles"] = missed[i]
-            stats["max_lag_us"] = max_lag[i]
-            stats["max_lag_at_us"] = max_lag_at[i]
+            stats = _timing_stats(node, late[i], missed[i], max_lag[i], max_lag_at[i], lateness[i])
             stats["host"] = group
-            stats["lateness_us"] = lateness_summary(lateness[i])
             results.put(("result", node.name, {"stats": stats, "end_us": next_us,
                                                "lateness_us": lateness[i]}))
     except BaseException as exc:  # report, then exit non-zero: the parent names the host
-        detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
-        if not isinstance(exc, RailhilError):
-            detail += " | " + traceback.format_exc().strip().splitlines()[-3].strip()
-        results.put(("error", group, detail))
-        raise SystemExit(1) from None
+        _report_failure(results, group, exc)
     finally:
         if bus is not None:
             bus.shutdown()
