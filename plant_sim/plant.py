@@ -138,7 +138,6 @@ class Plant:
             ks[k.MU_PEAK], ks[k.S_PEAK] = ap.slip_speed_peak
         else:
             ks[k.ADHESION] = k.ADHESION_THETA
-        ks[k.PI1], ks[k.PI2] = ap.pi1_s_per_m, ap.pi2_s_per_m
         ks[k.C1], ks[k.R_OVER_J], ks[k.PITCH] = cc.c1_Ns_per_m, cc.r_over_J, cc.car_pitch_m
         self._recs = (k.as_record(bp), k.as_record(valve_table(bp, dt)), k.as_record(cc), k.as_record(ap),
                       k.as_record(self._pad if self._pad is not None else PadParams()))
