@@ -101,14 +101,13 @@ class RequestLog(can.Listener):
 
 def run_judged(scenario_json: str) -> dict:
     """One lockstep run in this process, no trace file, judged (a campaign worker's job)."""
-    from hil.can.dbc import load_dbc
+    from hil.can.codec import loaded_dbc
     from hil.runtime.lockstep import run_lockstep
     from hil.runtime.run import dbc_path_of
 
     scenario = Scenario.model_validate_json(scenario_json)
     t0 = time.perf_counter()
-    db = load_dbc(dbc_path_of(scenario))
-    codec = Codec(db)
+    db, codec = loaded_dbc(dbc_path_of(scenario))     # once per worker process, not per run
     log = RequestLog(codec)
     outcome = run_lockstep(scenario, db, codec, log)
     j = judge(scenario, outcome.truth.columns(), np.asarray(log.t), np.asarray(log.req))
