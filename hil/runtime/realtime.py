@@ -196,15 +196,42 @@ def _ready_to_go(name: str, go, results) -> bool:
     return True
 
 
-def _timing_stats(node, late: int, missed: int, max_lag: int, max_lag_at: int, lateness) -> dict:
-    """The node's stats with its real-time figures."""
-    stats = vars(node.stats).copy()
-    stats["late_cycles"] = late          # started after their deadline
-    stats["missed_cycles"] = missed      # skipped after falling more than CATCH_UP_CYCLES behind
-    stats["max_lag_us"] = max_lag        # the latest a cycle was due when the one before ended
-    stats["max_lag_at_us"] = max_lag_at  # ... and that cycle's time in the run
-    stats["lateness_us"] = lateness_summary(lateness)
-    return stats
+class CycleTiming:
+    """One node's real-time record: each cycle's release lateness [µs], the cycles released late, the
+    cycles skipped and the largest lag (and when), kept the same way in a node process and a group."""
+
+    def __init__(self, period_us: int, may_skip: bool = True) -> None:
+        self.period_us, self.may_skip = period_us, may_skip   # the plant never skips: physics time
+        self.lateness = array("q")
+        self.late = self.missed = self.max_lag = self.max_lag_at = 0
+
+    def released(self, deadline_ns: int) -> None:
+        """The wait for a cycle returned now, its deadline was `deadline_ns`."""
+        self.lateness.append((time.monotonic_ns() - deadline_ns) // 1000)
+
+    def cycles_to_skip(self, lag_us: int, due_us: int) -> int:
+        """The next cycle, due at `due_us`, is `lag_us` late when the one before ended: count it, and
+        the cycles to skip when it is more than CATCH_UP_CYCLES periods behind."""
+        if lag_us <= 0:
+            return 0
+        self.late += 1
+        if lag_us > self.max_lag:
+            self.max_lag, self.max_lag_at = lag_us, due_us
+        if lag_us > CATCH_UP_CYCLES * self.period_us and self.may_skip:
+            skipped = lag_us // self.period_us
+            self.missed += skipped
+            return skipped
+        return 0
+
+    def stats(self, node) -> dict:
+        """The node's stats with its real-time figures."""
+        stats = vars(node.stats).copy()
+        stats["late_cycles"] = self.late          # started after their deadline
+        stats["missed_cycles"] = self.missed      # skipped after falling more than CATCH_UP_CYCLES behind
+        stats["max_lag_us"] = self.max_lag        # the latest a cycle was due when the one before ended
+        stats["max_lag_at_us"] = self.max_lag_at  # ... and that cycle's time in the run
+        stats["lateness_us"] = lateness_summary(self.lateness)
+        return stats
 
 
 def _report_failure(results, name: str, exc: BaseException) -> None:
@@ -236,8 +263,7 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
         next_us = release_ns // 1000
         next_progress = 0
         next_parent_check_us = 0
-        late = missed = max_lag = max_lag_at = 0
-        lateness = array("q")                            # each cycle's release after its deadline [µs]
+        timing = CycleTiming(node.period_us, may_skip=not is_plant)
         while not stop.is_set():
             if next_us >= next_parent_check_us:          # a runner killed (-9) must not leave us running
                 next_parent_check_us = next_us + round(PARENT_CHECK_S * 1e6)
@@ -245,24 +271,18 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
                     return
             deadline_ns = t0 + round(release_ns / speed)
             _wait_and_receive(bus, node, deadline_ns, t0, speed)
-            lateness.append((time.monotonic_ns() - deadline_ns) // 1000)   # released this late [µs]
+            timing.released(deadline_ns)
             frames = node.cycle(release_ns // 1000, nominal_us)
             for fc, data in frames:
                 bus.send(can.Message(arbitration_id=fc.frame_id, is_extended_id=fc.is_extended_id,
                                      data=data, check=False))
             release_ns, nominal_us, _ = release.next()
             next_us = release_ns // 1000
-            lag_us = _monotonic_us(t0, speed) - next_us
-            if lag_us > 0:
-                late += 1
-                if lag_us > max_lag:
-                    max_lag, max_lag_at = lag_us, next_us
-                if lag_us > CATCH_UP_CYCLES * node.period_us and not is_plant:
-                    skipped = lag_us // node.period_us
-                    missed += skipped
-                    for _ in range(skipped):
-                        release_ns, nominal_us, _ = release.next()
-                    next_us = release_ns // 1000
+            skipped = timing.cycles_to_skip(_monotonic_us(t0, speed) - next_us, next_us)
+            if skipped:
+                for _ in range(skipped):
+                    release_ns, nominal_us, _ = release.next()
+                next_us = release_ns // 1000
             if is_plant:
                 now = next_us - node.period_us
                 if plant.standstill:
@@ -281,8 +301,7 @@ def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns
                 if progress is not None and now >= next_progress:
                     progress.put((now, plant.glance()))
                     next_progress += 250_000
-        stats = _timing_stats(node, late, missed, max_lag, max_lag_at, lateness)
-        payload = {"stats": stats, "end_us": next_us, "lateness_us": lateness}
+        payload = {"stats": timing.stats(node), "end_us": next_us, "lateness_us": timing.lateness}
         if is_plant:
             payload["truth"] = node.controller.truth
         results.put(("result", name, payload))
@@ -373,8 +392,7 @@ def _group_process(group: str, names: tuple[str, ...], scenario_json: str, dbc_p
             release_ns, nominal[i], _ = release.next()
             schedule.append((release_ns, i))
         heapq.heapify(schedule)
-        late, missed, max_lag, max_lag_at = [0] * n, [0] * n, [0] * n, [0] * n
-        lateness = [array("q") for _ in range(n)]         # each cycle's release after its deadline [µs]
+        timings = [CycleTiming(node.period_us) for node in nodes]
         next_parent_check_us = 0
         next_us = 0
         while not stop.is_set():
@@ -386,7 +404,7 @@ def _group_process(group: str, names: tuple[str, ...], scenario_json: str, dbc_p
                     return
             deadline_ns = t0 + round(release_ns / speed)
             _wait_and_receive(bus, delivery, deadline_ns, t0, speed)
-            lateness[i].append((time.monotonic_ns() - deadline_ns) // 1000)
+            timings[i].released(deadline_ns)
             node = nodes[i]
             frames = node.cycle(next_us, nominal[i])
             for fc, data in frames:
@@ -396,22 +414,14 @@ def _group_process(group: str, names: tuple[str, ...], scenario_json: str, dbc_p
             release = releases[i]
             release_ns, nominal[i], _ = release.next()
             due_us = release_ns // 1000
-            lag_us = _monotonic_us(t0, speed) - due_us
-            if lag_us > 0:
-                late[i] += 1
-                if lag_us > max_lag[i]:
-                    max_lag[i], max_lag_at[i] = lag_us, due_us
-                if lag_us > CATCH_UP_CYCLES * node.period_us:
-                    skipped = lag_us // node.period_us
-                    missed[i] += skipped
-                    for _ in range(skipped):
-                        release_ns, nominal[i], _ = release.next()
+            for _ in range(timings[i].cycles_to_skip(_monotonic_us(t0, speed) - due_us, due_us)):
+                release_ns, nominal[i], _ = release.next()
             heapq.heapreplace(schedule, (release_ns, i))
-        for i, node in enumerate(nodes):
-            stats = _timing_stats(node, late[i], missed[i], max_lag[i], max_lag_at[i], lateness[i])
+        for node, timing in zip(nodes, timings, strict=True):
+            stats = timing.stats(node)
             stats["host"] = group
             results.put(("result", node.name, {"stats": stats, "end_us": next_us,
-                                               "lateness_us": lateness[i]}))
+                                               "lateness_us": timing.lateness}))
     except BaseException as exc:  # report, then exit non-zero: the parent names the host
         _report_failure(results, group, exc)
     finally:
