@@ -1,7 +1,11 @@
-"""Shared fixtures: one lockstep run of the default scenario per test session (it is deterministic)."""
+"""Shared fixtures: one lockstep run of the default scenario per test session (it is deterministic), and
+one real-time run of it for the real-time tests."""
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -18,6 +22,31 @@ def default_lockstep(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("default-lockstep")
     return run_scenario_lockstep(load_scenario(DEFAULT), out)
+
+
+ATTEMPTS = 2      # a run that did not hold real time (a stall of the machine) is run once more
+MACHINE_STALL_MAX_US = 20_000   # a closed-loop check stands on a run whose machine stalled less than this
+
+
+def realtime_held(out) -> bool:
+    """The run held real time (the bench's deadline misses within budget) and the machine did not stall
+    long enough to change the closed loop (its worst probe stall below MACHINE_STALL_MAX_US)."""
+    rt = json.loads((out / "kpis.json").read_text())["realtime"]
+    return rt["held"] and (rt["machine"].get("worst_stall_us") or 0) < MACHINE_STALL_MAX_US
+
+
+@pytest.fixture(scope="session")
+def realtime_run(tmp_path_factory):
+    """The default scenario in real time, every node simulated (out folder, stdout); run again (once) if
+    it did not hold real time."""
+    for _ in range(ATTEMPTS):
+        out = tmp_path_factory.mktemp("default-realtime")
+        proc = subprocess.run([sys.executable, "-m", "hil", "run", str(DEFAULT), "--realtime", "--out",
+                               str(out), "-q"], cwd=ROOT, capture_output=True, text=True, timeout=400)
+        assert proc.returncode == 0, proc.stderr
+        if realtime_held(out):
+            break
+    return out, proc.stdout
 
 
 def railhil(capsys, *args) -> tuple[int, str, str]:

@@ -1,8 +1,9 @@
-"""hil.runtime.realtime.GroupDelivery: a grouped host's frames decoded once and handed to its nodes."""
+"""hil.runtime.host.Delivery: a host's frames decoded once and handed to its nodes; the plant's kept for its
+steps."""
 
 from hil.can.codec import Codec
 from hil.can.dbc import load_dbc
-from hil.runtime.realtime import ECHO_DEPTH, GroupDelivery
+from hil.runtime.host import ECHO_DEPTH, Delivery
 
 
 class FakeNode:
@@ -27,7 +28,7 @@ def test_a_frame_is_decoded_once_for_every_node_that_takes_it_and_not_twice_when
     data = demand.encode({"TargetDecel": 0.8})
     bcu, becu1, becu2 = (FakeNode("BCU", set()), FakeNode("BECU1", {demand.frame_id}),
                          FakeNode("BECU2", {demand.frame_id}))
-    group = GroupDelivery([bcu, becu1, becu2], codec)
+    group = Delivery([bcu, becu1, becu2], codec)
     group.sent(bcu, demand.frame_id, data, 100)              # the BCU's frame, as it is sent
     assert [g[2] for g in becu1.got] == [100] and becu1.got[0][1]["TargetDecel"] == 0.8
     group.receive(demand.frame_id, data, 150)                # the bus returns it (udp_multicast): dropped
@@ -41,10 +42,32 @@ def test_echo_memory_is_bounded_and_foreign_frames_are_counted_as_a_node_would()
     codec = Codec(db)
     demand = codec.by_name("BCU_DEMAND")
     becu = FakeNode("BECU1", {demand.frame_id})
-    group = GroupDelivery([FakeNode("BCU", set()), becu], codec)
+    group = Delivery([FakeNode("BCU", set()), becu], codec)
     for k in range(ECHO_DEPTH + 3):                          # a bus that does not echo (SocketCAN)
         group.sent(None, demand.frame_id, demand.encode({"TargetDecel": 0.1 * k}), k)
     assert len(group._echo[demand.frame_id]) == ECHO_DEPTH
     group.receive(0x7FF, b"\x00" * 8, 10)                    # no message of the DBC: unknown to every node
     group.receive(demand.frame_id, b"\x01", 11)              # too short for BCU_DEMAND: bad for its receiver
     assert becu.stats.unknown_frames == 1 and becu.stats.bad_frames == 1
+
+
+def test_the_plant_woken_on_its_frames_gets_each_command_before_the_step_its_reception_time_falls_in():
+    """A batched node (the plant, [realtime] plant_wake = "frames") is handed its frames later, in time
+    order, each before the first step at or after its reception time, on the plant's own clock (the bus's
+    minus its slip)."""
+    db = load_dbc()
+    codec = Codec(db)
+    cmd = codec.by_name("BECU1_PRESS_CMD")
+    plant = FakeNode("PLANT", {cmd.frame_id})
+    group = Delivery([FakeNode("BECU1", set()), plant], codec, batched=frozenset({"PLANT"}))
+    for t_us in (3_200, 4_000, 13_300):
+        group.receive(cmd.frame_id, cmd.encode({"ValveCmd": 0.5}), t_us)
+    assert plant.got == []                                   # kept until the plant computes its steps
+    group.replay(plant, 3_000)
+    assert plant.got == []                                   # step 3 ms: nothing received before it
+    group.replay(plant, 4_000)
+    assert [g[2] for g in plant.got] == [3_200, 4_000]       # step 4 ms: both, oldest first
+    group.replay(plant, 12_000, offset_us=1_000)              # a plant 1 ms behind the bus: 13.3 ms is 12.3
+    assert len(plant.got) == 2
+    group.replay(plant, 13_000, offset_us=1_000)
+    assert [g[2] for g in plant.got] == [3_200, 4_000, 12_300]

@@ -24,6 +24,8 @@ INTERNAL_ERROR = 1  # exit code of an unexpected exception (bad input exits 2: h
 #: subcommand -> (module with add_subparser(sub) and the run function, its help line in `railhil --help`)
 COMMANDS = {
     "run": ("hil.cli.run", "run a scenario and write its run folder"),
+    "node": ("hil.cli.node", "run one node (or several) of a scenario alone on a python-can bus: the "
+             "stand-in for a device, or the ECUs on another host"),
     "scenarios": ("hil.cli.scenarios", "list the shipped scenarios with their descriptions (run one by name: "
                   "railhil run NAME)"),
     "init": ("hil.cli.init", "write an editable copy of a shipped scenario and the DBC into a folder"),

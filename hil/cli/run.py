@@ -20,7 +20,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
         "run",
         help="run a scenario and write its run folder",
         description="Run a brake scenario: lockstep (one process, simulated time, deterministic) or real "
-                    "time (one OS process per node on a python-can bus, udp_multicast by default). "
+                    "time (the nodes in OS processes on a python-can bus, udp_multicast by default; a node "
+                    "may be external: a device under test on the bus). "
                     "Writes the trace (trace.blf; [trace] format: mf4, asc, log), truth.csv, kpis.json, "
                     "plot.png, run.json and report.html (the self-contained HTML report) to the run "
                     "folder and prints a summary.",
@@ -32,13 +33,19 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     mode.add_argument("--lockstep", dest="mode", action="store_const", const="lockstep",
                       help="simulated time in one process (default)")
     mode.add_argument("--realtime", dest="mode", action="store_const", const="realtime",
-                      help="one OS process per node on a real python-can bus, wall-clock time")
+                      help="the nodes in OS processes on a real python-can bus, wall-clock time")
     p.add_argument("--fallback-lockstep", action="store_true",
                    help="with --realtime: if the bus cannot be opened here, say so and run lockstep instead")
-    p.add_argument("--hosting", choices=("per-node", "grouped"), default=None,
-                   help="with --realtime: per-node = one OS process per node (the default, [realtime] "
-                        "hosting); grouped = the plant in its own process and every other node in one, "
-                        "with one bus connection (each frame received and decoded once)")
+    p.add_argument("--hosting", choices=("grouped", "per-node"), default=None,
+                   help="with --realtime: grouped = every simulated ECU in one process with one bus "
+                        "connection, each frame received and decoded once, the plant in its own (the "
+                        "default, [realtime] hosting; [realtime] plant_process = \"shared\" puts it there "
+                        "too); per-node = one OS process per node (isolation tests, kill -9 of one ECU)")
+    p.add_argument("--external", action="append", default=[], metavar="NODE",
+                   help="with --realtime: NODE (e.g. BECU3) is not simulated; its frames must come from the "
+                        "bus: a device under test, or `railhil node NODE SCENARIO` on this or another host, "
+                        "started before the run (repeatable; also [nodes.NODE] external = true). The run "
+                        "judges its frames like any node's")
     p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="override one scenario value (repeatable): a dotted key as in the TOML file and a "
@@ -92,6 +99,10 @@ def run(args: argparse.Namespace) -> int:
     sets = list(args.sets) + ([f"realtime.hosting={args.hosting}"] if args.hosting else [])
     scenario = load_scenario(args.scenario, overrides, sets)
     mode = args.mode
+    if args.external and mode != "realtime":
+        from hil.errors import ScenarioError
+        raise ScenarioError(f"--external {args.external[0]}: an external node takes part in a real-time run "
+                            "only; add --realtime")
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = args.out or Path("runs") / f"{scenario.name}-{mode}-{stamp}"
     if mode == "realtime":
@@ -100,7 +111,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             progress = Progress(not args.quiet and sys.stderr.isatty(), "realtime", scenario.max_duration_s)
             try:
-                report = run_scenario_realtime(scenario, out, bus_config_from_args(args), progress=progress)
+                report = run_scenario_realtime(scenario, out, bus_config_from_args(args), progress=progress,
+                                               external=tuple(args.external))
             finally:
                 progress.close()
         except BusError as exc:

@@ -67,3 +67,44 @@ def study_plots(run: RunView) -> list[Path]:
     for study in registry.active(run.scenario):
         files += study.part("plots").run_plots(run)
     return files
+
+
+LATENESS_NAME = "lateness.png"     # a real-time run's lateness histogram (plot_lateness)
+
+
+def plot_lateness(rt: dict, path: Path) -> Path:
+    """lateness.png of a real-time run (kpis.json `realtime`, hil.runtime.outcome.realtime_verdict): the
+    histogram of each simulated node's cycle release lateness and of the machine probe's, on the same
+    bins, with the deadline-miss threshold of a 10 ms cycle."""
+    plt = pyplot()
+    edges = list(rt["histogram_edges_us"])
+    labels = [f"{e / 1e3:g} ms" if e >= 1000 else f"{e} µs" for e in edges]
+    labels = [f"≥{lo}" if k == len(edges) - 1 else f"{lo}–{labels[k + 1]}"
+              for k, lo in enumerate(labels)]
+    series = [(name, v["histogram"]) for name, v in rt["nodes"].items()]
+    machine = rt.get("machine") or {}
+    if "histogram" in machine:
+        series.append(("machine probe", machine["histogram"]))
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    x = np.arange(len(edges))
+    width = 0.85 / max(len(series), 1)
+    for k, (name, counts) in enumerate(series):
+        total = max(sum(counts), 1)
+        ax.bar(x + (k - (len(series) - 1) / 2) * width, np.asarray(counts) / total, width,
+               label=name, hatch="//" if name == "machine probe" else None)
+    ax.set_yscale("log")
+    ax.set_ylim(bottom=1e-5)
+    ax.set_xticks(x, labels, rotation=30, fontsize=8)
+    ax.set_xlabel("release lateness (the cycle's wait returned this late after its absolute deadline)")
+    ax.set_ylabel("fraction of cycles")
+    threshold = edges.index(500) if 500 in edges else None
+    if threshold is not None:
+        ax.axvline(threshold - 0.5, color="red", lw=1, ls="--", label="miss threshold (10 ms cycle)")
+    verdict = "held" if rt["held"] else "NOT HELD"
+    ax.set_title(f"real-time lateness per node ({verdict}; 10 ms nodes p99 {rt.get('p99_10ms_us')} µs)")
+    ax.legend(fontsize=7, ncol=3)
+    ax.grid(True, axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

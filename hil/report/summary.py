@@ -47,14 +47,52 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
                      f"worst response {bus['worst_response_us']:.0f} us ({bus['worst_response_message']}), "
                      f"{bus['deadline_misses']} deadline misses")
     rt = kpis.get("realtime")
-    if rt:
-        worst = rt["worst_node"]
-        skipped = ", ".join(f"{n} {k}" for n, k in rt["missed_cycles"].items() if k)
-        lines.append(f"real time               held: no cycle more than {rt['limit_ms']:g} ms late (worst "
-                     f"{worst} {rt['max_lag_ms'][worst]:g} ms)" if rt["held"] else
-                     f"real time               NOT HELD: {worst} up to {rt['max_lag_ms'][worst]:g} ms late"
-                     + (f", cycles skipped: {skipped}" if skipped else "")
-                     + " - the machine was short of CPU; this run's figures are not the controllers' at "
-                       "their cycle times")
+    if rt and "budget" in rt:
+        lines += realtime_lines(rt)
+        lines += external_lines(rt.get("conduct") or {})
     lines.append("files: " + ", ".join(str(f) for f in files))
+    return lines
+
+
+def realtime_lines(rt: dict) -> list[str]:
+    """The verdict of a real-time run against its budget, the lateness and the machine's own floor
+    (hil.runtime.outcome.realtime_verdict)."""
+    b = rt["budget"]
+    budget = (f"budget: bench misses ≤ {b['budget_pct']:g} % of each node's cycles, none over "
+              f"{b['max_late_periods']:g} period late; a miss is > max({b['miss_min_us']} us, "
+              f"{b['miss_period_pct']:g} % of the period) late")
+    nodes = rt["nodes"]
+    if rt["held"]:
+        head = f"real time               held: {rt['misses_bench']} bench misses ({budget})"
+    else:
+        bad = [n for n, v in nodes.items() if not v["held"]]
+        what = ", ".join(f"{n} {nodes[n]['misses_bench']} misses (allowed {nodes[n]['misses_allowed']}), "
+                         f"worst {nodes[n]['worst_bench_miss_us'] / 1e3:.1f} ms late" for n in bad)
+        head = f"real time               NOT HELD: {what} ({budget})"
+    m = rt["machine"]
+    floor = "machine floor: probe " + (f"p99 {m['p99_us']} us, worst stall {m['worst_stall_us'] / 1e3:.1f} "
+                                       "ms" if "error" not in m else f"failed ({m['error']})")
+    plant = nodes.get("PLANT")
+    lateness = (f"  lateness              10 ms nodes p50 {rt['p50_10ms_us']} / p99 {rt['p99_10ms_us']} us"
+                + (f"; PLANT p99 {plant['p99_us']} us" if plant else "")
+                + f"; {floor}; {rt['misses_machine']} misses at machine stalls")
+    return [head, lateness]
+
+
+def external_lines(conduct: dict) -> list[str]:
+    """One line per external node (a device under test): its frames, their timing, the receivers' E2E /
+    SecOC verdicts, when it was heard and, once it fell silent, when the BCU reported it."""
+    lines = []
+    for name, c in conduct.items():
+        if not c.get("external"):
+            continue
+        judged = [v for v in c["messages"].values() if v["verdict"] != "MISSING"]
+        passed = sum(v["verdict"] == "PASS" for v in judged)
+        bad = {k: v for k, v in c["protection"].items() if k != "NONEWDATA"}
+        prot = "E2E/SecOC clean" if not bad else "E2E/SecOC " + ", ".join(f"{k} {v}" for k, v in bad.items())
+        heard = (f"heard {c['first_s']:.2f}–{c['last_s']:.2f} s" if c["frames"] else "never heard")
+        silent = (f"; the BCU reported it silent at {c['reported_silent_s']:.2f} s"
+                  if c.get("reported_silent_s") is not None else "")
+        lines.append(f"external {name:<14} {c['frames']} frames, timing {c['timing']} ({passed} of "
+                     f"{len(judged)} messages), {prot}; {heard}{silent}")
     return lines

@@ -350,6 +350,11 @@ class Node:
         return False
 
     @property
+    def next_frame_due_us(self) -> int:
+        """The slot [µs, the node's own schedule] at which its next cyclic frame is due."""
+        return self._next_due_us
+
+    @property
     def rx_ids(self) -> frozenset[int]:
         return frozenset(self._rx_map)
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from hil.runtime.plant_node import TruthLog
+import numpy as np
 
-HELD_MAX_LAG_US = 50_000       # a run held real time when no node's cycle fell more than this behind (the
-                               # 10 ms ECUs' CATCH_UP_CYCLES) and none skipped a cycle (realtime_verdict)
+from hil.runtime.plant_node import TruthLog
+from hil.runtime.probe import classify_misses, late_threshold_us, misses_of, stall_intervals
 
 
 @dataclass
@@ -27,17 +27,100 @@ class RunOutcome:
     frames_faulted: int = 0                   # frames added (+) or removed (-) by injected faults
     faults: dict | None = None                # what the fault injector did: counts and events
     lateness_us: dict = field(default_factory=dict)   # real time: node -> each cycle's release lateness [µs]
+    realtime: dict | None = None              # real time: hosting, OS set-up, calibration, probe, cycles
 
 
-def realtime_verdict(node_stats: dict[str, dict]) -> dict:
-    """Did the run hold real time?  On a machine short of CPU a node starts its cycles late, or skips them,
-    and the plant's sensors go stale: the closed loop is then not that of the controllers at their cycle
-    times, and its figures (stopping distance, reaction times) say so little that they are flagged."""
-    lag = {n: round(s.get("max_lag_us", 0) / 1e3, 1) for n, s in node_stats.items()}
-    missed = {n: s.get("missed_cycles", 0) for n, s in node_stats.items()}
-    held = (all(s.get("max_lag_us", 0) <= HELD_MAX_LAG_US for s in node_stats.values())
-            and not any(missed.values()))
-    worst = max(lag, key=lag.get, default=None)
-    lateness = {n: s["lateness_us"] for n, s in node_stats.items() if s.get("lateness_us")}
-    return {"held": held, "max_lag_ms": lag, "missed_cycles": missed, "worst_node": worst,
-            "limit_ms": HELD_MAX_LAG_US / 1e3, "lateness_us": lateness}
+#: the edges of the lateness histograms in kpis.json [µs] (the last bin is everything above 100 ms)
+HISTOGRAM_EDGES_US = (0, 50, 100, 200, 500, 1_000, 2_000, 5_000, 10_000, 20_000, 50_000, 100_000)
+
+
+def histogram(lateness_us) -> list[int]:
+    """Counts of lateness per bin of HISTOGRAM_EDGES_US (below 0: in the first; above the last edge: in
+    the last bin)."""
+    a = np.asarray(lateness_us, dtype=np.int64)
+    k = np.clip(np.searchsorted(HISTOGRAM_EDGES_US, a, side="right") - 1, 0, len(HISTOGRAM_EDGES_US) - 1)
+    return np.bincount(k, minlength=len(HISTOGRAM_EDGES_US)).tolist()
+
+
+def _pct(a: np.ndarray, q: float) -> float | None:
+    return round(float(np.percentile(a, q))) if a.size else None
+
+
+def lateness_figures(lateness_us) -> dict:
+    """p50 / p99 / max [µs] of a series of release lateness, and its length."""
+    a = np.asarray(lateness_us, dtype=np.int64)
+    return {"cycles": int(a.size), "p50_us": _pct(a, 50), "p99_us": _pct(a, 99),
+            "max_us": int(a.max()) if a.size else None}
+
+
+def realtime_verdict(outcome: RunOutcome) -> dict:
+    """Did the run hold real time?  Every simulated node's cycles (the plant's steps: its wakes) are judged
+    against the scenario's [realtime.deadline] budget: a cycle released more than max(miss_min_us,
+    miss_period_pct % of the period) after its deadline is a miss; a miss at an instant the machine probe
+    was late too is the machine's (hil.runtime.probe), any other the bench's.  The run held when no node's
+    bench misses exceed budget_pct % of its cycles and none is later than max_late_periods periods.  The
+    machine's misses and its worst stall are reported beside, so that a reader sees whether the bench or
+    the host failed."""
+    rt = outcome.realtime or {}
+    budget = rt.get("deadline") or {"miss_min_us": 500, "miss_period_pct": 5.0, "budget_pct": 0.1,
+                                    "max_late_periods": 1.0}
+    probes = rt.get("probes") or {}
+    if probes:
+        rows = [stall_intervals(p["deadline_us"], p["lateness_us"]) for p in probes.values()]
+        stalls = stall_intervals(np.concatenate([r[:, 0] for r in rows]),
+                                 np.concatenate([r[:, 1] - r[:, 0] for r in rows]), stall_us=-1)
+        pl = np.concatenate([np.asarray(p["lateness_us"], dtype=np.int64) for p in probes.values()])
+        machine = {**lateness_figures(pl), "histogram": histogram(pl), "probes": len(probes),
+                   "stalls": int(len(stalls)),
+                   "worst_stall_us": int((stalls[:, 1] - stalls[:, 0]).max()) if len(stalls) else 0,
+                   "stalls_by_probe": {n: int(len(r)) for n, r in zip(probes, rows, strict=True)}}
+        if rt.get("probe_errors"):
+            machine["errors"] = rt["probe_errors"]
+    else:
+        stalls = np.zeros((0, 2), dtype=np.int64)
+        machine = {"error": "; ".join(f"{n}: {e}" for n, e in (rt.get("probe_errors") or {}).items())
+                   or "no probe reported"}
+    nodes: dict[str, dict] = {}
+    for name, c in (rt.get("cycles") or {}).items():
+        period = int(c["period_us"])
+        threshold = late_threshold_us(period, budget["miss_min_us"], budget["miss_period_pct"] / 100)
+        misses = misses_of(c["deadline_us"], c["lateness_us"], threshold)
+        machine_hit = classify_misses(misses, stalls)
+        bench_late = misses.lateness_us[~machine_hit]
+        cycles = len(c["lateness_us"])
+        allowed = int(budget["budget_pct"] / 100 * cycles)
+        too_late = int((bench_late > budget["max_late_periods"] * period).sum())
+        skipped = int((outcome.node_stats.get(name) or {}).get("missed_cycles") or 0)
+        nodes[name] = {
+            "period_us": period, **lateness_figures(c["lateness_us"]), "miss_threshold_us": threshold,
+            "misses_bench": int(bench_late.size), "misses_machine": int(machine_hit.sum()),
+            "misses_allowed": allowed, "bench_misses_over_a_period": too_late,
+            "worst_bench_miss_us": int(bench_late.max()) if bench_late.size else 0,
+            "skipped": skipped, "held": bool(bench_late.size <= allowed and too_late == 0),
+            "histogram": histogram(c["lateness_us"]),
+        }
+    held = bool(nodes) and all(v["held"] for v in nodes.values())
+    ten = [np.asarray(c["lateness_us"]) for n, c in (rt.get("cycles") or {}).items()
+           if int(c["period_us"]) == 10_000]
+    pooled = np.concatenate(ten) if ten else np.zeros(0)
+    failing = [n for n, v in nodes.items() if not v["held"]]
+    worst = (max(failing, key=lambda n: nodes[n]["worst_bench_miss_us"]) if failing else
+             max(nodes, key=lambda n: nodes[n]["p99_us"] or 0, default=None))
+    return {
+        "held": held,
+        "budget": budget,
+        "worst_node": worst,
+        "p99_10ms_us": _pct(pooled, 99), "p50_10ms_us": _pct(pooled, 50),
+        "misses_bench": sum(v["misses_bench"] for v in nodes.values()),
+        "misses_machine": sum(v["misses_machine"] for v in nodes.values()),
+        "machine": machine,
+        "nodes": nodes,
+        "histogram_edges_us": list(HISTOGRAM_EDGES_US),
+        # the figures of earlier releases, kept for readers of kpis.json
+        "missed_cycles": {n: v["skipped"] for n, v in nodes.items()},
+        "max_lag_ms": {n: round(v["max_us"] / 1e3, 1) if v["max_us"] is not None else None
+                       for n, v in nodes.items()},
+        "lateness_us": {n: {"p50": v["p50_us"], "p99": v["p99_us"], "max": v["max_us"], "cycles": v["cycles"]}
+                        for n, v in nodes.items()},
+        "external": list(rt.get("external") or []),
+    }

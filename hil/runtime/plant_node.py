@@ -65,6 +65,9 @@ class TruthLog:
         # whose acceptance is s ≤ s̄ at every step), None otherwise (the 10 ms samples are all there is);
         # the plant's own running max, copied when the log crosses a process boundary
         self.max_slip_mps: np.ndarray | None = None
+        # real time: how far the plant's outputs of each sample's step were behind their schedule [µs]
+        # (its wake's lateness + its clock's slip, hil.runtime.host); None in lockstep
+        self.rt_lag_us: list[int] | None = None
 
     def record(self, t_us: int, snap: TruthSnapshot) -> None:
         self.t_us.append(t_us)
@@ -72,12 +75,13 @@ class TruthLog:
 
     def __getstate__(self) -> dict:          # crosses process boundaries without the plant
         return {"plant": None, "t_us": self.t_us, "snaps": [tuple(s) for s in self.snaps],
-                "series": self.series(), "max_slip_mps": self.max_slip_mps}
+                "series": self.series(), "max_slip_mps": self.max_slip_mps, "rt_lag_us": self.rt_lag_us}
 
     def __setstate__(self, state: dict) -> None:
         self.plant, self.t_us, self.snaps = None, state["t_us"], state["snaps"]
         self._series = state["series"]
         self.max_slip_mps = state.get("max_slip_mps")
+        self.rt_lag_us = state.get("rt_lag_us")
 
     def series(self) -> dict[str, np.ndarray]:
         if self.plant is None:
@@ -92,6 +96,8 @@ class TruthLog:
         for key, arr in self.series().items():
             for k in range(arr.shape[1]):
                 cols[f"{key}_{k + 1}"] = arr[:, k]
+        if self.rt_lag_us is not None and len(self.rt_lag_us) == len(self.t_us):
+            cols["rt_lag_s"] = np.asarray(self.rt_lag_us, dtype=np.int64) / 1e6
         return cols
 
 

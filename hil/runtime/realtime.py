@@ -1,26 +1,32 @@
-"""Real-time runner: one OS process per node (PLANT, DESK, BCU, each BECU), or with [realtime] hosting
-= "grouped" the plant in one and every other node in another (`_group_process`: one bus connection,
-each frame received and decoded once), plus a recorder writing the trace, all on one python-can bus —
-`udp_multicast` by default (no kernel module, no root), `socketcan` on vcan0 where the kernel has it,
-or any python-can interface.
+"""Real-time runner: the simulated nodes in as few processes as the machine needs, a recorder writing the
+trace and a probe measuring the machine, all on one python-can bus — `udp_multicast` by default (no kernel
+module, no root), `socketcan` on vcan0 where the kernel has it, or any python-can interface.
+
+Hosting ([realtime] hosting, `--hosting`): "grouped" (the default) runs every simulated ECU in one
+process with one bus connection (each frame received and decoded once, hil.runtime.host) and the plant in
+its own (plant_process = "shared": in that one too); "per-node" runs one process per node (isolation
+tests: kill -9 of one ECU; nodes spread over hosts). A node marked external ([nodes.NAME] external,
+`--external NAME`) is not simulated: a device under test, another process or another host sends its
+frames (`railhil node`), and the run judges them like any node's.
 
 Bus configuration follows python-can's precedence: command-line flags, then python-can's own
 configuration (CAN_* environment variables, ~/.canrc, /etc/can.conf), then the scenario's
-[realtime] section.  A udp_multicast run without a named channel gets a multicast group and port of
-its own, so parallel runs on one host do not hear each other.
+[realtime] section.  A udp_multicast run without a named channel gets a multicast group and port of its
+own, so parallel runs on one host do not hear each other — unless a node is external: the run then uses
+python-can's default group and port, as `railhil node` and any python-can program do by default.
 
-Scheduling: every node process runs against absolute deadlines on CLOCK_MONOTONIC (openpilot's
-Ratekeeper: next += period), all relative to one start instant t0 that the parent hands out once
-every process has opened its bus.  Controllers get the scheduled time in integer microseconds, as in
-lockstep.  A cycle that starts after its deadline is late and counted; a node up to CATCH_UP_CYCLES
-periods behind runs its cycles back to back (so a short stall of the host does not change the mean
-rate), one further behind skips to the next slot and counts the skipped cycles as missed.  The plant
-never skips: physics time must not jump.  Every process asks the OS for a raised priority (nice
-REALTIME_NICE) where it is allowed to.
+Scheduling: every host runs its nodes against absolute deadlines on CLOCK_MONOTONIC, all relative to one
+start instant t0 that the runner hands out once every process has opened its bus; controllers get the
+scheduled time in integer microseconds, as in lockstep (hil.runtime.host).  Where the OS permits, the
+hosts run SCHED_FIFO with memory locked, the plant and the ECUs on CPUs of their own (hil.runtime.rtos);
+one line says what is in effect.  A probe process measures the machine's own timer lateness during the
+run (hil.runtime.probe) and, before it, how late this machine's sleeps return: the margin of the hosts'
+precise wait (run.json realtime.calibration).  Every cycle's lateness is judged afterwards
+(hil.runtime.outcome.realtime_verdict).
 
-Ctrl-C / SIGTERM: the parent sets the stop event; every node ends its loop, the plant hands back its
-ground truth, the recorder closes the trace; the run folder is written as usual.  A node that dies
-ends the run with a NodeDied error naming it.
+Ctrl-C / SIGTERM: the runner sets the stop event; every host ends its loop, the plant hands back its
+ground truth, the recorder closes the trace; the run folder is written as usual.  A host that dies ends
+the run with a NodeDied error naming its nodes, after the others ran on for OBSERVE_AFTER_DEATH_S.
 """
 
 from __future__ import annotations
@@ -35,32 +41,38 @@ import socket
 import sys
 import time
 import traceback
-from array import array
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import can
 
-from hil.can.codec import FrameError
-from hil.errors import BusError, NodeDied, RailhilError
+from hil.errors import BusError, NodeDied, RailhilError, ScenarioError
 from hil.runtime.gctune import LOOP_THRESHOLDS
+from hil.runtime.host import orphaned
 from hil.runtime.outcome import RunOutcome
 from hil.runtime.plant_node import TruthLog
+from hil.runtime.rtos import NODE_PRIORITY, REALTIME_NICE, RECORDER_PRIORITY, RtSetup, make_realtime, pin_plan
 from hil.scenario import Scenario
 from hil.trace.writers import open_writer
+
+__all__ = ["REALTIME_NICE", "describe_bus", "hosts", "open_bus", "resolve_bus_config", "run_realtime",
+           "run_scenario_realtime", "watch_command"]
 
 READY_TIMEOUT_S = 60.0         # processes importing numpy/cantools on a loaded 2-core machine
 START_MARGIN_S = 0.3           # t0 lies this far after the last process reported ready
 JOIN_TIMEOUT_S = 10.0
-REALTIME_NICE = -10            # node processes ask for this priority where allowed (root, CAP_SYS_NICE)
-CATCH_UP_CYCLES = 5            # a node at most this many periods late catches up instead of skipping
 OBSERVE_AFTER_DEATH_S = 1.0    # after a node process dies, the others run on this long (its fail-safe),
                                # counted on the plant's clock so a plant lagging under load records it all
 OBSERVE_GRACE_S = 30.0         # ... unless the plant does not get there within this much more wall time
 END_NEVER_US = 2**62           # the plant's end-of-observation time while no node has died
+PARENT_CHECK_S = 0.5           # how often the recorder checks that its runner is alive [s]
+RECORDER_BATCH_S = 0.02        # the recorder takes the frames from its socket this often [s]
+GROUP_NAME = "ECUS"            # the process that hosts every simulated node but the plant (grouped)
+SHARED_NAME = "NODES"          # ... and the plant too (plant_process = "shared")
 
 
-def resolve_bus_config(cli: dict, scenario: Scenario) -> dict:
+def resolve_bus_config(cli: dict, scenario: Scenario, external: bool = False) -> dict:
     cfg = dict(cli)
     if "interface" not in cfg:
         try:
@@ -74,9 +86,14 @@ def resolve_bus_config(cli: dict, scenario: Scenario) -> dict:
             if scenario.realtime.channel and "channel" not in cfg:
                 cfg["channel"] = scenario.realtime.channel
     if cfg["interface"] == "udp_multicast" and not cfg.get("channel"):
-        rnd = random.Random(os.getpid() ^ time.monotonic_ns())
-        cfg["channel"] = f"239.255.{rnd.randrange(1, 255)}.{rnd.randrange(1, 255)}"
-        cfg.setdefault("port", rnd.randrange(20000, 60000))
+        if external:                  # the bus a `railhil node` or a python-can program opens by default
+            from can.interfaces.udp_multicast import UdpMulticastBus
+
+            cfg["channel"] = UdpMulticastBus.DEFAULT_GROUP_IPv4
+        else:
+            rnd = random.Random(os.getpid() ^ time.monotonic_ns())
+            cfg["channel"] = f"239.255.{rnd.randrange(1, 255)}.{rnd.randrange(1, 255)}"
+            cfg.setdefault("port", rnd.randrange(20000, 60000))
     if cfg["interface"] == "socketcan" and not cfg.get("channel"):
         cfg["channel"] = "vcan0"
     return cfg
@@ -87,18 +104,23 @@ def describe_bus(cfg: dict) -> str:
     return f"interface={cfg.get('interface')} channel={cfg.get('channel')}{extra}"
 
 
+def bus_flags(cfg: dict) -> str:
+    """python-can's command-line flags for this bus (cantools monitor, `railhil node`, can.viewer)."""
+    flags = f"-i {cfg.get('interface')}"
+    if cfg.get("channel") is not None:
+        flags += f" -c {cfg['channel']}"
+    if cfg.get("bitrate"):
+        flags += f" -b {cfg['bitrate']}"
+    extra = [f"{k}={v}" for k, v in cfg.items() if k not in ("interface", "channel", "bitrate")]
+    if extra:
+        flags += " --bus-kwargs " + " ".join(extra)
+    return flags
+
+
 def watch_command(cfg: dict, dbc_path: str) -> str:
     """The cantools monitor command line that shows this bus live (python-can's bus flags; the DBC
     comes first because --bus-kwargs takes every word after it)."""
-    cmd = f"cantools monitor {dbc_path} -i {cfg.get('interface')}"
-    if cfg.get("channel") is not None:
-        cmd += f" -c {cfg['channel']}"
-    extra = [f"{k}={v}" for k, v in cfg.items() if k not in ("interface", "channel", "bitrate")]
-    if cfg.get("bitrate"):
-        cmd += f" -b {cfg['bitrate']}"
-    if extra:
-        cmd += " --bus-kwargs " + " ".join(extra)
-    return cmd
+    return f"cantools monitor {dbc_path} {bus_flags(cfg)}"
 
 
 def open_bus(cfg: dict) -> can.BusABC:
@@ -112,343 +134,15 @@ def open_bus(cfg: dict) -> can.BusABC:
                        f"{' '.join(str(exc).split())}{hint}; use --lockstep to run without a bus") from None
 
 
-def _raise_priority(nice: int) -> bool:
-    """Ask the OS for a higher scheduling priority (needs privileges; quietly kept as is otherwise)."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, 0, nice)
-        return True
-    except (OSError, AttributeError):
-        return False
-
-
-def _monotonic_us(t0_ns: int, speed: float = 1.0) -> int:
-    """Scheduled (simulated) microseconds since t0; wall time runs 1/speed times slower."""
-    return int((time.monotonic_ns() - t0_ns) * speed) // 1000
-
-
-def _wait_and_receive(bus: can.BusABC, node, deadline_ns: int, t0_ns: int, speed: float = 1.0) -> None:
-    """Receive frames into the node until the deadline (the wait *is* the receive loop)."""
-    while True:
-        remaining = (deadline_ns - time.monotonic_ns()) / 1e9
-        msg = bus.recv(timeout=remaining if remaining > 0 else 0.0)
-        if msg is None:
-            if remaining <= 0:
-                return
-            continue
-        if node is not None and not msg.is_error_frame:
-            node.receive(msg.arbitration_id, bytes(msg.data), _monotonic_us(t0_ns, speed))
-        if remaining <= 0:
-            continue          # drain what is already queued, then return on the next empty recv
-
-
-PARENT_CHECK_S = 0.5     # how often a node or recorder process checks that its runner is alive [s]
-
-
-def lateness_summary(lateness_us) -> dict:
-    """p50 / p99 / max [µs] and the number of a node's cycle releases after their deadlines (the wait for
-    the cycle returned this late; the cycle's frames follow right after)."""
-    import numpy as np
-
-    a = np.asarray(lateness_us, dtype=float)
-    if not a.size:
-        return {"p50": None, "p99": None, "max": None, "cycles": 0}
-    p50, p99 = np.percentile(a, [50, 99])
-    return {"p50": round(float(p50)), "p99": round(float(p99)), "max": int(a.max()), "cycles": int(a.size)}
-
-
-def _orphaned() -> bool:
-    """True when the runner process that started this one has died (e.g. kill -9): its children stop
-    instead of running on with nobody to tell them to."""
-    parent = mp.parent_process()
-    return parent is not None and not parent.is_alive()
-
-
-def _hosted_nodes(names, scenario_json: str, dbc_path: str) -> tuple:
-    """(scenario, codec, nodes, their releases) of the nodes a process hosts, keyed for SecOC."""
-    from hil.can.codec import Codec
-    from hil.can.dbc import load_dbc
-    from hil.runtime.assembly import build_node
-    from hil.runtime.release import node_release
-    from hil.scenario import Scenario as _Scenario
-    from hil.scenario.params import secoc_keys
-
-    scenario = _Scenario.model_validate_json(scenario_json)
-    db = load_dbc(dbc_path)
-    codec = Codec(db)
-    nodes = [build_node(name, scenario, db, codec, dbc_path) for name in names]
-    releases = [node_release(scenario, db, node) for node in nodes]   # jitter, drift, start delay
-    keys = secoc_keys(scenario)
-    for node in nodes:
-        node.use_keys(keys, scenario.secoc.window)
-    return scenario, codec, nodes, releases
-
-
-def _ready_to_go(name: str, go, results) -> bool:
-    """Report ready, then wait for the start; False: the runner died meanwhile."""
-    _raise_priority(REALTIME_NICE)
-    gc.collect()                                     # before ready, not after go: nine processes
-    gc.freeze()                                      # collecting at once made the first cycles up to
-    gc.set_threshold(*LOOP_THRESHOLDS)               # 80 ms late; setup objects leave the scans
-    results.put(("ready", name, None))
-    while not go.wait(PARENT_CHECK_S):
-        if _orphaned():
-            return False
-    return True
-
-
-class CycleTiming:
-    """One node's real-time record: each cycle's release lateness [µs], the cycles released late, the
-    cycles skipped and the largest lag (and when), kept the same way in a node process and a group."""
-
-    def __init__(self, period_us: int, may_skip: bool = True) -> None:
-        self.period_us, self.may_skip = period_us, may_skip   # the plant never skips: physics time
-        self.lateness = array("q")
-        self.late = self.missed = self.max_lag = self.max_lag_at = 0
-
-    def released(self, deadline_ns: int) -> None:
-        """The wait for a cycle returned now, its deadline was `deadline_ns`."""
-        self.lateness.append((time.monotonic_ns() - deadline_ns) // 1000)
-
-    def cycles_to_skip(self, lag_us: int, due_us: int) -> int:
-        """The next cycle, due at `due_us`, is `lag_us` late when the one before ended: count it, and
-        the cycles to skip when it is more than CATCH_UP_CYCLES periods behind."""
-        if lag_us <= 0:
-            return 0
-        self.late += 1
-        if lag_us > self.max_lag:
-            self.max_lag, self.max_lag_at = lag_us, due_us
-        if lag_us > CATCH_UP_CYCLES * self.period_us and self.may_skip:
-            skipped = lag_us // self.period_us
-            self.missed += skipped
-            return skipped
-        return 0
-
-    def stats(self, node) -> dict:
-        """The node's stats with its real-time figures."""
-        stats = vars(node.stats).copy()
-        stats["late_cycles"] = self.late          # started after their deadline
-        stats["missed_cycles"] = self.missed      # skipped after falling more than CATCH_UP_CYCLES behind
-        stats["max_lag_us"] = self.max_lag        # the latest a cycle was due when the one before ended
-        stats["max_lag_at_us"] = self.max_lag_at  # ... and that cycle's time in the run
-        stats["lateness_us"] = lateness_summary(self.lateness)
-        return stats
-
-
-def _report_failure(results, name: str, exc: BaseException) -> None:
-    """Tell the runner why this process ends (it names the node or host), then exit non-zero."""
-    detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
-    if not isinstance(exc, RailhilError):
-        detail += " | " + traceback.format_exc().strip().splitlines()[-3].strip()
-    results.put(("error", name, detail))
-    raise SystemExit(1) from None
-
-
-def _node_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, t0_ns, end_at_us, go, stop,
-                  results, progress) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)         # the parent coordinates shutdown
-    bus = None
-    try:
-        scenario, _, (node,), (release,) = _hosted_nodes((name,), scenario_json, dbc_path)
-        bus = open_bus(cfg)
-        if not _ready_to_go(name, go, results):
-            return
-        t0 = t0_ns.value
-        is_plant = name == "PLANT"
-        plant = node.controller if is_plant else None
-        linger_us = round(scenario.end_after_standstill_s * 1e6)
-        max_us = round(scenario.max_duration_s * 1e6)
-        stopped_since = None
-        speed = scenario.realtime.speed
-        release_ns, nominal_us, _ = release.next()
-        next_us = release_ns // 1000
-        next_progress = 0
-        next_parent_check_us = 0
-        timing = CycleTiming(node.period_us, may_skip=not is_plant)
-        while not stop.is_set():
-            if next_us >= next_parent_check_us:          # a runner killed (-9) must not leave us running
-                next_parent_check_us = next_us + round(PARENT_CHECK_S * 1e6)
-                if _orphaned():
-                    return
-            deadline_ns = t0 + round(release_ns / speed)
-            _wait_and_receive(bus, node, deadline_ns, t0, speed)
-            timing.released(deadline_ns)
-            frames = node.cycle(release_ns // 1000, nominal_us)
-            for fc, data in frames:
-                bus.send(can.Message(arbitration_id=fc.frame_id, is_extended_id=fc.is_extended_id,
-                                     data=data, check=False))
-            release_ns, nominal_us, _ = release.next()
-            next_us = release_ns // 1000
-            skipped = timing.cycles_to_skip(_monotonic_us(t0, speed) - next_us, next_us)
-            if skipped:
-                for _ in range(skipped):
-                    release_ns, nominal_us, _ = release.next()
-                next_us = release_ns // 1000
-            if is_plant:
-                now = next_us - node.period_us
-                if plant.standstill:
-                    stopped_since = now if stopped_since is None else stopped_since
-                    if now - stopped_since >= linger_us:
-                        results.put(("done", name, "standstill"))
-                        break
-                else:
-                    stopped_since = None
-                if now >= max_us:
-                    results.put(("done", name, "max_duration"))
-                    break
-                if now >= end_at_us.value:               # a node died: its aftermath is recorded
-                    results.put(("done", name, "observed"))
-                    break
-                if progress is not None and now >= next_progress:
-                    progress.put((now, plant.glance()))
-                    next_progress += 250_000
-        payload = {"stats": timing.stats(node), "end_us": next_us, "lateness_us": timing.lateness}
-        if is_plant:
-            payload["truth"] = node.controller.truth
-        results.put(("result", name, payload))
-    except BaseException as exc:  # report, then exit non-zero: the parent names the node
-        _report_failure(results, name, exc)
-    finally:
-        if bus is not None:
-            bus.shutdown()
-
-
-ECHO_DEPTH = 4     # a grouped host's last frames per id it sent, to know them when the bus echoes them
-
-
-class GroupDelivery:
-    """The frames a grouped host receives, each decoded once and handed to the hosted nodes that take
-    it (as the lockstep bus does).  Its own nodes' frames are handed over as they are sent (`sent`),
-    since not every bus returns a socket's own frames (SocketCAN does not, udp_multicast on one host
-    does); one that does comes back, is recognised among the last ECHO_DEPTH frames sent with its id,
-    and is not delivered twice.  The nodes' counts are what one process per node would count: a frame
-    the DBC does not define is unknown to every node, a malformed one bad for each node that takes its
-    id."""
-
-    def __init__(self, nodes: list, codec) -> None:
-        self.nodes = nodes
-        self.codec = codec
-        self.subscribers: dict[int, list] = {}
-        for node in nodes:
-            for fid in node.rx_ids:
-                self.subscribers.setdefault(fid, []).append(node)
-        self._echo: dict[int, list[bytes]] = {}      # id -> its last frames sent from here, oldest first
-
-    def sent(self, node, frame_id: int, data: bytes, t_us: int) -> None:
-        """A hosted node sent this frame: the other hosted nodes get it now."""
-        recent = self._echo.setdefault(frame_id, [])
-        recent.append(data)
-        if len(recent) > ECHO_DEPTH:
-            del recent[0]
-        self._deliver(frame_id, data, t_us, node)
-
-    def receive(self, frame_id: int, data: bytes, t_us: int) -> None:
-        """A frame from the bus."""
-        recent = self._echo.get(frame_id)
-        if recent and data in recent:                # the bus returned a frame sent from here
-            recent.remove(data)
-            return
-        self._deliver(frame_id, data, t_us, None)
-
-    def _deliver(self, frame_id: int, data: bytes, t_us: int, sender) -> None:
-        subs = self.subscribers.get(frame_id)
-        if subs is None:
-            if sender is None and frame_id not in self.codec:
-                for node in self.nodes:
-                    node.stats.unknown_frames += 1
-            return
-        try:
-            values = self.codec[frame_id].decode(data)
-        except FrameError:           # short or malformed frame on a real bus: counted, not raised
-            for node in subs:
-                if node is not sender:
-                    node.stats.bad_frames += 1
-            return
-        for node in subs:
-            if node is not sender:
-                node.receive_values(frame_id, values, t_us, data)
-
-
-def _group_process(group: str, names: tuple[str, ...], scenario_json: str, dbc_path: str, cfg: dict,
-                   t0_ns, go, stop, results) -> None:
-    """Several nodes (not the plant) in one process on one bus connection: each node's cycles keep their
-    own absolute deadlines (the earliest due runs next; lateness, catch-up and skipping per node as in
-    `_node_process`), the frames between them are received once (`GroupDelivery`)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)         # the parent coordinates shutdown
-    bus = None
-    try:
-        import heapq
-
-        scenario, codec, nodes, releases = _hosted_nodes(names, scenario_json, dbc_path)
-        delivery = GroupDelivery(nodes, codec)
-        bus = open_bus(cfg)
-        if not _ready_to_go(group, go, results):
-            return
-        t0 = t0_ns.value
-        speed = scenario.realtime.speed
-        n = len(nodes)
-        nominal = [0] * n
-        schedule = []                                     # (release ns, node index): the next cycle of each
-        for i, release in enumerate(releases):
-            release_ns, nominal[i], _ = release.next()
-            schedule.append((release_ns, i))
-        heapq.heapify(schedule)
-        timings = [CycleTiming(node.period_us) for node in nodes]
-        next_parent_check_us = 0
-        next_us = 0
-        while not stop.is_set():
-            release_ns, i = schedule[0]
-            next_us = release_ns // 1000
-            if next_us >= next_parent_check_us:          # a runner killed (-9) must not leave us running
-                next_parent_check_us = next_us + round(PARENT_CHECK_S * 1e6)
-                if _orphaned():
-                    return
-            deadline_ns = t0 + round(release_ns / speed)
-            _wait_and_receive(bus, delivery, deadline_ns, t0, speed)
-            timings[i].released(deadline_ns)
-            node = nodes[i]
-            frames = node.cycle(next_us, nominal[i])
-            for fc, data in frames:
-                bus.send(can.Message(arbitration_id=fc.frame_id, is_extended_id=fc.is_extended_id,
-                                     data=data, check=False))
-                delivery.sent(node, fc.frame_id, data, _monotonic_us(t0, speed))
-            release = releases[i]
-            release_ns, nominal[i], _ = release.next()
-            due_us = release_ns // 1000
-            for _ in range(timings[i].cycles_to_skip(_monotonic_us(t0, speed) - due_us, due_us)):
-                release_ns, nominal[i], _ = release.next()
-            heapq.heapreplace(schedule, (release_ns, i))
-        for node, timing in zip(nodes, timings, strict=True):
-            stats = timing.stats(node)
-            stats["host"] = group
-            results.put(("result", node.name, {"stats": stats, "end_us": next_us,
-                                               "lateness_us": timing.lateness}))
-    except BaseException as exc:  # report, then exit non-zero: the parent names the host
-        _report_failure(results, group, exc)
-    finally:
-        if bus is not None:
-            bus.shutdown()
-
-
-GROUP_NAME = "ECUS"                # the process that hosts every node but the plant ([realtime] hosting)
-
-
-def hosts(scenario: Scenario, names: list[str]) -> dict[str, tuple[str, ...]]:
-    """Process name -> the nodes it runs: one process per node, or (hosting "grouped") the plant alone
-    and GROUP_NAME with every other node."""
-    if scenario.realtime.hosting == "grouped" and len(names) > 2:
-        return {"PLANT": ("PLANT",), GROUP_NAME: tuple(n for n in names if n != "PLANT")}
-    return {name: (name,) for name in names}
-
-
-RECORDER_RCVBUF_BYTES = 4 << 20    # the recorder's socket receive buffer: ~30,000 frames of slack (chosen)
+RECORDER_RCVBUF_BYTES = 4 << 20    # a socket's receive buffer: ~30,000 frames of slack (chosen)
 
 
 def enlarge_receive_buffer(bus: can.BusABC, nbytes: int = RECORDER_RCVBUF_BYTES) -> int | None:
     """Ask the kernel for a larger receive buffer on the bus's socket (udp_multicast, socketcan), so that a
-    recorder descheduled for a while on a busy machine does not drop frames; the size is capped by
-    net.core.rmem_max (SO_RCVBUFFORCE goes past it where the process may).  Returns the buffer size the
-    socket has now [bytes], None for a bus without a socket of its own (python-can keeps no public
-    handle: the interfaces' private attributes are looked up)."""
+    process that takes its frames in batches, or is descheduled for a while on a busy machine, does not
+    drop frames; the size is capped by net.core.rmem_max (SO_RCVBUFFORCE goes past it where the process
+    may).  Returns the buffer size the socket has now [bytes], None for a bus without a socket of its own
+    (python-can keeps no public handle: the interfaces' private attributes are looked up)."""
     sock = getattr(getattr(bus, "_multicast", None), "_socket", None) or getattr(bus, "socket", None)
     if not isinstance(sock, socket.socket):
         return None
@@ -463,22 +157,158 @@ def enlarge_receive_buffer(bus: can.BusABC, nbytes: int = RECORDER_RCVBUF_BYTES)
     return sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
 
 
+def _raise_priority(nice: int) -> bool:
+    """Ask the OS for a higher scheduling priority (needs privileges; quietly kept as is otherwise)."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, nice)
+        return True
+    except (OSError, AttributeError):
+        return False
+
+
+def hosts(scenario: Scenario, names: list[str]) -> dict[str, tuple[str, ...]]:
+    """Process name -> the simulated nodes it runs ([realtime] hosting, plant_process)."""
+    rt = scenario.realtime
+    if rt.hosting == "per-node" or len(names) < 2:
+        return {name: (name,) for name in names}
+    ecus = tuple(n for n in names if n != "PLANT")
+    if "PLANT" not in names:
+        return {GROUP_NAME: ecus}
+    if rt.plant_process == "shared":
+        return {SHARED_NAME: tuple(names)}
+    return {"PLANT": ("PLANT",), GROUP_NAME: ecus} if ecus else {"PLANT": ("PLANT",)}
+
+
+def _hosted_nodes(names, scenario_json: str, dbc_path: str) -> tuple:
+    """(scenario, codec, nodes, their releases) of the nodes a process hosts, keyed for SecOC."""
+    from hil.can.codec import loaded_dbc
+    from hil.runtime.assembly import build_node
+    from hil.runtime.release import node_release
+    from hil.scenario import Scenario as _Scenario
+    from hil.scenario.params import secoc_keys
+
+    scenario = _Scenario.model_validate_json(scenario_json)
+    db, codec = loaded_dbc(Path(dbc_path))
+    nodes = [build_node(name, scenario, db, codec, dbc_path) for name in names]
+    releases = [node_release(scenario, db, node) for node in nodes]   # jitter, drift, start delay
+    keys = secoc_keys(scenario)
+    for node in nodes:
+        node.use_keys(keys, scenario.secoc.window)
+    return scenario, codec, nodes, releases
+
+
+def os_setup(scenario: Scenario, priority: int, cpus: tuple[int, ...] | None = None) -> RtSetup:
+    """What this process gets of the OS for real time ([realtime] scheduling)."""
+    if scenario.realtime.scheduling == "normal":
+        return RtSetup("normal", 0, False, None, None, ("[realtime] scheduling = \"normal\"",))
+    return make_realtime(priority, cpus)
+
+
+@dataclass
+class Shared:
+    """What the runner hands every process: the start event and instant, the stop event, the precise
+    wait's margin and (for the plant's host) when a node's death has been observed long enough."""
+
+    go: object
+    stop: object
+    t0_ns: object
+    margin_ns: object
+    end_at_us: object
+
+
+def _ready_to_go(name: str, shared: Shared, results, rt: RtSetup) -> bool:
+    """Report ready (with what the OS gave), then wait for the start; False: the runner died meanwhile."""
+    gc.collect()                                     # before ready, not after go: nine processes
+    gc.freeze()                                      # collecting at once made the first cycles up to
+    gc.set_threshold(*LOOP_THRESHOLDS)               # 80 ms late; setup objects leave the scans
+    results.put(("ready", name, rt.as_dict()))
+    while not shared.go.wait(PARENT_CHECK_S):
+        if orphaned():
+            return False
+    return True
+
+
+def _report_failure(results, name: str, exc: BaseException) -> None:
+    """Tell the runner why this process ends (it names the node or host), then exit non-zero."""
+    detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
+    if not isinstance(exc, RailhilError):
+        detail += " | " + traceback.format_exc().strip().splitlines()[-3].strip()
+    results.put(("error", name, detail))
+    raise SystemExit(1) from None
+
+
+def _host_process(host: str, names: tuple[str, ...], scenario_json: str, dbc_path: str, cfg: dict,
+                  shared: Shared, results, progress, cpus) -> None:
+    """One host: the nodes `names` on one bus connection (hil.runtime.host.Host)."""
+    from hil.runtime.host import Host, PlantEnd
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)         # the parent coordinates shutdown
+    bus = None
+    try:
+        scenario, codec, nodes, releases = _hosted_nodes(names, scenario_json, dbc_path)
+        bus = open_bus(cfg)
+        enlarge_receive_buffer(bus)                       # frames wait there until the next deadline
+        rt = os_setup(scenario, NODE_PRIORITY, cpus)
+        if not _ready_to_go(host, shared, results, rt):
+            return
+        end = None
+        if "PLANT" in names:
+            end = PlantEnd(round(scenario.end_after_standstill_s * 1e6), round(scenario.max_duration_s * 1e6),
+                           shared.end_at_us, progress)
+        runner = Host(nodes, releases, codec, bus, shared.t0_ns.value, speed=scenario.realtime.speed,
+                      margin_ns=shared.margin_ns.value, plant_wake=scenario.realtime.plant_wake, end=end,
+                      orphaned=orphaned)
+        runner.run(shared.stop)
+        if runner.reason == "orphaned":          # nobody reads the results: a large put would block the exit
+            return
+        if runner.reason in ("standstill", "max_duration", "observed"):
+            results.put(("done", host, runner.reason))
+        for name, payload in runner.payloads().items():
+            payload["stats"]["host"] = host
+            results.put(("result", name, payload))
+        results.put(("host", host, {"frames_received": runner.frames_received,
+                                    "timestamps_untrusted": runner.timestamps_untrusted}))
+    except BaseException as exc:  # report, then exit non-zero: the parent names the host
+        _report_failure(results, host, exc)
+    finally:
+        if bus is not None:
+            bus.shutdown()
+
+
 def _recorder_process(trace_path: str, cfg: dict, go, stop, results) -> None:
+    """Every frame of the bus into the trace (python-can's writer for the suffix), taken from the socket
+    every RECORDER_BATCH_S (its receive buffer enlarged), so that the recorder does not wake for each."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     bus = None
     try:
         bus = open_bus(cfg)
         enlarge_receive_buffer(bus)
-        _raise_priority(REALTIME_NICE)
+        rt = make_realtime(RECORDER_PRIORITY)
         writer = open_writer(trace_path)          # wall-clock timestamps: the writer's own epoch
-        results.put(("ready", "RECORDER", None))
-        notifier = can.Notifier(bus, [writer], timeout=0.05)
-        while not stop.wait(PARENT_CHECK_S):
-            if _orphaned():                              # runner gone: close the trace, keep what it has
-                break
-        time.sleep(0.2)             # let in-flight frames of the last cycle arrive before closing
-        notifier.stop()             # stops its listeners too: the trace is flushed and closed
-        results.put(("result", "RECORDER", {"stats": {}}))
+        results.put(("ready", "RECORDER", rt.as_dict()))
+        frames = 0
+        lost_runner = False
+        next_check = time.monotonic() + PARENT_CHECK_S
+        recv = bus.recv
+        try:
+            while True:
+                stopping = stop.wait(RECORDER_BATCH_S)
+                if stopping:
+                    time.sleep(0.2)              # let in-flight frames of the last cycle arrive
+                while (msg := recv(0.0)) is not None:
+                    writer.on_message_received(msg)
+                    frames += 1
+                if stopping:
+                    break
+                if time.monotonic() > next_check:
+                    next_check = time.monotonic() + PARENT_CHECK_S
+                    if orphaned():              # runner gone: close the trace, keep what it has
+                        lost_runner = True
+                        break
+        finally:
+            writer.stop()                         # flushed and closed
+        if not lost_runner:
+            results.put(("result", "RECORDER", {"stats": {"frames_recorded": frames}}))
     except BaseException as exc:
         results.put(("error", "RECORDER", " ".join(str(exc).split())))
         raise SystemExit(1) from None
@@ -501,37 +331,78 @@ def truth_end_us(truth) -> int:
     return round(float(t_s[-1]) * 1e6) if t_s is not None and len(t_s) else 0
 
 
-def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
-                 progress: Callable[[int, dict], None] | None = None) -> tuple[RunOutcome, float]:
-    """Run the nodes in their processes ([realtime] hosting: one per node, or grouped); returns the
-    outcome and the trace's epoch at t0."""
-    from hil.report.kpis import check_out_dir
+def external_nodes(scenario: Scenario, cli: list[str] | tuple[str, ...] = ()) -> list[str]:
+    """The nodes that are not simulated ([nodes.NAME] external = true and `--external NAME`), checked: each
+    a node of the scenario, none given twice on the command line, not every node."""
     from hil.runtime.assembly import node_names
 
-    probe = open_bus(cfg)                       # fail early, in the parent, with one clear line
-    probe.shutdown()
+    names = node_names(scenario)
+    seen: set[str] = set()
+    for name in cli:
+        if name in seen:
+            raise ScenarioError(f"--external {name}: given twice")
+        seen.add(name)
+    for name in sorted(seen | {n for n, spec in scenario.nodes.items() if spec.external}):
+        if name not in names:
+            raise ScenarioError(f"--external {name}: scenario {scenario.name!r} has no node {name!r}; its "
+                                f"nodes are {', '.join(names)}")
+    external = [n for n in names if n in seen or (n in scenario.nodes and scenario.nodes[n].external)]
+    if len(external) == len(names):
+        raise ScenarioError(f"every node of scenario {scenario.name!r} is external: nothing to simulate")
+    return external
+
+
+def _external_ids(db, external: list[str]) -> dict[str, set[int]]:
+    """The frame ids each external node sends (the DBC's senders)."""
+    return {name: {m.frame_id for m in db.messages if name in m.senders} for name in external}
+
+
+def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
+                 progress: Callable[[int, dict], None] | None = None,
+                 external: list[str] | tuple[str, ...] = ()) -> tuple[RunOutcome, float, str | None]:
+    """Run the simulated nodes in their hosts, the recorder and the probe; returns the outcome, the trace's
+    epoch at t0 and the failure (None: none)."""
+    from hil.can.codec import loaded_dbc
+    from hil.report.kpis import check_out_dir
+    from hil.runtime.assembly import node_names
+    from hil.runtime.probe import PROBE_PERIOD_US, probe_cpus, probe_process
+    from hil.runtime.rtos import PROBE_PRIORITY
+
+    watch = open_bus(cfg)                       # fail early, in the parent, with one clear line
+    names = node_names(scenario)
+    simulated = [n for n in names if n not in external]
+    external_ids = _external_ids(loaded_dbc(Path(dbc_path))[0], list(external))
+    if not external:
+        watch.shutdown()
+        watch = None
     check_out_dir(trace_path.parent)            # only now: a bus that does not open leaves no folder
     ctx = mp.get_context("fork" if sys.platform.startswith("linux") else "spawn")
-    go, stop = ctx.Event(), ctx.Event()
-    t0_ns = ctx.Value("q", 0)
-    end_at_us = ctx.Value("q", END_NEVER_US, lock=False)  # set by this process only: no lock needed
+    shared = Shared(ctx.Event(), ctx.Event(), ctx.Value("q", 0), ctx.Value("q", 0),
+                    ctx.Value("q", END_NEVER_US, lock=False))    # set by this process only: no lock needed
     results = ctx.Queue()
     progress_q = ctx.Queue() if progress is not None else None
     scenario_json = scenario.model_dump_json()
-    names = node_names(scenario)
-    procs = {"RECORDER": ctx.Process(target=_recorder_process, name="railhil-RECORDER",
-                                     args=(str(trace_path), cfg, go, stop, results), daemon=True)}
-    hosted = {"RECORDER": ("RECORDER",)}
-    for host, members in hosts(scenario, names).items():
+    rt = scenario.realtime
+    plan = hosts(scenario, simulated)
+    cpus = pin_plan(list(plan)) if rt.pin_cpus and rt.scheduling == "auto" and rt.hosting == "grouped" else {}
+    procs = {}
+    cpus_probed = probe_cpus()
+    for k, cpu in enumerate(cpus_probed):       # one probe per CPU, staggered; the first calibrates
+        name = "PROBE" if cpu is None else f"PROBE{cpu}"
+        procs[name] = ctx.Process(target=probe_process, name=f"railhil-{name}", daemon=True,
+                                  args=(name, cpu, k * PROBE_PERIOD_US // len(cpus_probed), shared.t0_ns,
+                                        shared.go, shared.stop, results,
+                                        {"priority": PROBE_PRIORITY, "fifo": rt.scheduling == "auto",
+                                         "lock_memory": rt.scheduling == "auto"},
+                                        rt.calibration_s if k == 0 else 0.0))
+    procs["RECORDER"] = ctx.Process(target=_recorder_process, name="railhil-RECORDER",
+                                    args=(str(trace_path), cfg, shared.go, shared.stop, results), daemon=True)
+    hosted = {name: (name,) for name in procs}
+    for host, members in plan.items():
         hosted[host] = members
-        if len(members) > 1:
-            procs[host] = ctx.Process(target=_group_process, name=f"railhil-{host}", daemon=True,
-                                      args=(host, members, scenario_json, dbc_path, cfg, t0_ns, go, stop,
-                                            results))
-            continue
-        procs[host] = ctx.Process(target=_node_process, name=f"railhil-{host}", daemon=True,
-                                  args=(host, scenario_json, dbc_path, cfg, t0_ns, end_at_us, go, stop,
-                                        results, progress_q if host == "PLANT" else None))
+        procs[host] = ctx.Process(target=_host_process, name=f"railhil-{host}", daemon=True,
+                                  args=(host, members, scenario_json, dbc_path, cfg, shared, results,
+                                        progress_q if "PLANT" in members else None, cpus.get(host)))
 
     old_term = signal.getsignal(signal.SIGTERM)
 
@@ -544,10 +415,15 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     old_int = signal.getsignal(signal.SIGINT)
     signal.signal(signal.SIGINT, signal.default_int_handler)
     payloads: dict[str, dict] = {}
+    setups: dict[str, dict] = {}
+    probe_errors: dict[str, str] = {}
+    calibration: dict | None = None
+    host_info: dict[str, dict] = {}
     reason = "interrupted"
     wall0 = time.perf_counter()
     epoch_t0 = 0.0
     failure: str | None = None
+    external_seen: dict[str, float] = {}
     try:
         for p in procs.values():
             p.start()
@@ -562,40 +438,70 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                                f"within {READY_TIMEOUT_S:.0f} s") from None
             if kind == "error":
                 raise NodeDied(f"node {name} failed at start: {detail}")
-            ready.add(name)
+            if kind == "probe_error":              # the run goes on without that probe, and says so
+                probe_errors[name] = detail
+                ready.add(name)
+            elif kind == "calibrated":
+                calibration = detail["calibration"]
+                setups[name] = detail["rt"]
+                ready.add(name)
+            else:
+                setups[name] = detail
+                ready.add(name)
+        shared.margin_ns.value = calibration["margin_ns"] if calibration and rt.precise_wait else 0
         t0 = time.monotonic_ns() + int(START_MARGIN_S * 1e9)
         epoch_t0 = time.time() + (t0 - time.monotonic_ns()) / 1e9
-        t0_ns.value = t0
+        shared.t0_ns.value = t0
         wall0 = time.perf_counter() + START_MARGIN_S
-        go.set()
+        shared.go.set()
         print(f"realtime: {len(procs)} processes on {describe_bus(cfg)}; pids "
               + " ".join(f"{n}={p.pid}" for n, p in procs.items()), file=sys.stderr, flush=True)
         print(f"realtime: watch it live with: {watch_command(cfg, dbc_path)}", file=sys.stderr, flush=True)
-        limit = time.monotonic() + START_MARGIN_S + scenario.max_duration_s / scenario.realtime.speed + 30.0
+        print(f"realtime: {describe_setup(setups, calibration, rt.precise_wait)}", file=sys.stderr,
+              flush=True)
+        if external:
+            print(f"realtime: external {', '.join(external)}: not simulated, their frames must come from the "
+                  f"bus (start each before the run: railhil node NAME SCENARIO {bus_flags(cfg)}); waiting "
+                  f"up to {rt.external_wait_s:g} s for their first frames", file=sys.stderr, flush=True)
+        limit = time.monotonic() + START_MARGIN_S + scenario.max_duration_s / rt.speed + 30.0
+        wait_external_until = time.monotonic() + START_MARGIN_S + rt.external_wait_s
         death: str | None = None          # a node died: the others run on for OBSERVE_AFTER_DEATH_S
         observe_until = 0.0
         while True:
             if progress_q is not None:
                 _show_progress(progress_q, progress)
+            if watch is not None:
+                _watch_external(watch, external_ids, external_seen, epoch_t0)
+                if len(external_seen) == len(external_ids):
+                    watch.shutdown()
+                    watch = None
+                elif time.monotonic() > wait_external_until:
+                    silent = [n for n in external_ids if n not in external_seen]
+                    many = len(silent) > 1
+                    raise NodeDied(f"external node{'s' if many else ''} {', '.join(silent)} sent no frame "
+                                   f"within {rt.external_wait_s:g} s on {describe_bus(cfg)}: start "
+                                   f"{'them' if many else 'it'} before the run (railhil node "
+                                   f"{','.join(silent)} SCENARIO {bus_flags(cfg)}, or the device on that "
+                                   "bus)")
             if death is not None and time.monotonic() >= observe_until:
                 raise NodeDied(death)
             try:
-                kind, name, detail = results.get(timeout=0.05 if death else 0.2)
+                kind, name, detail = results.get(timeout=0.05 if (death or watch) else 0.2)
             except queue.Empty:
-                dead = [n for n, p in procs.items()
-                        if p.exitcode is not None and not all(m in payloads for m in hosted[n])]
+                dead = [n for n, p in procs.items() if p.exitcode is not None and not n.startswith("PROBE")
+                        and not all(m in payloads for m in hosted[n])]
                 if dead and death is None:
                     code = procs[dead[0]].exitcode
                     what = (f"node {dead[0]}" if len(hosted[dead[0]]) == 1 else
                             f"host {dead[0]} (nodes {', '.join(hosted[dead[0]])})")
                     death = f"{what} died (exit code {code}); run ended"
-                    if dead[0] == "PLANT":                # nothing left to observe
+                    if "PLANT" in hosted[dead[0]] or dead[0] == "RECORDER":     # nothing left to observe
                         raise NodeDied(death) from None
                     print(f"realtime: {what} died; the others run on for "
                           f"{OBSERVE_AFTER_DEATH_S:g} s so their reaction is recorded", file=sys.stderr)
-                    speed = scenario.realtime.speed
-                    end_at_us.value = _monotonic_us(t0, speed) + round(OBSERVE_AFTER_DEATH_S * 1e6)
-                    observe_until = time.monotonic() + OBSERVE_AFTER_DEATH_S / speed + OBSERVE_GRACE_S
+                    now_us = int((time.monotonic_ns() - t0) * rt.speed) // 1000
+                    shared.end_at_us.value = now_us + round(OBSERVE_AFTER_DEATH_S * 1e6)
+                    observe_until = time.monotonic() + OBSERVE_AFTER_DEATH_S / rt.speed + OBSERVE_GRACE_S
                 if time.monotonic() > limit:
                     raise NodeDied("the plant did not finish within the scenario's max_duration_s") from None
                 continue
@@ -608,16 +514,21 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                 break
             if kind == "result":
                 payloads[name] = detail
+            elif kind == "host":
+                host_info[name] = detail
     except (KeyboardInterrupt, _Terminate):
         reason = "interrupted"
         print("\nstopping: interrupt received, closing the trace", file=sys.stderr)
     except RailhilError as exc:
         failure = str(exc)
     finally:
-        stop.set()
-        go.set()
+        shared.stop.set()
+        shared.go.set()
+        if watch is not None:
+            watch.shutdown()
         end = time.monotonic() + JOIN_TIMEOUT_S
-        while len(payloads) < len(names) + 1 and time.monotonic() < end:     # every node and the recorder
+        want = len(procs) - len(plan) + len(simulated) - len(probe_errors)    # nodes, recorder, probes
+        while len(payloads) < want and time.monotonic() < end:
             try:
                 kind, name, detail = results.get(timeout=0.2)
             except queue.Empty:
@@ -626,6 +537,10 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                 continue
             if kind == "result":
                 payloads[name] = detail
+            elif kind == "host":
+                host_info[name] = detail
+            elif kind == "probe_error":
+                probe_errors[name] = detail
             elif kind == "error" and failure is None:
                 failure = f"node {name} died: {detail}"
         for p in procs.values():
@@ -636,20 +551,60 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         signal.signal(signal.SIGTERM, old_term)
         signal.signal(signal.SIGINT, old_int)
     wall = time.perf_counter() - wall0
+    if "PLANT" in external:
+        raise NodeDied("the PLANT is external: its ground truth is on another host; run the plant here")
     if "PLANT" not in payloads:
         raise NodeDied((failure or "the PLANT process ended without handing back its ground truth")
                        + (f"; the trace so far is in {trace_path}" if trace_path.exists() else ""))
     if failure is not None:
         reason = "failed"
-    plant = payloads["PLANT"]
-    truth: TruthLog = plant["truth"]
-    end_us = truth_end_us(truth)
+    truth: TruthLog = payloads["PLANT"]["truth"]
+    nodes = [n for n in simulated if n in payloads]
+    probes = {n: payloads[n] for n in procs if n.startswith("PROBE") and n in payloads}
+    realtime = {
+        "hosting": rt.hosting, "plant_process": rt.plant_process, "plant_wake": rt.plant_wake,
+        "hosts": {h: list(m) for h, m in plan.items()},
+        "os": setups, "calibration": calibration, "precise_wait": rt.precise_wait,
+        "margin_ns": shared.margin_ns.value, "probes": probes, "probe_errors": probe_errors,
+        "external": list(external),
+        "external_first_frame_s": external_seen, "deadline": rt.deadline.model_dump(),
+        "cycles": {n: {k: payloads[n][k] for k in ("deadline_us", "lateness_us", "period_us")}
+                   for n in nodes},
+        "host_frames": host_info,
+    }
     outcome = RunOutcome(
-        mode="realtime", end_us=end_us, reason=reason, truth=truth,
-        frames_by_node={n: payloads[n]["stats"]["frames_sent"] for n in names if n in payloads},
-        node_stats={n: payloads[n]["stats"] for n in names if n in payloads}, wall_s=wall,
-        lateness_us={n: payloads[n]["lateness_us"] for n in names if n in payloads})
+        mode="realtime", end_us=truth_end_us(truth), reason=reason, truth=truth,
+        frames_by_node={n: payloads[n]["stats"]["frames_sent"] for n in nodes},
+        node_stats={n: payloads[n]["stats"] for n in nodes}, wall_s=wall,
+        lateness_us={n: payloads[n]["lateness_us"] for n in nodes}, realtime=realtime)
     return outcome, epoch_t0, failure
+
+
+def _watch_external(bus: can.BusABC, ids: dict[str, set[int]], seen: dict[str, float],
+                    epoch_t0: float) -> None:
+    """Note when each external node's first frame went by [s after t0]."""
+    while (msg := bus.recv(0.0)) is not None:
+        for name, own in ids.items():
+            if name not in seen and msg.arbitration_id in own:
+                seen[name] = round(msg.timestamp - epoch_t0, 4)
+
+
+def describe_setup(setups: dict[str, dict], calibration: dict | None, precise: bool) -> str:
+    """One line: what the OS granted the hosts (the first host's, and where others differ) and the wait."""
+    parts = []
+    for name, d in setups.items():
+        if name == "RECORDER" or name.startswith("PROBE"):
+            continue
+        rt = RtSetup(**{**d, "cpus": tuple(d["cpus"]) if d.get("cpus") else None,
+                        "refused": tuple(d.get("refused") or ())})
+        parts.append(f"{name} {rt.describe()}")
+    refused = sorted({r for d in setups.values() for r in d.get("refused") or ()})
+    wait = ("precise wait: sleep to "
+            f"{calibration['margin_ns'] / 1e3:.0f} us before each deadline, then poll (this machine's sleeps "
+            f"returned p50 {calibration['p50_us']:.0f} / p90 {calibration['p90_us']:.0f} / max "
+            f"{calibration['max_us']:.0f} us late in {calibration['seconds']:g} s)" if precise and calibration
+            else "sleep to each deadline (no precise wait)")
+    return "; ".join(parts) + (f"; refused: {', '.join(refused)}" if refused else "") + f"; {wait}"
 
 
 def _show_progress(q, progress: Callable[[int, dict], None]) -> None:
@@ -665,20 +620,23 @@ def _show_progress(q, progress: Callable[[int, dict], None]) -> None:
 
 
 def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dict,
-                          progress: Callable[[int, dict], None] | None = None):
-    from hil.can.codec import Codec
-    from hil.can.dbc import load_dbc
+                          progress: Callable[[int, dict], None] | None = None,
+                          external: tuple[str, ...] = ()):
+    from hil.can.codec import loaded_dbc
     from hil.runtime.run import dbc_path_of, finish_run, trace_name
 
     if scenario.faults:                           # not silently dropped: say where they work
-        from hil.errors import ScenarioError
         kinds = ", ".join(sorted({f.kind for f in scenario.faults}))
         raise ScenarioError(f"scenario {scenario.name!r}: [[faults]] ({kinds}) are injected by the lockstep "
                             "run; run it with --lockstep (in real time, kill a node process instead)")
-    cfg = resolve_bus_config(cli_bus_config, scenario)
     dbc_path = dbc_path_of(scenario)
-    db = load_dbc(dbc_path)                       # bad DBC: one line, before any process starts
-    codec = Codec(db)
+    db, codec = loaded_dbc(dbc_path)              # bad DBC: one line, before any process starts
+    external = external_nodes(scenario, external)
+    if "PLANT" in external:
+        raise ScenarioError("the PLANT cannot be external in `railhil run`: the run's KPIs come from its "
+                            "ground truth; run the ECUs elsewhere instead (--external BCU ... here, railhil "
+                            "node there)")
+    cfg = resolve_bus_config(cli_bus_config, scenario, external=bool(external))
     from hil.runtime.assembly import build_node, node_names
     from hil.runtime.release import node_releases
 
@@ -688,7 +646,8 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
         print("notice: [messages.*] extra delays apply to lockstep runs only; the real-time bus has its own",
               file=sys.stderr)
     trace = out_dir / trace_name(scenario)        # its folder is made once the bus opened
-    outcome, epoch_t0, failure = run_realtime(scenario, str(dbc_path), trace, cfg, progress=progress)
+    outcome, epoch_t0, failure = run_realtime(scenario, str(dbc_path), trace, cfg, progress=progress,
+                                              external=external)
     report = finish_run(scenario, outcome, out_dir, db, codec, trace_t0_s=epoch_t0,
                         trace_speed=scenario.realtime.speed,
                         extra={"bus": {k: str(v) for k, v in cfg.items()}, "failure": failure})

@@ -108,7 +108,7 @@ class NodeRelease:
 
 def node_release(scenario: Scenario, db: Database, node) -> NodeRelease:
     """The NodeRelease of one node: scenario values over DBC attributes over zero."""
-    given = scenario.nodes.get(node.name, NodeTiming())
+    given = scenario.nodes.get(node.name, NodeTiming()).model_copy(update={"external": False})
     fixed = node.name in FIXED_CLOCK_NODES
     if fixed and given != NodeTiming():
         raise ScenarioError(f"scenario key 'nodes.{node.name}': the plant steps the physics on a fixed "

@@ -20,6 +20,7 @@ import numpy as np
 
 from hil.can.codec import Codec, loaded_dbc
 from hil.can.dbc import DEFAULT_DBC
+from hil.report.conduct import frames_sent_by, node_conduct
 from hil.report.html import REPORT_NAME, run_metadata, write_run_report
 from hil.report.kpis import (
     RunView,
@@ -31,7 +32,7 @@ from hil.report.kpis import (
     write_kpis,
     write_truth_csv,
 )
-from hil.report.plots import plot_run, study_plots
+from hil.report.plots import LATENESS_NAME, plot_lateness, plot_run, study_plots
 from hil.report.summary import summary_lines
 from hil.runtime.desk import DeskScript
 from hil.runtime.lockstep import prepare_lockstep, run_lockstep
@@ -97,6 +98,21 @@ def plausibility_events(trace: DecodedTrace | Path, db, codec: Codec, n_cars: in
     return flagged
 
 
+def silence_reported(decoded: DecodedTrace, db, node: str, last_s: float | None, t0_s: float = 0.0,
+                     speed: float = 1.0) -> float | None:
+    """When the BCU first reported car n silent (BCU_STATUS CarsSilent bit n−1) after BECUn's last frame at
+    `last_s` [s, simulated]; None: not a BECU, never silent, or never reported."""
+    if last_s is None or not (node.startswith("BECU") and node[4:].isdigit()):
+        return None
+    table = decoded.table("BCU_STATUS")
+    bits = table.columns.get("CarsSilent")
+    if bits is None:
+        return None
+    t = (table.t - t0_s) * speed
+    k = np.flatnonzero((t > last_s) & (bits.astype(np.int64) >> (int(node[4:]) - 1) & 1 == 1))
+    return round(float(t[k[0]]), 4) if k.size else None
+
+
 def _rows(decoded: DecodedTrace, message: str) -> np.ndarray:
     """The trace rows of a decoded message's frames, in the order of its table (its frames of the right
     kind and length), so that flags of different messages keep the trace's order."""
@@ -127,6 +143,9 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
                                     speed=trace_speed)
     brake_us = DeskScript(scenario.desk).first_brake_us()
     brake_s = None if brake_us is None else brake_us / 1e6
+    external = list((outcome.realtime or {}).get("external") or [])
+    for name in external:                      # a device under test sent what the trace holds of its frames
+        outcome.frames_by_node[name] = frames_sent_by(decoded, db, name)
     kpis = compute_kpis(scenario, cols, target, brake_s, outcome.frames_by_node, recorded,
                         outcome.frames_in_flight, outcome.frames_overwritten, outcome.frames_faulted)
     view = RunView.of(scenario, cols, tuple(target), brake_s, out_dir=out_dir, trace=trace, db=db,
@@ -155,7 +174,13 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     if flagged or outcome.faults is not None:
         kpis["plausibility_flags"] = flagged       # first time [s] each sensor / car was flagged
     if outcome.mode == "realtime":
-        kpis["realtime"] = realtime_verdict(outcome.node_stats)
+        kpis["realtime"] = realtime_verdict(outcome)
+        conduct = node_conduct(decoded, db, list(outcome.frames_by_node), outcome.node_stats, external,
+                               trace_t0_s, trace_speed)
+        for name in external:
+            conduct[name]["reported_silent_s"] = silence_reported(decoded, db, name, conduct[name]["last_s"],
+                                                                  trace_t0_s, trace_speed)
+        kpis["realtime"]["conduct"] = conduct
     kpis["mode"] = outcome.mode
     kpis["seed"] = scenario.seed
     kpis["simulated_s"] = outcome.end_us / 1e6
@@ -163,6 +188,8 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     kpis_json = out_dir / "kpis.json"
     write_kpis(kpis, kpis_json)
     figures = _draw(view, outcome.mode) if plots else []
+    if plots and "realtime" in kpis:
+        figures.append(plot_lateness(kpis["realtime"], out_dir / LATENESS_NAME))
     meta = {
         "scenario": scenario.model_dump(mode="json"),
         "mode": outcome.mode,
@@ -176,6 +203,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
         "bus_timing": outcome.bus,
         "faults": outcome.faults,
         "wall_s": round(outcome.wall_s, 3),
+        **({"realtime": realtime_meta(outcome.realtime)} if outcome.realtime else {}),
         **run_metadata(dbc_path_of(scenario), scenario.seed),   # versions, DBC SHA-256, git commit
         **(extra or {}),
     }
@@ -183,6 +211,14 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     run_json.write_text(json.dumps(meta, indent=2, default=str) + "\n")
     report = [write_run_report(out_dir, interactive_report)] if plots else []   # one self-contained page
     return RunReport(out_dir, outcome, kpis, [trace, truth_csv, kpis_json, *figures, run_json, *report])
+
+
+def realtime_meta(rt: dict) -> dict:
+    """run.json's record of a real-time run: hosting, what the OS granted each process, the sleep
+    calibration and the precise wait's margin, the external nodes (the per-cycle figures are in kpis.json's
+    verdict, not here)."""
+    skip = ("cycles", "probes")
+    return {k: v for k, v in rt.items() if k not in skip}
 
 
 def _draw(view: RunView, mode: str) -> list[Path]:

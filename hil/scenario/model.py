@@ -120,14 +120,48 @@ class DeskEvent(_Strict):
     target_stop_m: float | None = None
 
 
+class DeadlineSpec(_Strict):
+    """When a real-time cycle is a deadline miss and when a run still holds real time (hil.runtime.probe,
+    hil.runtime.outcome.realtime_verdict).  A cycle released more than max(miss_min_us, miss_period_pct %
+    of its period) after its deadline is a miss; a miss at an instant the machine probe was late too is the
+    machine's, any other the bench's.  The run holds real time when, for every simulated node (the plant
+    in its steps), the bench's misses are at most budget_pct % of its cycles and none is later than
+    max_late_periods of its period."""
+
+    miss_min_us: Annotated[int, Field(ge=0, le=1_000_000)] = 500
+    miss_period_pct: Annotated[float, Field(ge=0, le=100)] = 5.0
+    budget_pct: Annotated[float, Field(ge=0, le=100)] = 0.1
+    max_late_periods: Annotated[float, Field(gt=0, le=1000)] = 1.0
+
+
 class RealtimeSpec(_Strict):
     interface: str = "udp_multicast"
     channel: str | None = None        # None: a channel of this run's own (udp_multicast group/port)
     # simulated seconds per wall second: 1.0 = real time, 0.5 = half speed (for slow or loaded hosts)
     speed: Annotated[float, Field(gt=0, le=1)] = 1.0
-    # "per-node": one OS process per node (isolation: kill -9 of one ECU); "grouped": the plant in its
-    # own process, every other node in one process with one bus connection, each frame decoded once
-    hosting: Literal["per-node", "grouped"] = "per-node"
+    # "grouped": every simulated ECU in one process with one bus connection, each frame decoded once, the
+    # plant in its own (plant_process = "shared": in the ECUs' process too); "per-node": one OS process per
+    # node (isolation: kill -9 of one ECU; nodes spread over hosts)
+    hosting: Literal["grouped", "per-node"] = "grouped"
+    plant_process: Literal["own", "shared"] = "own"
+    # "frames": the plant is woken when a frame of it is due and computes its 1 ms steps since (commands
+    # applied at the step their reception time falls in); "steps": woken every 1 ms (hil.runtime.host)
+    plant_wake: Literal["frames", "steps"] = "frames"
+    # "auto": SCHED_FIFO, locked memory and CPU affinity where the OS permits (else nice, else as is);
+    # "normal": ask for nothing (hil.runtime.rtos)
+    scheduling: Literal["auto", "normal"] = "auto"
+    # with scheduling "auto" and grouped hosting: the plant and the ECUs' process each on a CPU of its own.
+    # Off by default: on the 2-core development VM it made the 10 ms nodes' p99 lateness worse, not better
+    # (docs/lockstep-and-realtime.md)
+    pin_cpus: bool = False
+    # sleep until a margin before each deadline, then poll out the rest; the margin is measured on this
+    # machine for calibration_s before the run (its sleep lateness, hil.runtime.rtos.sleep_lateness)
+    precise_wait: bool = True
+    calibration_s: Annotated[float, Field(ge=0.1, le=10)] = 1.0
+    # external nodes ([nodes.NAME] external, --external): the run waits this long for the first frame of
+    # each before it starts [s]
+    external_wait_s: Annotated[float, Field(gt=0, le=600)] = 30.0
+    deadline: DeadlineSpec = Field(default_factory=DeadlineSpec)
 
 
 class TraceSpec(_Strict):
@@ -155,12 +189,16 @@ class NodeTiming(_Strict):
     Cycle k of a node with period T and phase offset o is released at
     start_delay + o + k·T·(1 + drift_ppm·1e-6) + U(jitter_min_us, jitter_max_us), seeded; the jitter
     does not accumulate.  Without a value here, the sender node's CANdb++ attributes CANoeStartDelay
-    [ms], CANoeDrift [%] and CANoeJitterMin/Max [% of the period] are used when the DBC has them."""
+    [ms], CANoeDrift [%] and CANoeJitterMin/Max [% of the period] are used when the DBC has them.
+    `external` (real time) takes the node out of the simulation: a device under test sends its frames."""
 
     jitter_min_us: Annotated[int, Field(ge=-1_000_000, le=1_000_000)] | None = None
     jitter_max_us: Annotated[int, Field(ge=-1_000_000, le=1_000_000)] | None = None
     drift_ppm: Annotated[float, Field(ge=-100_000, le=100_000)] | None = None
     start_delay_us: Annotated[int, Field(ge=0, le=60_000_000)] | None = None
+    # real time: the node is not simulated; its frames come from the bus (a device under test, another
+    # process or host: `railhil node`); the run judges them like any node's
+    external: bool = False
 
     @model_validator(mode="after")
     def _ordered(self) -> NodeTiming:

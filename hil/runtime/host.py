@@ -1,0 +1,413 @@
+"""A real-time host: one or more nodes in one process on one python-can bus connection.
+
+The runner (hil.runtime.realtime) starts one host per process: by default one for the plant and one for
+every other simulated node ([realtime] hosting = "grouped"), or the plant in that same host
+(plant_process = "shared"), or one host per node ("per-node"); `railhil node` runs a host alone. The
+node code is the same in every hosting (hil.runtime.node.Node), as in lockstep.
+
+Scheduling. Every node keeps its own absolute deadlines on CLOCK_MONOTONIC, relative to one start instant
+t0 (openpilot's Ratekeeper: next += period); the earliest due runs next. The host sleeps until a margin
+before the deadline (the margin from this machine's measured sleep lateness, hil.runtime.rtos), takes
+the frames the bus has for it, then waits out the rest of the margin by polling the clock, and releases
+the cycle. Each cycle's release lateness (now − deadline) is recorded (`CycleTiming`). A node more than
+CATCH_UP_CYCLES periods behind skips to its next slot and counts the cycles skipped.
+
+Receiving. A host does not wake for each frame: frames wait in the socket (its receive buffer enlarged)
+until the host wakes for its next deadline, then each is decoded once and handed to the hosted nodes
+that receive it (`Delivery`, as the lockstep bus does), stamped with its reception time — the kernel's
+timestamp that python-can gives the message, where that is a plausible time of this run, else the time
+it was taken from the socket.
+
+The plant. Its physics steps every 1 ms on a fixed clock, but only its frames are seen from outside:
+with [realtime] plant_wake = "frames" (the default) the host wakes the plant when a frame of it is due
+and computes the 1 ms steps since the last one, each with the commands whose reception time falls before
+it (frames for the plant are kept with their times until then) — the same physics as a plant woken
+every millisecond, ten times fewer wake-ups; "steps" wakes it every millisecond. The plant never skips a
+step: physics time must not jump. More than PLANT_CATCH_UP_US behind, it computes the missed steps and
+then rebases its schedule: its clock slips behind the bus's by the lag (`slip_us`), recorded in the truth
+as rt_lag_s for every sample so that truth and trace times can be aligned.
+"""
+
+from __future__ import annotations
+
+import gc
+import heapq
+import time
+from array import array
+from collections.abc import Callable
+
+import can
+import numpy as np
+
+from hil.can.codec import FrameError
+
+CATCH_UP_CYCLES = 5            # a node at most this many periods late catches up instead of skipping
+PLANT_CATCH_UP_US = 50_000     # the plant further behind than this rebases its schedule (slips) [µs]
+MAX_BATCH_US = 5_000           # a plant woken on its frames is woken at least this often [µs]: two
+#                                smaller drains of its socket a 10 ms frame cycle, not one large one
+TIMESTAMP_TRUST_US = 1_000_000  # a message timestamp further than this from now is not this run's [µs]
+ECHO_DEPTH = 4                 # a host's last frames per id it sent, to know them when the bus echoes them
+PARENT_CHECK_US = 500_000      # how often a host checks that its runner is alive [µs]
+IDLE_GC_NS = 2_000_000         # the automatic collector is off in the loop: young objects are collected
+IDLE_GC_OBJECTS = 5_000        # when at least this many were allocated and the next deadline is at least
+IDLE_GC_OLDER = 10             # IDLE_GC_NS away (the middle generation every IDLE_GC_OLDER times); one
+#                                collection of 50,000 young objects, at Python's own moment, took ~1 ms
+
+
+def orphaned() -> bool:
+    """True when the runner process that started this one has died (e.g. kill -9): its children stop
+    instead of running on with nobody to tell them to.  The parent's pid is compared too: multiprocessing's
+    sentinel pipe of an early child stays open while a sibling forked after it lives."""
+    import multiprocessing as mp
+    import os
+
+    parent = mp.parent_process()
+    return parent is not None and (os.getppid() != parent.pid or not parent.is_alive())
+
+
+class Delivery:
+    """The frames a host receives, each decoded once and handed to the hosted nodes that take it.  Its
+    own nodes' frames are handed over as they are sent (`sent`), since not every bus returns a socket's own
+    frames (SocketCAN does not, udp_multicast on one host does); one that does comes back, is recognised
+    among the last ECHO_DEPTH frames sent with its id, and is not delivered twice.  A node in `batched`
+    gets its frames later, in time order, from `replay` (the plant woken on its frames).  The nodes'
+    counts are what one process per node would count: a frame the DBC does not define is unknown to every
+    node, a malformed one bad for each node that takes its id."""
+
+    def __init__(self, nodes: list, codec, batched: frozenset = frozenset()) -> None:
+        self.nodes = nodes
+        self.codec = codec
+        self.subscribers: dict[int, list] = {}
+        for node in nodes:
+            for fid in node.rx_ids:
+                self.subscribers.setdefault(fid, []).append(node)
+        self._echo: dict[int, list[bytes]] = {}      # id -> its last frames sent from here, oldest first
+        self.batched = batched
+        self.inbox: dict[object, list] = {node: [] for node in nodes if node.name in batched}
+        self.received = 0                # frames from the bus that were not this host's own
+
+    def sent(self, node, frame_id: int, data: bytes, t_us: int) -> None:
+        """A hosted node sent this frame: the other hosted nodes get it now."""
+        recent = self._echo.setdefault(frame_id, [])
+        recent.append(data)
+        if len(recent) > ECHO_DEPTH:
+            del recent[0]
+        if frame_id in self.subscribers:
+            self._deliver(frame_id, data, t_us, node)
+
+    def receive(self, frame_id: int, data: bytes, t_us: int) -> None:
+        """A frame from the bus."""
+        recent = self._echo.get(frame_id)
+        if recent and data in recent:                # the bus returned a frame sent from here
+            recent.remove(data)
+            return
+        self.received += 1
+        self._deliver(frame_id, data, t_us, None)
+
+    def _deliver(self, frame_id: int, data: bytes, t_us: int, sender) -> None:
+        subs = self.subscribers.get(frame_id)
+        if subs is None:
+            if sender is None and frame_id not in self.codec:
+                for node in self.nodes:
+                    node.stats.unknown_frames += 1
+            return
+        try:
+            values = self.codec[frame_id].decode(data)
+        except FrameError:           # short or malformed frame on a real bus: counted, not raised
+            for node in subs:
+                if node is not sender:
+                    node.stats.bad_frames += 1
+            return
+        inbox = self.inbox
+        for node in subs:
+            if node is sender:
+                continue
+            if inbox and node in inbox:
+                inbox[node].append((t_us, frame_id, values, data))
+            else:
+                node.receive_values(frame_id, values, t_us, data)
+
+    def replay(self, node, until_us: int, offset_us: int = 0) -> None:
+        """Hand a batched node its frames received up to `until_us` on its own clock (host time −
+        `offset_us`), oldest first."""
+        box = self.inbox[node]
+        if not box:
+            return
+        k = 0
+        for t_us, frame_id, values, data in box:
+            if t_us - offset_us > until_us:
+                break
+            node.receive_values(frame_id, values, t_us - offset_us, data)
+            k += 1
+        if k:
+            del box[:k]
+
+
+def lateness_summary(lateness_us) -> dict:
+    """p50 / p99 / max [µs] and the number of a node's cycle releases (the wait for the cycle returned
+    this late after its deadline; the cycle's frames follow right after)."""
+    a = np.asarray(lateness_us, dtype=float)
+    if not a.size:
+        return {"p50": None, "p99": None, "max": None, "cycles": 0}
+    p50, p99 = np.percentile(a, [50, 99])
+    return {"p50": round(float(p50)), "p99": round(float(p99)), "max": int(a.max()), "cycles": int(a.size)}
+
+
+
+class CycleTiming:
+    """One node's real-time record: each cycle's deadline [µs since t0, on the bus's clock] and release
+    lateness [µs], the cycles released late, the cycles skipped, the largest lag (and when) and, for the
+    plant, how far its clock slipped behind the bus's."""
+
+    def __init__(self, period_us: int, may_skip: bool = True) -> None:
+        self.period_us, self.may_skip = period_us, may_skip   # the plant never skips: physics time
+        self.deadline_us = array("q")
+        self.lateness = array("q")
+        self.late = self.missed = self.max_lag = self.max_lag_at = 0
+        self.slip_us = 0
+
+    def released(self, deadline_ns: int, t0_ns: int, now_ns: int) -> int:
+        """The wait for a cycle returned at `now_ns`, its deadline was `deadline_ns`: its lateness [µs]."""
+        late = (now_ns - deadline_ns) // 1000
+        self.deadline_us.append((deadline_ns - t0_ns) // 1000)
+        self.lateness.append(late)
+        return late
+
+    def cycles_to_skip(self, lag_us: int, due_us: int) -> int:
+        """The next cycle, due at `due_us`, is `lag_us` late when the one before ended: count it, and
+        the cycles to skip when it is more than CATCH_UP_CYCLES periods behind."""
+        if lag_us <= 0:
+            return 0
+        self.late += 1
+        if lag_us > self.max_lag:
+            self.max_lag, self.max_lag_at = lag_us, due_us
+        if lag_us > CATCH_UP_CYCLES * self.period_us and self.may_skip:
+            skipped = lag_us // self.period_us
+            self.missed += skipped
+            return skipped
+        return 0
+
+    def stats(self, node) -> dict:
+        """The node's stats with its real-time figures."""
+        stats = vars(node.stats).copy()
+        stats["late_cycles"] = self.late          # started after their deadline
+        stats["missed_cycles"] = self.missed      # skipped after falling more than CATCH_UP_CYCLES behind
+        stats["max_lag_us"] = self.max_lag        # the latest a cycle was due when the one before ended
+        stats["max_lag_at_us"] = self.max_lag_at  # ... and that cycle's time in the run
+        stats["lateness_us"] = lateness_summary(self.lateness)
+        if not self.may_skip:
+            stats["slip_us"] = self.slip_us       # the plant's clock behind the bus's at the end
+        return stats
+
+    def payload(self, node) -> dict:
+        return {"stats": self.stats(node), "lateness_us": self.lateness, "deadline_us": self.deadline_us,
+                "period_us": self.period_us}
+
+
+class PlantEnd:
+    """When a host with the plant ends the run: standstill for `linger_us`, `max_us` simulated, or the
+    runner's `end_at_us` (a node died: its aftermath recorded); `progress` gets the plant's glance every
+    250 ms of simulated time."""
+
+    def __init__(self, linger_us: int, max_us: int, end_at_us=None, progress=None) -> None:
+        self.linger_us, self.max_us, self.end_at_us, self.progress = linger_us, max_us, end_at_us, progress
+        self.stopped_since: int | None = None
+        self.next_progress = 0
+        self.reason: str | None = None
+
+    def after(self, plant, now_us: int) -> bool:
+        """The plant computed its step at `now_us`: True when the run ends (reason in `reason`)."""
+        if plant.standstill:
+            if self.stopped_since is None:
+                self.stopped_since = now_us
+            elif now_us - self.stopped_since >= self.linger_us:
+                self.reason = "standstill"
+                return True
+        else:
+            self.stopped_since = None
+        if now_us >= self.max_us:
+            self.reason = "max_duration"
+            return True
+        if self.end_at_us is not None and now_us >= self.end_at_us.value:
+            self.reason = "observed"
+            return True
+        if self.progress is not None and now_us >= self.next_progress:
+            self.progress.put((now_us, plant.glance()))
+            self.next_progress += 250_000
+        return False
+
+
+class Host:
+    """Nodes hosted in this process, their releases and the bus: `run()` until `stop` is set, the plant
+    ends the run, or `orphaned()` says the runner died."""
+
+    def __init__(self, nodes: list, releases: list, codec, bus: can.BusABC, t0_ns: int, *, speed: float = 1.0,
+                 margin_ns: int = 0, plant_wake: str = "frames", end: PlantEnd | None = None,
+                 orphaned: Callable[[], bool] | None = None) -> None:
+        self.nodes, self.releases, self.bus = nodes, releases, bus
+        self.t0_ns, self.speed, self.margin_ns = t0_ns, speed, margin_ns
+        self.epoch_t0 = time.time() + (t0_ns - time.monotonic_ns()) / 1e9   # t0 on the wall clock [s]
+        self.plant = next((k for k, n in enumerate(nodes) if n.name == "PLANT"), None)
+        batched = frozenset({"PLANT"}) if self.plant is not None and plant_wake == "frames" else frozenset()
+        self.delivery = Delivery(nodes, codec, batched)
+        self.batched = bool(batched)
+        self.timings = [CycleTiming(n.period_us, may_skip=k != self.plant) for k, n in enumerate(nodes)]
+        self.end = end
+        self.orphaned = orphaned
+        self.reason: str | None = None
+        self.end_us = 0
+        if self.plant is not None:            # the plant's lag behind the bus at each truth sample
+            truth = nodes[self.plant].controller.truth
+            if hasattr(truth, "t_us"):          # the foundation's TruthLog (a study's may have no µs)
+                truth.rt_lag_us = []
+        self.frames_received = 0
+        self.drain_ns = 300_000          # how long taking the frames from the socket takes (running estimate)
+        self.timestamps_untrusted = 0    # frames stamped on reception, their own timestamp implausible
+
+    # -- time --------------------------------------------------------------------------------------
+    def now_us(self) -> int:
+        """Bus time [µs since t0, simulated: × speed]."""
+        return int((time.monotonic_ns() - self.t0_ns) * self.speed) // 1000
+
+    def _drain(self) -> None:
+        """Every frame the socket holds, delivered with its reception time."""
+        recv, deliver = self.bus.recv, self.delivery.receive
+        now_us = None
+        epoch_t0, scale = self.epoch_t0, 1e6 * self.speed
+        while True:
+            msg = recv(0.0)
+            if msg is None:
+                return
+            if msg.is_error_frame or msg.is_remote_frame:
+                continue
+            if now_us is None:
+                now_us = self.now_us()
+            t_us = int((msg.timestamp - epoch_t0) * scale)
+            if not (now_us - TIMESTAMP_TRUST_US < t_us <= now_us + 1000):   # not this run's clock
+                t_us = now_us
+                self.timestamps_untrusted += 1
+            self.frames_received += 1
+            deliver(msg.arbitration_id, bytes(msg.data), t_us)
+
+    def _wait(self, deadline_ns: int) -> int:
+        """Collect garbage if there is time, sleep until the frames can be taken before the deadline, take
+        them, sleep to the precise wait's margin, poll out the rest, take what came meanwhile; now [ns]
+        (the cycle's release)."""
+        now = time.monotonic_ns
+        early = self.margin_ns + self.drain_ns
+        remaining = deadline_ns - now()
+        if remaining > IDLE_GC_NS and gc.get_count()[0] > IDLE_GC_OBJECTS:
+            gc.collect(1 if gc.get_count()[1] >= IDLE_GC_OLDER else 0)
+            remaining = deadline_ns - now()
+        if remaining > early:
+            time.sleep((remaining - early) / 1e9)
+        t = now()
+        self._drain()
+        took = now() - t
+        # wake early enough for the longest recent drain: 1.5 × the largest, forgotten by 2 % a cycle
+        self.drain_ns = max(took + (took >> 1), self.drain_ns - (self.drain_ns >> 6))
+        remaining = deadline_ns - now()
+        if remaining > self.margin_ns:
+            time.sleep((remaining - self.margin_ns) / 1e9)
+        t = now()
+        while t < deadline_ns:
+            t = now()
+        self._drain()                  # what arrived meanwhile: usually nothing (one empty poll)
+        return t
+
+    def _send(self, node, frames, bus_send=None) -> None:
+        send = bus_send or self.bus.send
+        sent = self.delivery.sent
+        for fc, data in frames:
+            send(can.Message(arbitration_id=fc.frame_id, is_extended_id=fc.is_extended_id, data=data,
+                             check=False))
+            sent(node, fc.frame_id, data, self.now_us())
+
+    # -- the loop ----------------------------------------------------------------------------------
+    def run(self, stop) -> None:
+        gc.disable()                         # collected at idle moments instead (_wait)
+        try:
+            self._loop(stop)
+        finally:
+            gc.enable()
+
+    def _plant_wake_ns(self, node, slot_ns: int) -> int:
+        """When to wake the plant whose next step is `slot_ns` [ns, its own clock]: at that step, or, woken
+        on its frames, at the step its next frame is due (at most MAX_BATCH_US on)."""
+        if not self.batched:
+            return slot_ns
+        slot_us = slot_ns // 1000
+        return max(slot_us, min(node.next_frame_due_us, slot_us + MAX_BATCH_US)) * 1000
+
+    def _loop(self, stop) -> None:
+        nodes, releases, timings = self.nodes, self.releases, self.timings
+        speed, t0 = self.speed, self.t0_ns
+        plant = self.plant
+        nominal = [0] * len(nodes)
+        slot = [0] * len(nodes)              # each node's next release on its own clock [ns]
+        schedule = []                        # (wake on the bus's clock [ns], node index)
+        for i, release in enumerate(releases):
+            slot[i], nominal[i], _ = release.next()
+            schedule.append((self._plant_wake_ns(nodes[i], slot[i]) if i == plant else slot[i], i))
+        heapq.heapify(schedule)
+        slip_ns = 0                          # the plant's clock behind the bus's [ns of bus time]
+        next_check_us = 0
+        while not stop.is_set():
+            wake_ns, i = schedule[0]
+            node = nodes[i]
+            if wake_ns // 1000 >= next_check_us:
+                next_check_us = wake_ns // 1000 + PARENT_CHECK_US
+                if self.orphaned is not None and self.orphaned():
+                    self.reason = "orphaned"
+                    return
+            deadline_ns = t0 + round(wake_ns / speed)
+            now_ns = self._wait(deadline_ns)
+            timing = timings[i]
+            late_us = timing.released(deadline_ns, t0, now_ns)
+            if i != plant:
+                self.end_us = slot[i] // 1000
+                self._send(node, node.cycle(slot[i] // 1000, nominal[i]))
+                release_ns, nominal[i], _ = releases[i].next()
+                due_us = release_ns // 1000
+                for _ in range(timing.cycles_to_skip(self.now_us() - due_us, due_us)):
+                    release_ns, nominal[i], _ = releases[i].next()
+                slot[i] = release_ns
+                heapq.heapreplace(schedule, (release_ns, i))
+                continue
+            # the plant: every 1 ms step up to the wake, each with the commands received before it
+            wake_own_us = (wake_ns - slip_ns) // 1000
+            lag_us = late_us + slip_ns // 1000
+            truth = node.controller.truth
+            lags = getattr(truth, "rt_lag_us", None)
+            while slot[i] // 1000 <= wake_own_us:
+                step_us = slot[i] // 1000
+                if self.batched:
+                    self.delivery.replay(node, step_us, slip_ns // 1000)
+                n_truth = len(truth.t_us) if lags is not None else 0
+                frames = node.cycle(step_us, nominal[i])
+                if lags is not None and len(truth.t_us) != n_truth:
+                    lags.append(lag_us)
+                if frames:
+                    self._send(node, frames)
+                self.end_us = step_us
+                slot[i], nominal[i], _ = releases[i].next()
+                if self.end is not None and self.end.after(node.controller, step_us):
+                    self.reason = self.end.reason
+                    return
+            behind_us = self.now_us() - (slot[i] + slip_ns) // 1000
+            timing.cycles_to_skip(behind_us, slot[i] // 1000)
+            if behind_us > PLANT_CATCH_UP_US:          # rebase: the plant's clock slips behind the bus's
+                slip_ns += behind_us * 1000
+                timing.slip_us = slip_ns // 1000
+            heapq.heapreplace(schedule, (self._plant_wake_ns(node, slot[i]) + slip_ns, i))
+
+    def payloads(self) -> dict[str, dict]:
+        """Each hosted node's result: its stats and timing (and the plant's truth)."""
+        out = {}
+        for node, timing in zip(self.nodes, self.timings, strict=True):
+            payload = timing.payload(node)
+            payload["end_us"] = self.end_us
+            if node.name == "PLANT":
+                payload["truth"] = node.controller.truth
+            out[node.name] = payload
+        return out

@@ -1,0 +1,137 @@
+"""The machine's own timer lateness during a real-time run, and whose each deadline miss is.
+
+During every real-time run one more process per CPU (`probe_process`, pinned to its CPU) runs a bare
+loop: sleep to absolute deadlines PROBE_PERIOD_US apart on CLOCK_MONOTONIC, record how late each sleep
+returned, nothing else; the CPUs' probes are staggered over the period.  They run with the nodes'
+scheduling (SCHED_FIFO one priority step above them where the OS permits, so that the bench's own CPU use
+never shows as the machine's), so what delays them is the machine: the kernel, the hypervisor taking a
+virtual CPU away, other tenants.  A stall of one virtual CPU does not delay a process on the other, hence
+one probe per CPU.  Before the run the first probe also calibrates the hosts' precise wait
+(hil.runtime.rtos.sleep_lateness).
+
+A node's cycle released more than `late_threshold_us(period)` after its deadline is a deadline miss.  A
+miss whose interval [deadline, release] overlaps an interval in which a probe was late too (a probe
+stall: [its deadline, its release] with the probe more than PROBE_STALL_US late) is the machine's; any
+other miss is the bench's (`classify_misses`).  Each probe samples every 10 ms: a stall shorter than that
+which falls between its deadlines is not seen, and a miss it causes counts as the bench's — the verdict
+errs against the bench, never for it.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+from array import array
+from dataclasses import dataclass
+
+import numpy as np
+
+PROBE_PERIOD_US = 10_000      # the probe's period [µs] (issue #17: a bare loop at 10 ms deadlines)
+PROBE_STALL_US = 500          # the probe more than this late: the machine stalled [µs] (the miss bound
+#                               of a 10 ms cycle, late_threshold_us)
+MISS_MIN_US = 500             # a cycle later than max(MISS_MIN_US, MISS_PERIOD_FRACTION · period) is a
+MISS_PERIOD_FRACTION = 0.05   # deadline miss (issue #17)
+
+
+def late_threshold_us(period_us: int, min_us: int = MISS_MIN_US,
+                      fraction: float = MISS_PERIOD_FRACTION) -> int:
+    """The lateness above which a cycle of this period is a deadline miss [µs]."""
+    return max(min_us, round(fraction * period_us))
+
+
+@dataclass
+class Misses:
+    """A node's deadline misses: each one's deadline [µs since t0] and lateness [µs]."""
+
+    deadline_us: np.ndarray
+    lateness_us: np.ndarray
+
+
+def misses_of(deadlines_us, lateness_us, threshold_us: int) -> Misses:
+    d = np.asarray(deadlines_us, dtype=np.int64)
+    late = np.asarray(lateness_us, dtype=np.int64)
+    k = late > threshold_us
+    return Misses(d[k], late[k])
+
+
+def stall_intervals(probe_deadlines_us, probe_lateness_us, stall_us: int = PROBE_STALL_US) -> np.ndarray:
+    """The probe's stalls as [start, end] rows [µs since t0], merged where they overlap."""
+    d = np.asarray(probe_deadlines_us, dtype=np.int64)
+    late = np.asarray(probe_lateness_us, dtype=np.int64)
+    k = late > stall_us
+    rows = np.stack([d[k], d[k] + late[k]], axis=1) if k.any() else np.zeros((0, 2), dtype=np.int64)
+    merged: list[list[int]] = []
+    for start, end in rows[np.argsort(rows[:, 0])] if len(rows) else rows:
+        if merged and start <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], int(end))
+        else:
+            merged.append([int(start), int(end)])
+    return np.asarray(merged, dtype=np.int64).reshape(-1, 2)
+
+
+def classify_misses(misses: Misses, stalls: np.ndarray) -> np.ndarray:
+    """True for each miss that is the machine's: its [deadline, release] overlaps a probe stall."""
+    if not len(misses.deadline_us):
+        return np.zeros(0, dtype=bool)
+    if not len(stalls):
+        return np.zeros(len(misses.deadline_us), dtype=bool)
+    start, end = misses.deadline_us, misses.deadline_us + misses.lateness_us
+    # the last stall that starts at or before the miss's release, and whether it ends after its deadline
+    k = np.searchsorted(stalls[:, 0], end, side="right") - 1
+    ok = k >= 0
+    hit = np.zeros(len(start), dtype=bool)
+    hit[ok] = stalls[k[ok], 1] >= start[ok]
+    return hit
+
+
+def probe_process(name: str, cpu: int | None, phase_us: int, t0_ns, go, stop, results, setup_args: dict,
+                  calibrate_s: float) -> None:
+    """One probe's process, on `cpu` (None: not pinned): real-time setup, with `calibrate_s` > 0 the sleep
+    calibration (put as ("calibrated", name, ...)), else ("ready", name, ...); then the bare loop at
+    deadlines t0 + phase + k·period until `stop`; puts ("result", name, {...})."""
+    from hil.runtime.host import orphaned as _orphaned
+    from hil.runtime.rtos import make_realtime, sleep_lateness
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        rt = make_realtime(cpus=(cpu,) if cpu is not None else None, **setup_args)
+        if calibrate_s > 0:
+            cal = sleep_lateness(calibrate_s)
+            results.put(("calibrated", name, {"calibration": cal.as_dict(), "rt": rt.as_dict()}))
+        else:
+            results.put(("ready", name, rt.as_dict()))
+        while not go.wait(0.5):
+            if _orphaned():
+                return
+        t0 = t0_ns.value + phase_us * 1000
+        deadlines, late = array("q"), array("q")
+        period = PROBE_PERIOD_US * 1000
+        k = 1
+        now = time.monotonic_ns
+        while not stop.is_set():
+            deadline = t0 + k * period
+            remaining = deadline - now()
+            if remaining > 0:
+                time.sleep(remaining / 1e9)
+            lateness = now() - deadline
+            deadlines.append(phase_us + k * PROBE_PERIOD_US)
+            late.append(lateness // 1000)
+            k = max(k + 1, (now() - t0) // period + 1)      # a stall longer than a period: next slot
+            if k % ORPHAN_CHECK_CYCLES == 0 and _orphaned():   # the runner was killed (-9): stop too
+                return
+        results.put(("result", name, {"deadline_us": deadlines, "lateness_us": late, "cpu": cpu}))
+    except BaseException as exc:   # noqa: BLE001 - the run goes on without this probe, and says so
+        results.put(("probe_error", name, f"{type(exc).__name__}: {exc}"))
+
+
+ORPHAN_CHECK_CYCLES = 50      # a probe checks every 50 cycles (0.5 s) that its runner still lives
+
+
+def probe_cpus() -> list[int | None]:
+    """The CPUs to probe: every CPU this process may run on (one unpinned probe where that is unknown)."""
+    import os
+
+    try:
+        return sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return [None]

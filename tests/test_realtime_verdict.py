@@ -1,0 +1,105 @@
+"""The real-time verdict (hil.runtime.outcome.realtime_verdict) on made-up cycle records: what a deadline
+miss is, whose it is (the bench's or the machine's, from the probe), the budget, and how the summary and
+the report say it.  Pure: no process, no bus."""
+
+import numpy as np
+import pytest
+
+from hil.report.html import run_verdicts
+from hil.report.summary import realtime_lines
+from hil.runtime.outcome import HISTOGRAM_EDGES_US, RunOutcome, histogram, realtime_verdict
+from hil.runtime.probe import (
+    PROBE_PERIOD_US,
+    classify_misses,
+    late_threshold_us,
+    misses_of,
+    stall_intervals,
+)
+
+BUDGET = {"miss_min_us": 500, "miss_period_pct": 5.0, "budget_pct": 0.1, "max_late_periods": 1.0}
+
+
+def cycles(period_us: int, n: int, late: dict[int, int] | None = None) -> dict:
+    """n cycles of one node on time (lateness 20 µs), but cycle k `late[k]` µs late."""
+    lateness = np.full(n, 20, dtype=np.int64)
+    for k, v in (late or {}).items():
+        lateness[k] = v
+    return {"period_us": period_us, "deadline_us": np.arange(n, dtype=np.int64) * period_us + 3_000,
+            "lateness_us": lateness}
+
+
+def probe(n: int, stalls: dict[int, int] | None = None) -> dict:
+    """A probe at PROBE_PERIOD_US on time (lateness 60 µs) but its cycle k `stalls[k]` µs late."""
+    lateness = np.full(n, 60, dtype=np.int64)
+    for k, v in (stalls or {}).items():
+        lateness[k] = v
+    return {"deadline_us": np.arange(1, n + 1, dtype=np.int64) * PROBE_PERIOD_US, "lateness_us": lateness}
+
+
+def outcome(nodes: dict, probes: dict | None = None, stats: dict | None = None) -> RunOutcome:
+    rt = {"cycles": nodes, "probes": probes if probes is not None else {"PROBE0": probe(3_000)},
+          "probe_errors": {}, "deadline": dict(BUDGET), "external": []}
+    return RunOutcome(mode="realtime", end_us=30_000_000, reason="standstill", truth=None, frames_by_node={},
+                      node_stats=stats or {}, realtime=rt)
+
+
+@pytest.mark.parametrize(("period_us", "threshold_us"), [(1_000, 500), (10_000, 500), (100_000, 5_000)])
+def test_a_miss_is_later_than_500_us_or_5_percent_of_the_period(period_us, threshold_us):
+    assert late_threshold_us(period_us) == threshold_us
+
+
+def test_a_miss_is_the_machines_when_its_window_overlaps_a_probe_stall():
+    stalls = stall_intervals([10_000, 20_000, 90_000], [3_000, 700, 200])     # the third is no stall (200 µs)
+    assert stalls.tolist() == [[10_000, 13_000], [20_000, 20_700]]
+    misses = misses_of([9_000, 14_000, 19_500, 50_000], [1_500, 800, 600, 900], 500)
+    # [9.0, 10.5] ms overlaps the first stall; [14.0, 14.8] does not; [19.5, 20.1] overlaps the second;
+    # [50.0, 50.9] overlaps nothing
+    assert classify_misses(misses, stalls).tolist() == [True, False, True, False]
+    assert classify_misses(misses, np.zeros((0, 2), dtype=np.int64)).tolist() == [False] * 4
+
+
+def test_overlapping_stalls_of_two_probes_merge():
+    rows = stall_intervals([1_000, 1_500, 9_000], [2_000, 3_000, 600])
+    assert rows.tolist() == [[1_000, 4_500], [9_000, 9_600]]
+
+
+def test_held_within_the_budget_and_the_machines_misses_beside():
+    # 3,000 cycles of 10 ms: 0.1 % allows 3 misses of the bench; two here, one more at a machine stall
+    nodes = {"BECU1": cycles(10_000, 3_000, {100: 900, 200: 2_000, 1_000: 4_000}),
+             "PLANT": cycles(1_000, 30_000)}
+    stall_at = (1_000 * 10_000 + 3_000) // PROBE_PERIOD_US               # the probe cycle at that instant
+    v = realtime_verdict(outcome(nodes, {"PROBE0": probe(3_000, {stall_at - 1: 5_000})}))
+    becu = v["nodes"]["BECU1"]
+    assert (becu["misses_bench"], becu["misses_machine"], becu["misses_allowed"]) == (2, 1, 3)
+    assert becu["held"] and v["held"] and becu["worst_bench_miss_us"] == 2_000
+    assert v["machine"]["stalls"] == 1 and v["machine"]["worst_stall_us"] == 5_000
+    assert v["p99_10ms_us"] == 20 and v["nodes"]["PLANT"]["misses_bench"] == 0
+
+
+def test_not_held_over_the_budget_or_with_a_bench_miss_later_than_a_period():
+    over = {"BECU1": cycles(10_000, 1_000, {k: 800 for k in (10, 20)})}        # 1,000 cycles: 1 allowed
+    v = realtime_verdict(outcome(over))
+    assert not v["held"] and v["worst_node"] == "BECU1" and v["nodes"]["BECU1"]["misses_allowed"] == 1
+    long = {"BECU1": cycles(10_000, 100_000, {5: 12_000})}                     # 100 allowed, but > 1 period
+    v = realtime_verdict(outcome(long))
+    assert not v["held"] and v["nodes"]["BECU1"]["bench_misses_over_a_period"] == 1
+    lines = realtime_lines(v)
+    assert lines[0].startswith("real time               NOT HELD: BECU1 1 misses (allowed 100), worst "
+                               "12.0 ms")
+    assert "machine floor: probe p99 60 us" in lines[1]
+    checks = {c.check: c for c in run_verdicts({"realtime": v}, {"mode": "realtime"})}
+    assert checks["real time held (the bench's deadline misses)"].passed is False
+    assert checks["the machine's own misses (probe stalls)"].passed is None
+
+
+def test_no_probe_is_said_not_hidden():
+    v = realtime_verdict(outcome({"BCU": cycles(10_000, 100)}, probes={}))
+    assert "error" in v["machine"] and v["held"]
+    assert "machine floor: probe failed" in realtime_lines(v)[1]
+
+
+def test_histograms_count_every_cycle_in_fixed_bins():
+    counts = histogram([-3, 0, 49, 50, 450, 600, 250_000])
+    assert len(counts) == len(HISTOGRAM_EDGES_US) and sum(counts) == 7
+    assert counts[0] == 3 and counts[1] == 1 and counts[HISTOGRAM_EDGES_US.index(200)] == 1
+    assert counts[HISTOGRAM_EDGES_US.index(500)] == 1 and counts[-1] == 1
