@@ -63,7 +63,7 @@ docs: $(STAMP)
 	$(VENV)/bin/mkdocs build --strict
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check firmware_py plant_sim hil tests bench dbc
+	$(VENV)/bin/ruff check firmware_py plant_sim hil tests bench dbc examples
 
 ## make vcan: create vcan0 where the kernel has SocketCAN (needs root)
 vcan:

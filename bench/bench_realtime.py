@@ -132,9 +132,9 @@ def measure(hosting: str, with_cyclictest: bool = False) -> dict:
     with tempfile.TemporaryDirectory(prefix="railhil-bench-rt-") as tmp:
         cyc = _cyclictest(RT_SECONDS or 32.0) if with_cyclictest else None
         try:
-            cpu, done = _command_cpu([sys.executable, "-m", "hil", "run", "scenarios/default.toml", "--realtime",
-                                      "--hosting", hosting, "-i", "udp_multicast", "-c", group, "--bus-kwargs",
-                                      f"port={port}", "--out", tmp, "-q", *sets])
+            cpu, done = _command_cpu([sys.executable, "-m", "hil", "run", "scenarios/default.toml",
+                                      "--realtime", "--hosting", hosting, "-i", "udp_multicast", "-c", group,
+                                      "--bus-kwargs", f"port={port}", "--out", tmp, "-q", *sets])
         finally:
             stop.set()
         cyc_text = cyc.communicate(timeout=60)[0] if cyc is not None else ""
@@ -152,7 +152,8 @@ def measure(hosting: str, with_cyclictest: bool = False) -> dict:
 
 
 def lockstep_cpu() -> tuple[float, float]:
-    """CPU seconds and simulated seconds of `railhil run scenarios/default.toml --lockstep` (whole command)."""
+    """CPU seconds and simulated seconds of `railhil run scenarios/default.toml --lockstep` (the whole
+    command)."""
     with tempfile.TemporaryDirectory(prefix="railhil-bench-ls-") as tmp:
         cpu, done = _command_cpu([sys.executable, "-m", "hil", "run", "scenarios/default.toml", "--lockstep",
                                   "--out", tmp, "-q"])
@@ -174,8 +175,8 @@ def _rows(m: dict, hosting: str) -> list[tuple[str, str]]:
         rows.append((f"{hosting}: machine probe", f"failed: {machine['error']}"))
     else:
         rows.append((f"{hosting}: machine probe (bare loop per CPU, 10 ms), same run, {machine['cycles']} "
-                     "cycles", f"p50 {machine['p50_us']} / p99 {machine['p99_us']} / max {machine['max_us']} us, "
-                     f"{machine['stalls']} stalls"))
+                     "cycles", f"p50 {machine['p50_us']} / p99 {machine['p99_us']} / max "
+                     f"{machine['max_us']} us, {machine['stalls']} stalls"))
         ratio = p99 / max(machine["p99_us"], 1)
         rows.append((f"{hosting}: p99 railhil / p99 probe (goal ≤ {GOAL_PROBE_RATIO:g}x)",
                      f"{ratio:.2f}x: {'met' if ratio <= GOAL_PROBE_RATIO else 'NOT met'}"))

@@ -48,10 +48,11 @@ def main() -> int:
             print(f"  run {k:2d}: FAILED: {r['error']}", flush=True)
             continue
         held += r["held"]
-        print(f"  run {k:2d}: {'held    ' if r['held'] else 'NOT HELD'} misses bench {r['bench']:3d} / machine "
-              f"{r['machine']:3d}; 10 ms p99 {r['p99']} us; probe p99 {r['probe_p99']} us, worst stall "
-              f"{r['stall_ms']:.1f} ms; worst bench miss {r['worst_miss_ms']:.1f} ms ({r['worst']}); "
-              f"stop {r['stop_m']:.2f} m; load {r['load']:.1f}", flush=True)
+        verdict = "held    " if r["held"] else "NOT HELD"
+        print(f"  run {k:2d}: {verdict} misses bench {r['bench']:3d} / machine {r['machine']:3d}; 10 ms p99 "
+              f"{r['p99']} us; probe p99 {r['probe_p99']} us, worst stall {r['stall_ms']:.1f} ms; worst "
+              f"bench miss {r['worst_miss_ms']:.1f} ms ({r['worst']}); stop {r['stop_m']:.2f} m; load "
+              f"{r['load']:.1f}", flush=True)
     print(f"soak: {held} of {RUNS} runs held real time (goal: {RUNS} of {RUNS}): "
           f"{'met' if held == RUNS else 'NOT met'}; 1-min load average {os.getloadavg()[0]:.1f}")
     return 0
