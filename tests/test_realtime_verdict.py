@@ -103,3 +103,20 @@ def test_histograms_count_every_cycle_in_fixed_bins():
     assert len(counts) == len(HISTOGRAM_EDGES_US) and sum(counts) == 7
     assert counts[0] == 3 and counts[1] == 1 and counts[HISTOGRAM_EDGES_US.index(200)] == 1
     assert counts[HISTOGRAM_EDGES_US.index(500)] == 1 and counts[-1] == 1
+
+
+def test_a_miss_behind_a_late_cycle_of_the_same_host_inherits_its_verdict():
+    """A grouped host runs its nodes one after another: BECU1's cycle at 3 ms released 2 ms late by a stall
+    the probe saw ([3.2, 4.7] ms) ends at 5.1 ms and delays BECU2's, due at 4.8 ms, to 5.4 ms: a miss that
+    does not overlap the stall itself but is its doing.  In another host (no stall) the same chain is the
+    bench's, both misses."""
+    def node(host, deadline, late, ended):
+        return {"period_us": 10_000, "host": host, "deadline_us": np.array([deadline]),
+                "lateness_us": np.array([late]), "ended_us": np.array([ended])}
+
+    nodes = {"BECU1": node("ECUS", 3_000, 2_000, 5_100), "BECU2": node("ECUS", 4_800, 600, 5_500),
+             "BECU3": node("OTHER", 53_000, 2_000, 55_100), "BECU4": node("OTHER", 54_800, 600, 55_500)}
+    stall = {"deadline_us": np.array([3_200]), "lateness_us": np.array([1_500])}     # [3.2, 4.7] ms
+    v = realtime_verdict(outcome(nodes, {"PROBE0": stall}))
+    assert [(v["nodes"][n]["misses_machine"], v["nodes"][n]["misses_bench"]) for n in nodes] == \
+        [(1, 0), (1, 0), (0, 1), (0, 1)]

@@ -48,6 +48,8 @@ MAX_BATCH_US = 5_000           # a plant woken on its frames is woken at least t
 TIMESTAMP_TRUST_US = 1_000_000  # a message timestamp further than this from now is not this run's [µs]
 ECHO_DEPTH = 4                 # a host's last frames per id it sent, to know them when the bus echoes them
 PARENT_CHECK_US = 500_000      # how often a host checks that its runner is alive [µs]
+SECOND_SLEEP_MIN_NS = 100_000  # after taking the frames, sleep again only if that leaves more than this to
+#                                poll: a wake-up costs ~40 µs of CPU here and returns late by as much
 IDLE_GC_NS = 2_000_000         # the automatic collector is off in the loop: young objects are collected
 IDLE_GC_OBJECTS = 5_000        # when at least this many were allocated and the next deadline is at least
 IDLE_GC_OLDER = 10             # IDLE_GC_NS away (the middle generation every IDLE_GC_OLDER times); one
@@ -163,6 +165,7 @@ class CycleTiming:
         self.period_us, self.may_skip = period_us, may_skip   # the plant never skips: physics time
         self.deadline_us = array("q")
         self.lateness = array("q")
+        self.ended_us = array("q")     # when each cycle's frames were out [µs since t0]: it blocked the next
         self.late = self.missed = self.max_lag = self.max_lag_at = 0
         self.slip_us = 0
 
@@ -172,6 +175,10 @@ class CycleTiming:
         self.deadline_us.append((deadline_ns - t0_ns) // 1000)
         self.lateness.append(late)
         return late
+
+    def ended(self, t0_ns: int) -> None:
+        """The cycle released last has sent its frames now."""
+        self.ended_us.append((time.monotonic_ns() - t0_ns) // 1000)
 
     def cycles_to_skip(self, lag_us: int, due_us: int) -> int:
         """The next cycle, due at `due_us`, is `lag_us` late when the one before ended: count it, and
@@ -201,7 +208,7 @@ class CycleTiming:
 
     def payload(self, node) -> dict:
         return {"stats": self.stats(node), "lateness_us": self.lateness, "deadline_us": self.deadline_us,
-                "period_us": self.period_us}
+                "period_us": self.period_us, "ended_us": self.ended_us}
 
 
 class PlantEnd:
@@ -307,7 +314,7 @@ class Host:
         # wake early enough for the longest recent drain: 1.5 × the largest, forgotten by 2 % a cycle
         self.drain_ns = max(took + (took >> 1), self.drain_ns - (self.drain_ns >> 6))
         remaining = deadline_ns - now()
-        if remaining > self.margin_ns:
+        if remaining > self.margin_ns + SECOND_SLEEP_MIN_NS:
             time.sleep((remaining - self.margin_ns) / 1e9)
         t = now()
         while t < deadline_ns:
@@ -367,6 +374,7 @@ class Host:
             if i != plant:
                 self.end_us = slot[i] // 1000
                 self._send(node, node.cycle(slot[i] // 1000, nominal[i]))
+                timing.ended(t0)
                 release_ns, nominal[i], _ = releases[i].next()
                 due_us = release_ns // 1000
                 for _ in range(timing.cycles_to_skip(self.now_us() - due_us, due_us)):
@@ -393,7 +401,9 @@ class Host:
                 slot[i], nominal[i], _ = releases[i].next()
                 if self.end is not None and self.end.after(node.controller, step_us):
                     self.reason = self.end.reason
+                    timing.ended(t0)
                     return
+            timing.ended(t0)
             behind_us = self.now_us() - (slot[i] + slip_ns) // 1000
             timing.cycles_to_skip(behind_us, slot[i] // 1000)
             if behind_us > PLANT_CATCH_UP_US:          # rebase: the plant's clock slips behind the bus's

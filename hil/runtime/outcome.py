@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hil.runtime.plant_node import TruthLog
-from hil.runtime.probe import classify_misses, late_threshold_us, misses_of, stall_intervals
+from hil.runtime.probe import late_threshold_us, machine_cycles, stall_intervals
 
 
 @dataclass
@@ -57,10 +57,11 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
     """Did the run hold real time?  Every simulated node's cycles (the plant's steps: its wakes) are judged
     against the scenario's [realtime.deadline] budget: a cycle released more than max(miss_min_us,
     miss_period_pct % of the period) after its deadline is a miss; a miss at an instant the machine probe
-    was late too is the machine's (hil.runtime.probe), any other the bench's.  The run held when no node's
-    bench misses exceed budget_pct % of its cycles and none is later than max_late_periods periods.  The
-    machine's misses and its worst stall are reported beside, so that a reader sees whether the bench or
-    the host failed."""
+    was late too is the machine's (hil.runtime.probe), any other the bench's; a miss behind a late cycle
+    of the same host inherits that cycle's verdict (hil.runtime.probe.machine_cycles).  The run held when
+    no node's bench misses exceed budget_pct % of its cycles and none is later than max_late_periods
+    periods.  The machine's misses and its worst stall are reported beside, so that a reader sees
+    whether the bench or the host failed."""
     rt = outcome.realtime or {}
     budget = rt.get("deadline") or {"miss_min_us": 500, "miss_period_pct": 5.0, "budget_pct": 0.1,
                                     "max_late_periods": 1.0}
@@ -81,12 +82,17 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
         machine = {"error": "; ".join(f"{n}: {e}" for n, e in (rt.get("probe_errors") or {}).items())
                    or "no probe reported"}
     nodes: dict[str, dict] = {}
-    for name, c in (rt.get("cycles") or {}).items():
+    cycles_of = rt.get("cycles") or {}
+    thresholds = {n: late_threshold_us(int(c["period_us"]), budget["miss_min_us"],
+                                       budget["miss_period_pct"] / 100) for n, c in cycles_of.items()}
+    machines = machine_cycles(cycles_of, thresholds, stalls)
+    for name, c in cycles_of.items():
         period = int(c["period_us"])
-        threshold = late_threshold_us(period, budget["miss_min_us"], budget["miss_period_pct"] / 100)
-        misses = misses_of(c["deadline_us"], c["lateness_us"], threshold)
-        machine_hit = classify_misses(misses, stalls)
-        bench_late = misses.lateness_us[~machine_hit]
+        threshold = thresholds[name]
+        late_all = np.asarray(c["lateness_us"], dtype=np.int64)
+        miss = late_all > threshold
+        machine_hit = machines[name][miss]
+        bench_late = late_all[miss][~machine_hit]
         cycles = len(c["lateness_us"])
         allowed = int(budget["budget_pct"] / 100 * cycles)
         too_late = int((bench_late > budget["max_late_periods"] * period).sum())

@@ -84,6 +84,50 @@ def classify_misses(misses: Misses, stalls: np.ndarray) -> np.ndarray:
     return hit
 
 
+def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
+                   stalls: np.ndarray) -> dict[str, np.ndarray]:
+    """Per node, True for each cycle that is a deadline miss of the machine's.  The nodes of one host run
+    one after another: a miss whose deadline came while the host was still busy with a late cycle (the one
+    before it ended after this deadline) inherits that cycle's verdict — a stall that delays one cycle of a
+    grouped host delays the cycles due behind it too, and those are the stall's doing, not the bench's;
+    every other miss is the machine's when its [deadline, release] overlaps a probe stall."""
+    by_host: dict[object, list[str]] = {}
+    for name, c in cycles.items():
+        by_host.setdefault(c.get("host") or name, []).append(name)
+    out = {name: np.zeros(len(c["lateness_us"]), dtype=bool) for name, c in cycles.items()}
+    for names in by_host.values():
+        rows = []
+        for k, name in enumerate(names):
+            c = cycles[name]
+            d = np.asarray(c["deadline_us"], dtype=np.int64)
+            late = np.asarray(c["lateness_us"], dtype=np.int64)
+            ended = np.asarray(c.get("ended_us", ()), dtype=np.int64)
+            if len(ended) != len(d):                     # no record of the cycles' ends: their releases
+                ended = d + late
+            rows.append(np.stack([d + late, d, late, ended, np.full(len(d), k), np.arange(len(d)),
+                                  late > thresholds[name]], axis=1))
+        if not rows:
+            continue
+        order = np.concatenate(rows)
+        order = order[np.argsort(order[:, 0], kind="stable")]       # the host's cycles as it ran them
+        misses = order[order[:, 6] == 1]
+        if not len(misses):
+            continue
+        alone = classify_misses(Misses(misses[:, 1], misses[:, 2]), stalls)
+        verdict = dict(zip(map(tuple, misses[:, 4:6].tolist()), alone.tolist(), strict=True))
+        prev_end, prev_verdict = -1, None
+        for _, deadline, _, ended, k, i, miss in order.tolist():
+            if miss:
+                if prev_verdict is not None and prev_end > deadline:          # blocked behind a late cycle
+                    verdict[(k, i)] = prev_verdict
+                prev_verdict = verdict[(k, i)]
+                out[names[k]][i] = prev_verdict
+            else:
+                prev_verdict = None
+            prev_end = ended
+    return out
+
+
 def probe_process(name: str, cpu: int | None, phase_us: int, t0_ns, go, stop, results, setup_args: dict,
                   calibrate_s: float) -> None:
     """One probe's process, on `cpu` (None: not pinned): real-time setup, with `calibrate_s` > 0 the sleep
@@ -119,7 +163,11 @@ def probe_process(name: str, cpu: int | None, phase_us: int, t0_ns, go, stop, re
             k = max(k + 1, (now() - t0) // period + 1)      # a stall longer than a period: next slot
             if k % ORPHAN_CHECK_CYCLES == 0 and _orphaned():   # the runner was killed (-9): stop too
                 return
-        results.put(("result", name, {"deadline_us": deadlines, "lateness_us": late, "cpu": cpu}))
+        import resource
+
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        results.put(("result", name, {"deadline_us": deadlines, "lateness_us": late, "cpu": cpu,
+                                      "cpu_s": round(r.ru_utime + r.ru_stime, 3)}))
     except BaseException as exc:   # noqa: BLE001 - the run goes on without this probe, and says so
         results.put(("probe_error", name, f"{type(exc).__name__}: {exc}"))
 

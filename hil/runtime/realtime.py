@@ -12,8 +12,9 @@ frames (`railhil node`), and the run judges them like any node's.
 Bus configuration follows python-can's precedence: command-line flags, then python-can's own
 configuration (CAN_* environment variables, ~/.canrc, /etc/can.conf), then the scenario's
 [realtime] section.  A udp_multicast run without a named channel gets a multicast group and port of its
-own, so parallel runs on one host do not hear each other — unless a node is external: the run then uses
-python-can's default group and port, as `railhil node` and any python-can program do by default.
+own, so parallel runs on one host do not hear each other, and a multicast TTL of 0, so that its frames stay
+on this host — unless a node is external: the run then uses python-can's default group and port (and TTL
+1: the LAN), as `railhil node` and any python-can program do by default.
 
 Scheduling: every host runs its nodes against absolute deadlines on CLOCK_MONOTONIC, all relative to one
 start instant t0 that the runner hands out once every process has opened its bus; controllers get the
@@ -94,6 +95,9 @@ def resolve_bus_config(cli: dict, scenario: Scenario, external: bool = False) ->
             rnd = random.Random(os.getpid() ^ time.monotonic_ns())
             cfg["channel"] = f"239.255.{rnd.randrange(1, 255)}.{rnd.randrange(1, 255)}"
             cfg.setdefault("port", rnd.randrange(20000, 60000))
+            # nobody off this host knows the group: TTL 0 keeps the frames on it (the kernel loops them back
+            # to every local socket and sends nothing out on the network interface: ~12 µs less a frame)
+            cfg.setdefault("hop_limit", 0)
     if cfg["interface"] == "socketcan" and not cfg.get("channel"):
         cfg["channel"] = "vcan0"
     return cfg
@@ -155,6 +159,14 @@ def enlarge_receive_buffer(bus: can.BusABC, nbytes: int = RECORDER_RCVBUF_BYTES)
         except OSError:                       # SO_RCVBUFFORCE needs CAP_NET_ADMIN: fall back
             continue
     return sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+
+
+def cpu_seconds() -> float:
+    """CPU seconds (user + system) this process used so far."""
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return round(r.ru_utime + r.ru_stime, 3)
 
 
 def _raise_priority(nice: int) -> bool:
@@ -267,7 +279,8 @@ def _host_process(host: str, names: tuple[str, ...], scenario_json: str, dbc_pat
             payload["stats"]["host"] = host
             results.put(("result", name, payload))
         results.put(("host", host, {"frames_received": runner.frames_received,
-                                    "timestamps_untrusted": runner.timestamps_untrusted}))
+                                    "timestamps_untrusted": runner.timestamps_untrusted,
+                                    "cpu_s": cpu_seconds()}))
     except BaseException as exc:  # report, then exit non-zero: the parent names the host
         _report_failure(results, host, exc)
     finally:
@@ -309,6 +322,7 @@ def _recorder_process(trace_path: str, cfg: dict, go, stop, results) -> None:
             writer.stop()                         # flushed and closed
         if not lost_runner:
             results.put(("result", "RECORDER", {"stats": {"frames_recorded": frames}}))
+            results.put(("host", "RECORDER", {"cpu_s": cpu_seconds()}))
     except BaseException as exc:
         results.put(("error", "RECORDER", " ".join(str(exc).split())))
         raise SystemExit(1) from None
@@ -568,8 +582,8 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         "margin_ns": shared.margin_ns.value, "probes": probes, "probe_errors": probe_errors,
         "external": list(external),
         "external_first_frame_s": external_seen, "deadline": rt.deadline.model_dump(),
-        "cycles": {n: {k: payloads[n][k] for k in ("deadline_us", "lateness_us", "period_us")}
-                   for n in nodes},
+        "cycles": {n: {**{k: payloads[n][k] for k in ("deadline_us", "lateness_us", "period_us", "ended_us")},
+                       "host": payloads[n]["stats"].get("host")} for n in nodes},
         "host_frames": host_info,
     }
     outcome = RunOutcome(
