@@ -29,7 +29,7 @@ def one_run(k: int) -> dict:
             return {"run": k, "error": (done.stderr.strip().splitlines() or ["?"])[-1]}
         kpis = json.loads((Path(tmp) / "kpis.json").read_text())
     rt = kpis["realtime"]
-    worst = rt["worst_node"]
+    worst = max(rt["nodes"], key=lambda n: rt["nodes"][n]["worst_bench_miss_us"])
     return {"run": k, "held": rt["held"], "bench": rt["misses_bench"], "machine": rt["misses_machine"],
             "p99": rt["p99_10ms_us"], "probe_p99": rt["machine"].get("p99_us"),
             "stall_ms": (rt["machine"].get("worst_stall_us") or 0) / 1e3, "worst": worst,

@@ -36,7 +36,7 @@ def test_external_in_the_scenario_file_is_checked_like_the_flag(tmp_path):
         external_nodes(scenario, every.split(","))
 
 @pytest.mark.parametrize(("args", "needles"), [
-    (("BECU9", DEFAULT), ("node 'BECU9'", "no such node", "BECU6")),
+    (("BECU9", DEFAULT), ("node BECU9", "no node 'BECU9'", "BECU6")),
     (("BECU3,BECU3", DEFAULT), ("node BECU3", "given twice")),
     (("BECU3", DEFAULT, "-i", "socketcan", "-c", "nosuchcan0"), ("cannot open the python-can bus",
                                                                   "nosuchcan0")),

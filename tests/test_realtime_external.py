@@ -25,10 +25,11 @@ EXAMPLE = ROOT / "examples" / "external_becu" / "becu.py"
 
 
 def own_bus() -> list[str]:
-    """python-can flags of a udp_multicast bus of this test's own (parallel runs do not hear each other)."""
+    """python-can flags of a udp_multicast bus of this test's own (parallel runs do not hear each other),
+    TTL 0: both programs are on this host, and frames sent out on a VM's network interface can stall it."""
     rnd = random.Random(os.getpid() ^ time.monotonic_ns())
     return ["-i", "udp_multicast", "-c", f"239.255.{rnd.randrange(1, 255)}.{rnd.randrange(1, 255)}",
-            "--bus-kwargs", f"port={rnd.randrange(20000, 60000)}"]
+            "--bus-kwargs", f"port={rnd.randrange(20000, 60000)}", "hop_limit=0"]
 
 
 def realtime_prefix() -> list[str]:

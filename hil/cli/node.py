@@ -62,18 +62,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def _names(text: str, scenario) -> list[str]:
-    from hil.runtime.assembly import node_names
+    from hil.runtime.realtime import check_node_names
 
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    every = node_names(scenario)
-    seen: set[str] = set()
-    for name in names:
-        if name in seen:
-            raise NodeArgError(f"node {name}: given twice")
-        seen.add(name)
-        if name not in every:
-            raise NodeArgError(f"node {name!r}: scenario {scenario.name!r} has no such node; its nodes are "
-                               f"{', '.join(every)}")
+    names = check_node_names(scenario, [n.strip() for n in text.split(",") if n.strip()], "node")
     if not names:
         raise NodeArgError("no node named: give NAME, e.g. BECU3 or BCU,BECU1")
     return names

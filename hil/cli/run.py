@@ -125,6 +125,11 @@ def run(args: argparse.Namespace) -> int:
     if mode == "lockstep":
         from hil.runtime.run import run_scenario_lockstep
 
+        marked = sorted(n for n, spec in scenario.nodes.items() if spec.external)
+        if marked:                               # not silently dropped: say where it applies
+            print(f"notice: [nodes.{marked[0]}] external applies to real-time runs only; in lockstep "
+                  f"{', '.join(marked)} {'is' if len(marked) == 1 else 'are'} simulated", file=sys.stderr)
+
         progress = Progress(not args.quiet and sys.stderr.isatty(), "lockstep", scenario.max_duration_s)
         try:
             report = run_scenario_lockstep(scenario, out, progress=progress)

@@ -258,7 +258,10 @@ class Host:
         batched = frozenset({"PLANT"}) if self.plant is not None and plant_wake == "frames" else frozenset()
         self.delivery = Delivery(nodes, codec, batched)
         self.batched = bool(batched)
-        self.timings = [CycleTiming(n.period_us, may_skip=k != self.plant) for k, n in enumerate(nodes)]
+        # a node is judged in its cycles; the plant woken on its frames in its wakes (MAX_BATCH_US apart:
+        # its 1 ms steps are computed at each, on time by construction, and its frames leave at them)
+        self.timings = [CycleTiming(MAX_BATCH_US if k == self.plant and self.batched else n.period_us,
+                                    may_skip=k != self.plant) for k, n in enumerate(nodes)]
         self.end = end
         self.orphaned = orphaned
         self.reason: str | None = None

@@ -345,21 +345,32 @@ def truth_end_us(truth) -> int:
     return round(float(t_s[-1]) * 1e6) if t_s is not None and len(t_s) else 0
 
 
+def check_node_names(scenario: Scenario, names, what: str) -> list[str]:
+    """`names` as given (`what`: how the user named them, "--external", "node"), checked: each a node of the
+    scenario, none twice; a ScenarioError naming the first that is not."""
+    from hil.runtime.assembly import node_names
+
+    every = node_names(scenario)
+    seen: set[str] = set()
+    for name in names:
+        if name in seen:
+            raise ScenarioError(f"{what} {name}: given twice")
+        seen.add(name)
+        if name not in every:
+            raise ScenarioError(f"{what} {name}: scenario {scenario.name!r} has no node {name!r}; its nodes "
+                                f"are {', '.join(every)}")
+    return list(names)
+
+
 def external_nodes(scenario: Scenario, cli: list[str] | tuple[str, ...] = ()) -> list[str]:
     """The nodes that are not simulated ([nodes.NAME] external = true and `--external NAME`), checked: each
     a node of the scenario, none given twice on the command line, not every node."""
     from hil.runtime.assembly import node_names
 
     names = node_names(scenario)
-    seen: set[str] = set()
-    for name in cli:
-        if name in seen:
-            raise ScenarioError(f"--external {name}: given twice")
-        seen.add(name)
-    for name in sorted(seen | {n for n, spec in scenario.nodes.items() if spec.external}):
-        if name not in names:
-            raise ScenarioError(f"--external {name}: scenario {scenario.name!r} has no node {name!r}; its "
-                                f"nodes are {', '.join(names)}")
+    seen = set(check_node_names(scenario, cli, "--external"))
+    in_file = sorted(n for n, spec in scenario.nodes.items() if spec.external and n not in seen)
+    check_node_names(scenario, in_file, "[nodes.NAME] external: node")
     external = [n for n in names if n in seen or (n in scenario.nodes and scenario.nodes[n].external)]
     if len(external) == len(names):
         raise ScenarioError(f"every node of scenario {scenario.name!r} is external: nothing to simulate")
@@ -474,9 +485,12 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         print(f"realtime: {describe_setup(setups, calibration, rt.precise_wait)}", file=sys.stderr,
               flush=True)
         if external:
-            print(f"realtime: external {', '.join(external)}: not simulated, their frames must come from the "
-                  f"bus (start each before the run: railhil node NAME SCENARIO {bus_flags(cfg)}); waiting "
-                  f"up to {rt.external_wait_s:g} s for their first frames", file=sys.stderr, flush=True)
+            one = len(external) == 1
+            its, it = ("its", "it") if one else ("their", "each")
+            print(f"realtime: external {', '.join(external)}: not simulated, {its} frames must come from the "
+                  f"bus (start {it} before the run, e.g. railhil node {','.join(external)} SCENARIO "
+                  f"{bus_flags(cfg)}); waiting up to {rt.external_wait_s:g} s for "
+                  f"{'its first frame' if one else 'their first frames'}", file=sys.stderr, flush=True)
         limit = time.monotonic() + START_MARGIN_S + scenario.max_duration_s / rt.speed + 30.0
         wait_external_until = time.monotonic() + START_MARGIN_S + rt.external_wait_s
         death: str | None = None          # a node died: the others run on for OBSERVE_AFTER_DEATH_S
