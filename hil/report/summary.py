@@ -76,7 +76,11 @@ def realtime_lines(rt: dict) -> list[str]:
     lateness = (f"  lateness              10 ms nodes p50 {rt['p50_10ms_us']} / p99 {rt['p99_10ms_us']} us"
                 + (f"; PLANT p99 {plant['p99_us']} us" if plant else "")
                 + f"; {floor}; {rt['misses_machine']} misses at machine stalls")
-    return [head, lateness]
+    per_node = [f"  {name:<21} p50 {v['p50_us']} / p99 {v['p99_us']} / max {v['max_us']} us over "
+                f"{v['cycles']} cycles of {v['period_us'] / 1e3:g} ms; misses {v['misses_bench']} bench / "
+                f"{v['misses_machine']} machine (> {v['miss_threshold_us']} us); {v['skipped']} skipped"
+                for name, v in nodes.items()]
+    return [head, lateness, *per_node]
 
 
 def external_lines(conduct: dict) -> list[str]:
