@@ -33,6 +33,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 import hil.runtime.realtime as realtime  # noqa: E402
+from hil.runtime.rtos import NODE_PRIORITY, make_realtime  # noqa: E402
 
 N_FRAMES = int(os.environ.get("BENCH_FRAMES", "1000000"))
 SENDERS = 4                    # sender processes, like nodes
@@ -69,7 +70,7 @@ def _sender(s: int, cfg: dict, due_ns: np.ndarray, t0_value, go, counter, out) -
     import can
 
     bus = realtime.open_bus(cfg)
-    realtime._raise_priority(realtime.REALTIME_NICE)
+    make_realtime(NODE_PRIORITY)                        # SCHED_FIFO as the nodes, where the OS permits
     out.put(("ready", s))
     go.wait(realtime.READY_TIMEOUT_S)
     t0_ns = t0_value.value

@@ -10,9 +10,9 @@ from hil.report.summary import realtime_lines
 from hil.runtime.outcome import HISTOGRAM_EDGES_US, RunOutcome, histogram, realtime_verdict
 from hil.runtime.probe import (
     PROBE_PERIOD_US,
+    Misses,
     classify_misses,
     late_threshold_us,
-    misses_of,
     stall_intervals,
 )
 
@@ -51,7 +51,7 @@ def test_a_miss_is_later_than_500_us_or_5_percent_of_the_period(period_us, thres
 def test_a_miss_is_the_machines_when_its_window_overlaps_a_probe_stall():
     stalls = stall_intervals([10_000, 20_000, 90_000], [3_000, 700, 200])     # the third is no stall (200 µs)
     assert stalls.tolist() == [[10_000, 13_000], [20_000, 20_700]]
-    misses = misses_of([9_000, 14_000, 19_500, 50_000], [1_500, 800, 600, 900], 500)
+    misses = Misses(np.array([9_000, 14_000, 19_500, 50_000]), np.array([1_500, 800, 600, 900]))
     # [9.0, 10.5] ms overlaps the first stall; [14.0, 14.8] does not; [19.5, 20.1] overlaps the second;
     # [50.0, 50.9] overlaps nothing
     assert classify_misses(misses, stalls).tolist() == [True, False, True, False]

@@ -47,13 +47,6 @@ class Misses:
     lateness_us: np.ndarray
 
 
-def misses_of(deadlines_us, lateness_us, threshold_us: int) -> Misses:
-    d = np.asarray(deadlines_us, dtype=np.int64)
-    late = np.asarray(lateness_us, dtype=np.int64)
-    k = late > threshold_us
-    return Misses(d[k], late[k])
-
-
 def stall_intervals(probe_deadlines_us, probe_lateness_us, stall_us: int = PROBE_STALL_US) -> np.ndarray:
     """The probe's stalls as [start, end] rows [µs since t0], merged where they overlap."""
     d = np.asarray(probe_deadlines_us, dtype=np.int64)

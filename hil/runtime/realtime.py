@@ -53,11 +53,11 @@ from hil.runtime.gctune import LOOP_THRESHOLDS
 from hil.runtime.host import orphaned
 from hil.runtime.outcome import RunOutcome
 from hil.runtime.plant_node import TruthLog
-from hil.runtime.rtos import NODE_PRIORITY, REALTIME_NICE, RECORDER_PRIORITY, RtSetup, make_realtime, pin_plan
+from hil.runtime.rtos import NODE_PRIORITY, RECORDER_PRIORITY, RtSetup, make_realtime, pin_plan
 from hil.scenario import Scenario
 from hil.trace.writers import open_writer
 
-__all__ = ["REALTIME_NICE", "describe_bus", "hosts", "open_bus", "resolve_bus_config", "run_realtime",
+__all__ = ["describe_bus", "hosts", "open_bus", "resolve_bus_config", "run_realtime",
            "run_scenario_realtime", "watch_command"]
 
 READY_TIMEOUT_S = 60.0         # processes importing numpy/cantools on a loaded 2-core machine
@@ -167,15 +167,6 @@ def cpu_seconds() -> float:
 
     r = resource.getrusage(resource.RUSAGE_SELF)
     return round(r.ru_utime + r.ru_stime, 3)
-
-
-def _raise_priority(nice: int) -> bool:
-    """Ask the OS for a higher scheduling priority (needs privileges; quietly kept as is otherwise)."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, 0, nice)
-        return True
-    except (OSError, AttributeError):
-        return False
 
 
 def hosts(scenario: Scenario, names: list[str]) -> dict[str, tuple[str, ...]]:
