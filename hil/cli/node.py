@@ -85,34 +85,25 @@ def _wait_for_bus(bus, own_ids: set[int], stop: threading.Event) -> can.Message 
 
 
 def run(args: argparse.Namespace) -> int:
-    from hil.can.codec import loaded_dbc
-    from hil.runtime.assembly import build_node
     from hil.runtime.host import Host, PlantEnd
     from hil.runtime.probe import late_threshold_us
     from hil.runtime.realtime import (
         bus_flags,
         describe_bus,
         enlarge_receive_buffer,
+        hosted_nodes,
         os_setup,
         resolve_bus_config,
     )
-    from hil.runtime.release import node_release
     from hil.runtime.rtos import NODE_PRIORITY, sleep_lateness
     from hil.runtime.run import dbc_path_of
-    from hil.scenario.params import secoc_keys
 
     scenario = load_scenario(args.scenario, None, args.sets)
     names = _names(args.names, scenario)
     for value, flag in ((args.duration, "--duration"), (args.until_idle, "--until-idle")):
         if value is not None and not value > 0:
             raise NodeArgError(f"{flag} {value:g}: expected a number of seconds > 0")
-    dbc_path = dbc_path_of(scenario)
-    db, codec = loaded_dbc(dbc_path)
-    nodes = [build_node(name, scenario, db, codec, str(dbc_path)) for name in names]
-    releases = [node_release(scenario, db, node) for node in nodes]
-    keys = secoc_keys(scenario)
-    for node in nodes:
-        node.use_keys(keys, scenario.secoc.window)
+    codec, nodes, releases = hosted_nodes(names, scenario, str(dbc_path_of(scenario)))
     cfg = resolve_bus_config(bus_config_from_args(args), scenario, external=True)
     try:
         bus = can.Bus(**cfg)

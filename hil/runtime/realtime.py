@@ -182,22 +182,21 @@ def hosts(scenario: Scenario, names: list[str]) -> dict[str, tuple[str, ...]]:
     return {"PLANT": ("PLANT",), GROUP_NAME: ecus} if ecus else {"PLANT": ("PLANT",)}
 
 
-def _hosted_nodes(names, scenario_json: str, dbc_path: str) -> tuple:
-    """(scenario, codec, nodes, their releases) of the nodes a process hosts, keyed for SecOC."""
+def hosted_nodes(names, scenario: Scenario, dbc_path: str) -> tuple:
+    """(codec, nodes, their releases) of the nodes a host runs, keyed for SecOC (a runner's host process,
+    `railhil node`)."""
     from hil.can.codec import loaded_dbc
     from hil.runtime.assembly import build_node
     from hil.runtime.release import node_release
-    from hil.scenario import Scenario as _Scenario
     from hil.scenario.params import secoc_keys
 
-    scenario = _Scenario.model_validate_json(scenario_json)
     db, codec = loaded_dbc(Path(dbc_path))
     nodes = [build_node(name, scenario, db, codec, dbc_path) for name in names]
     releases = [node_release(scenario, db, node) for node in nodes]   # jitter, drift, start delay
     keys = secoc_keys(scenario)
     for node in nodes:
         node.use_keys(keys, scenario.secoc.window)
-    return scenario, codec, nodes, releases
+    return codec, nodes, releases
 
 
 def os_setup(scenario: Scenario, priority: int, cpus: tuple[int, ...] | None = None) -> RtSetup:
@@ -248,7 +247,8 @@ def _host_process(host: str, names: tuple[str, ...], scenario_json: str, dbc_pat
     signal.signal(signal.SIGINT, signal.SIG_IGN)         # the parent coordinates shutdown
     bus = None
     try:
-        scenario, codec, nodes, releases = _hosted_nodes(names, scenario_json, dbc_path)
+        scenario = Scenario.model_validate_json(scenario_json)
+        codec, nodes, releases = hosted_nodes(names, scenario, dbc_path)
         bus = open_bus(cfg)
         enlarge_receive_buffer(bus)                       # frames wait there until the next deadline
         rt = os_setup(scenario, NODE_PRIORITY, cpus)
