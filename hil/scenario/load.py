@@ -18,7 +18,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, ValidationError
 
-from hil.errors import ScenarioError
+from hil.errors import RailhilError, ScenarioError
 from hil.resources import resolve_scenario
 from hil.scenario import registry
 from hil.scenario.model import ScenarioBase, scenario_model
@@ -282,8 +282,17 @@ def load_scenario(path: str | Path, overrides: dict | None = None,
     if scenario.dbc is not None:
         dbc_path = (path.parent / scenario.dbc).resolve()
         scenario = scenario.model_copy(update={"dbc": str(dbc_path)})
+    if scenario.secoc.key_file is not None:
+        key_file = str((path.parent / scenario.secoc.key_file).resolve())
+        secoc = scenario.secoc.model_copy(update={"key_file": key_file})
+        scenario = scenario.model_copy(update={"secoc": secoc})
     for study in registry.active(scenario):           # a study's files named relative to the scenario
         resolve = getattr(study.part("scenario"), "resolve_paths", None)
         if resolve is not None:
             scenario = resolve(scenario, path.parent)
+    from hil.scenario.params import secoc_keys
+    try:
+        secoc_keys(scenario)            # a missing or malformed key: one line now, not in a node process
+    except RailhilError as exc:
+        raise ScenarioError(f"{path}: {exc}") from None
     return scenario

@@ -303,6 +303,11 @@ class SecOcSpec(_Strict):
 
     key: str | None = None       # every authenticated message; default: hil.runtime.node.DEV_SECOC_KEY
     keys: dict[str, str] = Field(default_factory=dict)   # by message name, over `key`
+    # a TOML file with `key` and/or `[keys]` as above (path beside the scenario; else
+    # $RAILHIL_SECOC_KEY_FILE), so that keys need not live in the scenario; its keys come under the scenario's
+    key_file: str | None = None
+    # true: a run never falls back to the development key (a bench with a real device on the bus)
+    require_key: bool = False
     # freshness acceptance window [frames]: the longest outage a receiver survives (255 frames = 2.55 s
     # at 10 ms); beyond it the 8 transmitted bits cannot tell how many frames were lost
     window: Annotated[int, Field(ge=1, le=255)] = 255

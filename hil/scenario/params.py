@@ -11,11 +11,15 @@ being built here; its own nodes' parameters are in the same file of its folder.
 from __future__ import annotations
 
 import dataclasses
+import os
+import tomllib
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from firmware_py.bcu import BcuParams
 from firmware_py.becu import BecuParams
 from firmware_py.pi import PIParams
+from hil.can.secoc import SecOcError, key_from_hex
 from hil.scenario import registry
 from plant_sim.params import AdhesionParams, BrakeParams, PadParams, PlantParams, SensorParams, TrainParams
 from plant_sim.track import Track
@@ -122,11 +126,57 @@ def becu_params(scenario: Scenario, car: int) -> BecuParams:
     return BecuParams(**kw) if kw else d
 
 
+KEY_ENV = "RAILHIL_SECOC_KEY"              # the key of every authenticated message, 32 hex digits
+KEY_FILE_ENV = "RAILHIL_SECOC_KEY_FILE"     # a key file, when the scenario names none
+
+
 def secoc_keys(scenario: Scenario) -> dict[str, bytes]:
-    """Message name -> AES-128 key from the scenario's [secoc] section; "*" holds `key`, the key of
-    every message not named (absent: the node runtime's development key)."""
+    """Message name -> AES-128 key; "*" holds the key of every message not named (absent: the node
+    runtime's development key).  Sources, each over the one before: $RAILHIL_SECOC_KEY (every message),
+    the key file ([secoc] key_file, else $RAILHIL_SECOC_KEY_FILE; TOML with `key` and `[keys]`), the
+    scenario's [secoc] `key` and `keys`.  A key that is not 32 hex digits, a key file that is missing or
+    malformed, or no key at all under `require_key` is one SecOcError line naming where it looked."""
     spec = scenario.secoc
-    out = {name: bytes.fromhex(text) for name, text in spec.keys.items()}
+    out: dict[str, bytes] = {}
+    env = os.environ.get(KEY_ENV)
+    if env is not None:
+        out["*"] = key_from_hex(env, f"environment variable {KEY_ENV}")
+    file_from = "[secoc] key_file" if spec.key_file else f"${KEY_FILE_ENV}"
+    key_file = spec.key_file or os.environ.get(KEY_FILE_ENV)
+    if key_file:
+        out.update(read_key_file(Path(key_file), file_from))
     if spec.key is not None:
-        out["*"] = bytes.fromhex(spec.key)
+        out["*"] = key_from_hex(spec.key, "[secoc] key")
+    out.update({name: key_from_hex(text, f"[secoc] keys.{name}") for name, text in spec.keys.items()})
+    if spec.require_key and "*" not in out:
+        raise SecOcError(
+            f"no SecOC key under [secoc] require_key: looked in [secoc] key of the scenario (none), the key "
+            f"file ({key_file or f'none: no [secoc] key_file, ${KEY_FILE_ENV} not set'}) and ${KEY_ENV} "
+            f"(not set){'; only per-message keys for ' + ', '.join(sorted(out)) if out else ''}")
+    return out
+
+
+def read_key_file(path: Path, named_by: str) -> dict[str, bytes]:
+    """The keys of a key file: TOML, `key = "<32 hex digits>"` and/or `[keys] MESSAGE = "..."`."""
+    where = f"SecOC key file {path} (from {named_by})"
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise SecOcError(f"{where}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SecOcError(f"{where}: cannot read: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SecOcError(f"{where}: not valid TOML: {exc}") from None
+    unknown = sorted(set(data) - {"key", "keys"})
+    if unknown:
+        raise SecOcError(f"{where}: unknown entry {unknown[0]!r}; expected key = \"<32 hex digits>\" and/or "
+                         "a [keys] table of MESSAGE = \"<32 hex digits>\"")
+    keys = data.get("keys", {})
+    if not isinstance(keys, dict):
+        raise SecOcError(f"{where}: keys must be a table of MESSAGE = \"<32 hex digits>\"")
+    out = {name: key_from_hex(text, f"{where}: keys.{name}") for name, text in keys.items()}
+    if "key" in data:
+        out["*"] = key_from_hex(data["key"], f"{where}: key")
+    if not out:
+        raise SecOcError(f"{where}: holds no key; expected key = \"<32 hex digits>\" and/or a [keys] table")
     return out
