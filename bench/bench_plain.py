@@ -287,7 +287,7 @@ class BcuController(Controller):
         return {"Mode": self._mode(), "BrakeStep": self.brake_step, "Degraded": 0,
                 "FbState": 2 if self.engaged else 1 if self.brake_step else 0, "CarsSilent": self.silent,
                 "TrainSpeedEst": _clamp(self.speed, 0.0, 655.0), "CarsImplausible": 0,
-                "FrictionPhi": 1.0, "SlopeEst": 0.0, "StopState": 0}
+                "SlopeEst": 0.0, "StopState": 0}
 
 
 class BecuController(Controller):
@@ -304,7 +304,7 @@ class BecuController(Controller):
         self.p_set, self.valve, self.wsp, self.missing = 0.0, 0.0, False, True
         self.v_own, self.v_ref, self.target, self.last_us = params.speed0_mps, params.speed0_mps, 0.0, 0
         self.builders = {f"BECU{car}_PRESS_CMD": self._press_cmd, f"BECU{car}_STATUS": self._status,
-                         f"BECU{car}_DIAG": self._diag}
+                         f"BECU{car}_DIAG": self._diag, f"BECU{car}_EST": self._estimates}
 
     def step(self, t_us: int) -> None:
         dt = (t_us - self.last_us) / 1e6
@@ -339,14 +339,17 @@ class BecuController(Controller):
         return {"WspValve": 2 if self.wsp else 0, "ValveCmd": self.valve, "CylPressureSet": self.p_set}
 
     def _status(self) -> dict:
-        return {"SpeedEst": _clamp(self.v_own, 0.0, 655.0),
-                "SlipSpeedEst": _clamp(self.v_ref - self.v_own, -32.0, 32.0), "WspActive": int(self.wsp),
+        return {"SpeedEst": _clamp(self.v_own, 0.0, 655.0), "WspActive": int(self.wsp),
                 "GovernorActive": 0, "IntegratorSat": int(self.pi.saturated),
-                "InputMissing": int(self.missing), "OptSlipEst": 0.02, "OptSlipPos": 0.0}
+                "InputMissing": int(self.missing)}
+
+    def _estimates(self) -> dict:
+        return {"SlipSpeedEst": _clamp(self.v_ref - self.v_own, -32.0, 32.0), "OptSlipEst": 0.02,
+                "OptSlipPos": 0.0}
 
     def _diag(self) -> dict:
         return {"GovernedDecel": self.target, "GovernorMargin": 0, "GovernorFeasible": 1,
-                "SpeedSensorFault": 0, "AccelSensorFault": 0, "AccelBiasEst": 0.0}
+                "SpeedSensorFault": 0, "AccelSensorFault": 0, "CylSensorFault": 0, "AccelBiasEst": 0.0}
 
 
 PROTECTION = ("CHECKSUM", "SecOCFreshness", "SecOCMAC")    # declared in the DBC, left 0: no E2E, no SecOC

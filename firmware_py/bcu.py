@@ -3,23 +3,29 @@
 DESK brake step (0..7) -> target deceleration for every car; an emergency request (desk or ACD) ->
 full braking, latched until standstill and released request.  Deceleration feedback (seed 004 §5,
 `firmware_py.decel_feedback`) when `BcuParams.feedback` is given: it reads the front and rear cars'
-accelerometers (PLANT_CAR1/n_SENSORS.AccelLong) and every car's WspActive, and sends its state, the
-pressure correction φ and the slope estimate in BCU_STATUS (FbState, FrictionPhi, SlopeEst); the BECUs
-apply φ.  Precise stopping at a target point (seed 002 §III, §VI–§VIII, `firmware_py.stopping`) when
+accelerometers (PLANT_CAR1/n_SENSORS.AccelLong) and every car's WspActive, and sends its state and the
+slope estimate in BCU_STATUS (FbState, SlopeEst) and the pressure correction φ with its state in the
+authenticated BCU_BRAKE_CORR (FbState, FrictionPhi); the BECUs apply φ while FbState is ENGAGED or
+HELD.  Precise stopping at a target point (seed 002 §III, §VI–§VIII, `firmware_py.stopping`) when
 `BcuParams.stopping` is given: it reads DESK_TARGET (TargetStopValid, TargetStopPos), keeps an odometer on
 the train speed estimate, and commands the service brake along the theoretical braking curve; the target
 deceleration sent is the larger of the driver's brake step and the stopping command.  The anti-collision
 device (seed 002 §V, `firmware_py.acd`) when `BcuParams.acd` is set: ACD_BRAKE_REQ.Request = EMERGENCY is
 an emergency request; SERVICE asks for RequestedDecel, and the target deceleration is the largest of the
 driver's step, the stopping command and the ACD's request; BCU_EMERGENCY.Source = 2 (ACD) when the ACD
-demanded the emergency brake.  An ACD not heard from for `acd_timeout_us` requests nothing and makes the
-train Degraded.
+demanded the emergency brake.  An ACD not heard from for `acd_timeout_us` makes the train Degraded; its
+last request stays in force until the train stands (a lost or deleted request never releases a brake the
+ACD asked for, issue #19), and an ACD silent while asking for nothing requests nothing.
 
 Train speed: the highest speed estimate (BECUn_STATUS.SpeedEst) of the cars that are heard from and
-plausible.  A car whose estimate disagrees with the median of the train for longer than 3 of its
-status cycles is implausible (issue #9): excluded (latched), flagged in CarsImplausible, Degraded.
-A car that reports a failed sensor (BECUn_DIAG.SpeedSensorFault / AccelSensorFault) also makes the
-train Degraded (its estimate stays in: its BECU already excluded the failed sensor).
+plausible.  A car is implausible (issues #9, #19: excluded, latched, flagged in CarsImplausible, Degraded)
+only on evidence a real slide cannot produce (`_vote`): its estimate more than 2 m/s ABOVE the median of
+the train for longer than 3 of its status cycles (a braked wheel is never faster than its car, seed 001
+eq. (2): s ≥ 0), or more than 2 m/s BELOW it for longer than a slide can last (6 s: the BECU's WSP
+vent watchdog refills within 5 s and its locked-wheel check takes over within 1 s).  A low estimate
+cannot lower the train speed (the maximum), so the longer allowance costs no safety.
+A car that reports a failed sensor (BECUn_DIAG.SpeedSensorFault / AccelSensorFault / CylSensorFault) also
+makes the train Degraded (its estimate stays in: its BECU already excluded the failed sensor).
 """
 
 from __future__ import annotations
@@ -56,17 +62,24 @@ def bcu_mode_transition(mode: BcuMode, brake_step: int, emergency_req: bool, sta
     return BcuMode.SERVICE if brake_step > 0 or stop_demand else BcuMode.RELEASED
 
 
-def disagreeing_cars(speeds: Sequence[float], trusted: Sequence[bool], limit_mps: float,
-                     min_voters: int = 3) -> list[bool]:
-    """Cars whose speed estimate [m/s] is more than `limit_mps` away from the median of the trusted cars
-    that are heard from (pure).  NaN = not heard from: never disagreeing.  Needs `min_voters` such cars:
-    with two, nobody can tell which one is wrong.  The median includes the car itself: with three cars
-    the median of the other two is their mean, which one stuck car drags along."""
+def disagreement(speeds: Sequence[float], trusted: Sequence[bool], limit_mps: float,
+                 min_voters: int = 3) -> list[int]:
+    """Per car, +1 if its speed estimate [m/s] is more than `limit_mps` above the median of the trusted
+    cars that are heard from, −1 if more than that below it, else 0 (pure).  NaN = not heard from: never
+    disagreeing.  Needs `min_voters` such cars: with two, nobody can tell which one is wrong.  The median
+    includes the car itself: with three cars the median of the other two is their mean, which one stuck
+    car drags along."""
     voters = [v for v, ok in zip(speeds, trusted, strict=True) if ok and v == v]
     if len(voters) < min_voters:
-        return [False] * len(speeds)
+        return [0] * len(speeds)
     median = statistics.median(voters)
-    return [v == v and abs(v - median) > limit_mps for v in speeds]
+    return [0 if not (v == v and abs(v - median) > limit_mps) else 1 if v > median else -1 for v in speeds]
+
+
+def disagreeing_cars(speeds: Sequence[float], trusted: Sequence[bool], limit_mps: float,
+                     min_voters: int = 3) -> list[bool]:
+    """Cars whose speed estimate disagrees with the train's median either way (`disagreement`)."""
+    return [d != 0 for d in disagreement(speeds, trusted, limit_mps, min_voters)]
 
 
 @dataclass(frozen=True)
@@ -80,12 +93,17 @@ class BcuParams:
     standstill_mps: float = 0.1              # train speed estimate below which the train stands
     # a car whose BECUn_STATUS (50 ms, DBC) is older than 3 of its cycles is silent: degraded mode
     status_timeout_us: int = 150_000
-    # issue #9: a car whose SpeedEst is more than implausible_mps off the train's median for longer than
-    # 3 of its BECUn_STATUS cycles (50 ms, DBC) is implausible.  2 m/s (7 km/h) is far above what cars
-    # coupled in one train differ by (coupler play; a BECU's estimate rides on its accelerometer during
-    # slides: < 0.3 m/s in the default and stop_30kmh runs) (chosen)
+    # issues #9, #19: a car whose SpeedEst is more than implausible_mps above the train's median for longer
+    # than 3 of its BECUn_STATUS cycles (50 ms, DBC) is implausible: no slide makes an estimate high.  2 m/s
+    # (7 km/h) is far above what cars coupled in one train differ by (coupler play; a BECU's estimate
+    # rides on its accelerometer during slides: ≤ 0.2 m/s from the truth in 25 default runs) (chosen)
     implausible_mps: float = 2.0
     implausible_after_us: int = 150_000
+    # ... and one more than implausible_mps BELOW the median only after this: a slide lowers a wheel, and a
+    # BECU whose estimate followed it would read low while it lasts; WSP's vent watchdog refills a vented
+    # cylinder within 5 s (BecuParams.wsp.max_vent_s) and the locked-wheel check (SensorCheckParams.lock_s,
+    # 1 s) switches a wheel that stays down to the accelerometer, so a slide is over by then (chosen)
+    slide_allow_us: int = 6_000_000
     feedback: FeedbackParams | None = None   # deceleration feedback, seed 004 §5; None: not fitted
     stopping: StoppingParams | None = None   # precise stopping at a target point, seed 002; None: not fitted
     acd: bool = False                        # obey ACD_BRAKE_REQ (an anti-collision device is fitted)
@@ -97,7 +115,7 @@ class Bcu:
     """step(now_us, rx) -> BCU_DEMAND / BCU_EMERGENCY / BCU_STATUS signals."""
 
     OUTPUTS = ("Mode", "BrakeStep", "TargetDecel", "EmergencyActive", "Source", "CarsSilent", "Degraded",
-               "TrainSpeedEst", "CarsImplausible", "FbState", "FrictionPhi", "SlopeEst", "StopState")
+               "TrainSpeedEst", "CarsImplausible", "FbState", "SlopeEst", "StopState")
     STOP_OUTPUTS = ("DistanceToGo", "RefSpeed", "StopCommand", "BalisesSeen", "SearchQ")    # BCU_STOP
     ACD_INPUTS = ("ACD_BRAKE_REQ.Request", "ACD_BRAKE_REQ.RequestedDecel")
 
@@ -111,7 +129,7 @@ class Bcu:
         self.outputs = self.OUTPUTS                  # + STOP_OUTPUTS with precise stopping
         self.speed_keys = tuple(f"BECU{i}_STATUS.SpeedEst" for i in range(1, n_cars + 1))
         self.fault_keys = tuple(f"BECU{i}_DIAG.{sig}" for i in range(1, n_cars + 1)
-                                for sig in ("SpeedSensorFault", "AccelSensorFault"))
+                                for sig in ("SpeedSensorFault", "AccelSensorFault", "CylSensorFault"))
         self.inputs = ("BrakeStep", "EmergencyReq") + self.speed_keys + self.fault_keys
         self.feedback: DecelFeedback | None = None
         if self.p.feedback is not None:
@@ -120,6 +138,7 @@ class Bcu:
             self.accel_keys = ("PLANT_CAR1_SENSORS.AccelLong", f"PLANT_CAR{n_cars}_SENSORS.AccelLong")
             self.wsp_keys = tuple(f"BECU{i}_STATUS.WspActive" for i in range(1, n_cars + 1))
             self.inputs += self.accel_keys + self.wsp_keys
+            self.outputs += ("FrictionPhi",)       # BCU_BRAKE_CORR, with FbState
             self._speed_rx_us: int | None = None
             self.fb_out = None                     # last FeedbackOutput (diagnostic)
         self.stopping: StoppingController | None = None
@@ -137,6 +156,8 @@ class Bcu:
             self.inputs += self.ACD_INPUTS
         self.implausible = [False] * n_cars           # latched per car
         self._disagree_since: list[int | None] = [None] * n_cars
+        self._acd_last = (False, 0.0)                 # the ACD's last usable request (emergency, decel)
+        self._disagree_sign = [0] * n_cars            # +1 above the median, −1 below, since _disagree_since
 
     def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
         p = self.p
@@ -166,7 +187,8 @@ class Bcu:
                                                      statistics.median(known) if known else float("nan"))
             stop_demand = so.state in (StopState.FOLLOWING, StopState.STOPPED)
             stop_cmd = so.command_mps2 if stop_demand else 0.0
-        acd_emergency, acd_cmd, acd_silent = self._acd_request(now_us, rx) if p.acd else (False, 0.0, False)
+        acd_emergency, acd_cmd, acd_silent = (self._acd_request(now_us, rx, standstill) if p.acd
+                                              else (False, 0.0, False))
         desk_emergency = emergency_req >= 0.5
         self.mode = bcu_mode_transition(self.mode, brake_step, desk_emergency or acd_emergency, standstill,
                                         stop_demand or acd_cmd > 0.0)
@@ -203,20 +225,26 @@ class Bcu:
             **(self._stop_signals() if self.stopping is not None else {"StopState": 0}),
         }
 
-    def _acd_request(self, now_us: int, rx: Mapping[str, float]) -> tuple[bool, float, bool]:
-        """(emergency requested, service deceleration requested [m/s²], silent) from ACD_BRAKE_REQ."""
+    def _acd_request(self, now_us: int, rx: Mapping[str, float],
+                     standstill: bool) -> tuple[bool, float, bool]:
+        """(emergency requested, service deceleration requested [m/s²], silent) from ACD_BRAKE_REQ; a silent
+        ACD's last request holds until standstill (module docstring)."""
         age_us = getattr(rx, "age_us", None)
         age = age_us(self.ACD_INPUTS[0], now_us) if age_us is not None else 0
         request, ok = finite_or(rx[self.ACD_INPUTS[0]], 0.0)
         if age is None or age > self.p.acd_timeout_us or not ok:
-            return False, 0.0, age is not None                # never heard from: not (yet) silent
+            if standstill:
+                self._acd_last = (False, 0.0)
+            return (*self._acd_last, age is not None)          # never heard from: not (yet) silent
         decel, ok_decel = finite_or(rx[self.ACD_INPUTS[1]], self.p.step_decel_mps2[-1])
         if round(request) == 2:
-            return True, 0.0, False
-        if round(request) == 1:                            # a bad deceleration asks for full service
-            return False, clip(decel if ok_decel else self.p.step_decel_mps2[-1], 0.0,
-                               self.p.step_decel_mps2[-1]), False
-        return False, 0.0, False
+            self._acd_last = (True, 0.0)
+        elif round(request) == 1:                            # a bad deceleration asks for full service
+            self._acd_last = (False, clip(decel if ok_decel else self.p.step_decel_mps2[-1], 0.0,
+                                          self.p.step_decel_mps2[-1]))
+        else:
+            self._acd_last = (False, 0.0)
+        return (*self._acd_last, False)
 
     def _stop_signals(self) -> dict[str, float]:
         """StopState in BCU_STATUS and the BCU_STOP frame, from the last StopOutput."""
@@ -291,15 +319,17 @@ class Bcu:
                                   accel[0], accel[1], speed, train_speed)
 
     def _vote(self, now_us: int, speeds: list[float]) -> None:
-        """Latch the cars that disagree with the train's median for longer than implausible_after_us."""
+        """Latch the cars whose estimate disagrees with the train's median on evidence a slide cannot
+        produce: above it for longer than implausible_after_us, below it for longer than slide_allow_us.
+        A disagreement that changes side starts its timer again."""
         p = self.p
         trusted = [not bad for bad in self.implausible]
-        for k, off in enumerate(disagreeing_cars(speeds, trusted, p.implausible_mps)):
-            if not off or self.implausible[k]:
-                self._disagree_since[k] = None
+        for k, sign in enumerate(disagreement(speeds, trusted, p.implausible_mps)):
+            if sign == 0 or self.implausible[k]:
+                self._disagree_since[k], self._disagree_sign[k] = None, 0
                 continue
             since = self._disagree_since[k]
-            if since is None:
-                self._disagree_since[k] = now_us
-            elif now_us - since > p.implausible_after_us:
+            if since is None or sign != self._disagree_sign[k]:
+                self._disagree_since[k], self._disagree_sign[k] = now_us, sign
+            elif now_us - since > (p.implausible_after_us if sign > 0 else p.slide_allow_us):
                 self.implausible[k] = True

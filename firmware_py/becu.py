@@ -9,15 +9,24 @@ loop behaves as seed 001's first-order cylinder (eq. 4).
 Inputs (DBC signal names, bound by hil): AxleSpeed, CylPressure, AccelLong (the car's sensors),
 TargetDecel and Mode (BCU_DEMAND), EmergencyActive (BCU_EMERGENCY).
 Outputs: the pressure command frame (CylPressureSet, ValveCmd, WspValve), the status frame and the
-diagnostics frame (governor; SpeedSensorFault, AccelSensorFault, AccelBiasEst).
+diagnostics frame (governor; SpeedSensorFault, AccelSensorFault, CylSensorFault, AccelBiasEst).
+
+Reference speed (SpeedEst, issue #19): a Kalman filter whose time update integrates the accelerometer
+less its bias estimate (which holds g·sin θ, seed 004 eq. (1)) and whose measurement is the axle's r·ω
+plus the creep its brake needs on nominal rail (seed 000 eq. (1)) (seed 004 §3.2, eqs. (19)–(23), linear
+and scalar), unbiased; while the wheel slides (it reads more than a gate below the estimate, or WSP acts)
+the axle is no measurement of the car's speed (seed 001 eq. (2)) and the estimate runs on the
+accelerometer alone, so it does not follow a sliding wheel down.  See `reference_speed`, `creep_mps`.
 
 With BecuParams.control = "decel" the set-point comes from seed 001's deceleration PI (eq. 16) instead,
 optionally behind the reference governor (eq. 9, firmware_py.governor), which sets GovernorActive.
 
 Deceleration feedback (seed 004 §5, firmware_py.decel_feedback): in "pressure" control the BCU's
-pressure correction φ (BCU_STATUS.FrictionPhi, eq. (34)) divides the force part of the set-point,
-P_c = preload + (P_c0 − preload)/φ, gated to `phi_limits`; not received, not finite, emergency or loss of
-command: φ = 1 (`apply_phi`).
+pressure correction φ (BCU_BRAKE_CORR.FrictionPhi, eq. (34), an authenticated frame) divides the force
+part of the set-point, P_c = preload + (P_c0 − preload)/φ, gated to `phi_limits`; φ = 1 (`apply_phi`)
+unless the same frame's FbState says the feedback is ENGAGED or HELD (HELD keeps the engaged
+correction, seed 004 §5), and when φ is not received, older than `phi_timeout_us`, not finite, in
+emergency or on loss of command.
 
 Sensor plausibility (issue #9): the wheel-speed sensor is declared failed (SpeedSensorFault, latched)
 when its reading says the wheel stands while the accelerometer says the car moves for longer than a
@@ -26,7 +35,10 @@ speed estimate then runs on the accelerometer alone and WSP is inhibited (the br
 The accelerometer's bias (accelerometer − the axle's acceleration, filtered) is AccelBiasEst; above a
 limit for a time it is AccelSensorFault (latched) and the axle's acceleration replaces it.  A vent-time
 watchdog refills a cylinder that WSP has kept vented too long.  See `speed_sensor_check`,
-`accel_bias_check` and `vent_watchdog`.
+`accel_bias_check` and `vent_watchdog`.  The brake-cylinder pressure transducer is declared failed
+(CylSensorFault, latched, issue #19) when its reading stays identical while the EP or dump valve should
+have moved the pressure by more than a limit; the pressure loop then runs on a model of the cylinder fed
+with the valve commands, biased to brake (`cyl_sensor_check`, `valve_pressure_rate`).
 """
 
 from __future__ import annotations
@@ -38,9 +50,13 @@ from enum import IntEnum
 from typing import NamedTuple
 
 from firmware_py.cycle import CycleTimer
+from firmware_py.decel_feedback import FbState
 from firmware_py.governor import GovernorDecision, GovernorParams, GovernorState, govern, play
 from firmware_py.limits import clip, finite_or
 from firmware_py.pi import PI, PIParams
+
+# the BCU's feedback states in which its φ is a correction to apply (HELD keeps the engaged one)
+PHI_STATES = (float(FbState.ENGAGED), float(FbState.HELD))
 
 
 class Wsp(IntEnum):
@@ -108,7 +124,8 @@ STEEPEST_GRADIENT_MPS2 = 9.81 * 0.060 / math.sqrt(1.0 + 0.060 ** 2)
 
 @dataclass(frozen=True)
 class SensorCheckParams:
-    """Plausibility limits of the car's wheel-speed sensor and accelerometer (issue #9)."""
+    """Plausibility limits of the car's wheel-speed sensor and accelerometer (issue #9) and of its
+    brake-cylinder pressure transducer (issue #19)."""
 
     # wheel-speed sensor, "stands": a reading below stand_mps while the speed estimate (accelerometer)
     # is above moving_mps for longer than lock_s.  A real slide ends within lock_s: WSP vents above a
@@ -145,6 +162,20 @@ class SensorCheckParams:
     # slide still shows as slip against the reference speed (chosen: 0.25 g, seed 001's r⁰)
     axle_accel_tau_s: float = 0.1          # [s]
     car_accel_max_mps2: float = 2.5        # [m/s²]
+    # pressure transducer, "frozen": the same reading on every fresh frame while the valve commands this
+    # BECU sent would have moved the pressure by more than cyl_frozen_dp_Pa in all (`cyl_sensor_check`).
+    # A live transducer changes by at least its 10 Pa resolution long before (the plant's noise alone,
+    # 1 kPa std, changes nearly every reading).  The limit lies above what the commands of the sensor
+    # frame's and the cycle's latency move (2 × 10 ms at the full 1 MPa/s fill = 20 kPa, while a cylinder
+    # at 0 reads 0) (chosen)
+    cyl_frozen_dp_Pa: float = 50e3         # [Pa]
+    cyl_valve_min: float = 0.02            # EP valve openings below this are no evidence [-] (chosen:
+    #                                        a real valve's dead band)
+    cyl_margin_Pa: float = 20e3            # a fill is no evidence within this of p̄, a vent none within
+    #                                        this of 0: the pressure cannot move there [Pa] (chosen)
+    cyl_noise_Pa: float = 5e3              # a reading's step beyond the valves' fastest change (the dump
+    #                                        valve's) plus this is no pressure: the transducer jumped to
+    #                                        where it froze [Pa] (chosen: 5 σ of the plant's 1 kPa noise)
 
     def __post_init__(self) -> None:
         if not self.bias_limit_mps2 > STEEPEST_GRADIENT_MPS2:
@@ -208,6 +239,209 @@ def accel_bias_check(s: AccelCheck, accel_mean_mps2: float, wheel_accel_mps2: fl
     return AccelCheck(above_s > p.bias_hold_s, bias, above_s)
 
 
+class CylCheck(NamedTuple):
+    """State of the pressure transducer check (`cyl_sensor_check`)."""
+
+    fault: bool = False
+    evidence_Pa: float = 0.0     # |pressure change| the valves should have made since the reading froze
+    moved_Pa: float = 0.0        # ... signed
+    frozen: bool = False         # the reading repeats
+    base_Pa: float = 0.0         # the pressure when it froze: the model of the cylinder starts at
+    #                              base_Pa + moved_Pa once the check fails
+
+
+def valve_pressure_rate(valve_cmd: float, wsp_valve: int, p_Pa: float, p_max_Pa: float,
+                        rates: tuple[float, float, float]) -> float:
+    """dp/dt [Pa/s] the valves give a cylinder at p_Pa (pure): the EP valve's opening valve_cmd ∈ [−1, 1]
+    fills at valve_cmd·fill (> 0) or vents at valve_cmd·vent (< 0) while the WSP dump valve is in FILL;
+    HOLD isolates the cylinder; VENT dumps it at `dump`.  rates = (fill, vent, dump) [Pa/s] at full
+    opening.  No flow beyond 0 and p̄ (seed 001 eq. (5a))."""
+    fill, vent, dump = rates
+    if wsp_valve == Wsp.HOLD:
+        return 0.0
+    if wsp_valve == Wsp.VENT:
+        return -dump if p_Pa > 0.0 else 0.0
+    if valve_cmd > 0.0:
+        return valve_cmd * fill if p_Pa < p_max_Pa else 0.0
+    return valve_cmd * vent if p_Pa > 0.0 else 0.0
+
+
+def cyl_sensor_check(s: CylCheck, reading_Pa: float, prev_Pa: float, before_Pa: float, valve_cmd: float,
+                     wsp_valve: int, span_s: float, p_max_Pa: float, rates: tuple[float, float, float],
+                     p: SensorCheckParams) -> CylCheck:
+    """The pressure transducer check on one fresh reading (pure; latched once it fails).  Call it per new
+    sensor frame only: a stale frame is not a frozen transducer.
+
+    prev_Pa, before_Pa: the two readings before this one; valve_cmd, wsp_valve: the commands this BECU sent
+    over the span (its last ValveCmd and WspValve); span_s: time since the previous reading [s].  Evidence
+    accumulates while the reading stays identical and the valves should move the pressure: an EP valve
+    opening of at least cyl_valve_min filling below p̄ − margin or venting above the margin, or the dump
+    valve venting above the margin; a reading that changes clears it.  Fails once the evidence exceeds
+    cyl_frozen_dp_Pa.  The pressure when the reading froze (base_Pa) is the reading before the repeats,
+    or the one before that if the transducer jumped there faster than any valve moves a cylinder."""
+    if s.fault:
+        return s
+    if reading_Pa != prev_Pa:
+        return CylCheck()
+    if not s.frozen:                                     # the first repeat: where did it freeze?
+        jumped = abs(prev_Pa - before_Pa) > max(rates) * span_s + p.cyl_noise_Pa
+        s = CylCheck(frozen=True, base_Pa=before_Pa if jumped and math.isfinite(before_Pa) else prev_Pa)
+    rate = valve_pressure_rate(valve_cmd, wsp_valve, reading_Pa, p_max_Pa, rates)
+    if wsp_valve == Wsp.FILL and abs(valve_cmd) < p.cyl_valve_min:
+        rate = 0.0                                       # the valve's dead band: no evidence
+    elif rate > 0.0 and reading_Pa >= p_max_Pa - p.cyl_margin_Pa:
+        rate = 0.0                                       # filling at the reservoir's pressure
+    elif rate < 0.0 and reading_Pa <= p.cyl_margin_Pa:
+        rate = 0.0                                       # venting an empty cylinder
+    evidence = s.evidence_Pa + abs(rate) * span_s
+    return CylCheck(evidence > p.cyl_frozen_dp_Pa, evidence, s.moved_Pa + rate * span_s, True, s.base_Pa)
+
+
+G_MPS2 = 9.81                 # standard gravity [m/s²]
+
+
+@dataclass(frozen=True)
+class CreepParams:
+    """The nominal creep of a braked wheel (`creep_mps`): the adhesion curve of seed 000 §2.1, eq. (1),
+    μ(θ, σ, v) = μ̄(θ, k2(v)·σ) / k1(v), μ̄(θ, σ) = √σ / (θ1 + θ2 σ + θ3 σ²), k_i(v) = 1 + π_i v, on the
+    vehicle's nominal rail."""
+
+    # θ of the project's "dry" rail (plant_sim.params.RAIL_CONDITIONS: peak σ̄° = 0.03, μ̄° = 0.25, values
+    # chosen there for seed 000 §3's conditions): the rail the creep is compensated for.  On wetter rail the
+    # same adhesion needs more creep, which the estimate then shows as its error (seed 000 §3)
+    theta: tuple[float, float, float] = (0.35416, 11.030, 8.6158)
+    pi1_s_per_m: float = 1.0 / 40.0        # k1(v) = 1 + v/40, seed 000 §3
+    pi2_s_per_m: float = 1.0 / 40.0        # k2(v) = 1 + v/40, seed 000 §3
+    v_eps_mps: float = 0.5                 # σ = s / max(v, v_eps) at low speed (plant_sim.adhesion's V_EPS)
+
+
+def creep_mps(mu_used: float, v_mps: float, cp: CreepParams) -> float:
+    """The slip speed s = σ·max(v, v_eps) [m/s] at which a wheel transmits the adhesion `mu_used` on the
+    nominal rail (pure): seed 000 eq. (1) inverted on its rising branch, x = k2 σ from the fixed point
+    x = (μ k1 (θ1 + θ2 x + θ3 x²))² started at 0 (it rises monotonically to the root below the peak),
+    capped at the peak x° = (−θ2 + √(θ2² + 12 θ1 θ3)) / (6 θ3) (seed 000 §2.1)."""
+    if not mu_used > 0.0:
+        return 0.0
+    t1, t2, t3 = cp.theta
+    v = max(v_mps, 0.0)
+    k1, k2 = 1.0 + cp.pi1_s_per_m * v, 1.0 + cp.pi2_s_per_m * v
+    x_peak = (-t2 + math.sqrt(t2 * t2 + 12.0 * t1 * t3)) / (6.0 * t3)
+    x = 0.0
+    for _ in range(8):
+        x = min((mu_used * k1 * (t1 + x * (t2 + t3 * x))) ** 2, x_peak)
+    return x / k2 * max(v, cp.v_eps_mps)
+
+
+@dataclass(frozen=True)
+class RefSpeedParams:
+    """The car's reference speed SpeedEst (`reference_speed`, issue #19): a Kalman filter on the
+    accelerometer and the axle, seed 004 §3.2 eqs. (19)–(23), that bridges the wheel's slides.  The
+    slide gate is BecuParams.wheel_trust_slip_mps."""
+
+    # process noise of the bias-corrected accelerometer: the sensor's noise, the body's vibration and what
+    # the bias estimate (AccelBiasEst, which holds g·sin θ) has not caught up with yet [m/s²] (chosen)
+    accel_std_mps2: float = 0.12
+    # measurement noise of the axle's r·ω as a measure of the car's speed: the sensor's (0.02 rad/s ×
+    # 0.46 m = 0.009 m/s in plant_sim) and the creep's variation [m/s] (chosen).  With accel_std_mps2 the
+    # steady gain is ≈ accel_std·dt / wheel_std = 0.06 a 10 ms cycle: the estimate follows the axle with
+    # τ ≈ wheel_std / accel_std = 0.17 s, so an accelerometer error a moves it off the axle by at most
+    # a·τ: 0.12 m/s at the accelerometer fault limit (0.7 m/s², SensorCheckParams), below the slide gate;
+    # only an error above gate/τ = 0.9 m/s² (a fault, detected) can look like a slide
+    wheel_std_mps: float = 0.02
+    # the wheel agrees with the estimate: it reads at most agree_mps below it (3 σ of the reading) [m/s]
+    # (chosen); a slide ends when the wheel agrees again and WSP is back in FILL
+    agree_mps: float = 0.03
+    # a slide found within rollback_s of the wheel's last agreement restarts from the estimate it had then,
+    # carried forward on the accelerometer: what the filter followed of the slide's onset is undone [s]
+    # (chosen: a slide's slip grows by 1 m/s² and more, it passes the gate in ~0.3 s)
+    rollback_s: float = 1.0
+    # a wheel without brake torque (cylinder below torque_free_Pa) spins up to the car's speed: seed 001
+    # eq. (3) with τ = 0 gives ṡ = −(1/M + r²/J) f(s) < 0.  Apart for spin_up_s without torque, it is the
+    # estimate that is wrong (an accelerometer error) and the wheel is taken again (chosen: in the wet
+    # section of default a vented wheel is back within 0.15 s; 10 kPa is a third of the return-spring
+    # preload, below the release line's zero)
+    torque_free_Pa: float = 10e3           # [Pa]
+    spin_up_s: float = 0.5                 # [s]
+    # whatever the wheel does, a slide is bridged at most this long: longer than the WSP vent watchdog
+    # (WspParams.max_vent_s, 5 s) and the locked-wheel check (SensorCheckParams.lock_s, 1 s) (chosen)
+    bridge_max_s: float = 6.0              # [s]
+
+
+class RefSpeed(NamedTuple):
+    """State of the reference speed (`reference_speed`)."""
+
+    v_mps: float = math.nan          # the estimate [m/s]
+    var: float = 0.0                 # its variance P [m²/s²]
+    sliding: bool = False            # the wheel is bridged: the estimate runs on the accelerometer alone
+    slide_s: float = 0.0             # time in the slide [s]
+    free_s: float = 0.0              # ... of which without brake torque [s]
+    anchor_mps: float = math.nan     # the estimate when the wheel last agreed, carried on the accelerometer
+    anchor_s: float = 0.0            # time since the wheel last agreed [s]
+    resets: int = 0                  # slides ended by spin_up_s or bridge_max_s (diagnostic)
+
+
+def reference_speed(s: RefSpeed, wheel_mps: float, accel_mps2: float, dt_s: float, fresh: bool,
+                    wsp_fill: bool, torque_free: bool, gate_mps: float, p: RefSpeedParams,
+                    creep: float = 0.0, wheel_suspect: bool = False) -> RefSpeed:
+    """One cycle of the car's reference speed (pure).
+
+    wheel_mps: the axle's r·ω; accel_mps2: the car's acceleration, the accelerometer less its bias
+    estimate (seed 004 eq. (1): a_measure = a_actual + g sin θ; the estimate holds g sin θ and the
+    sensor's bias); fresh: a new axle reading arrived; wsp_fill: WSP is in FILL; torque_free: the cylinder
+    is below RefSpeedParams.torque_free_Pa; gate_mps: the slide gate (BecuParams.wheel_trust_slip_mps);
+    creep: the slip speed the wheel needs for the adhesion its brake uses (`creep_mps`) [m/s];
+    wheel_suspect: the wheel-speed sensor check is timing the reading ("stands" or "frozen",
+    `speed_sensor_check`): a slide is then not ended by the spin-up rule, that check decides.
+
+    Time update, seed 004 eqs. (19)–(20) with A = 1, the accelerometer as input u_k and W = dt:
+    v⁻ = v + a·dt, P⁻ = P + (σ_a·dt)².  Measurement update on a fresh reading z = w + creep (the car's speed
+    as the wheel gives it, seed 001 eq. (2): v = rω + s), eqs. (21)–(23) with H = 1: K = P⁻/(P⁻ + σ_w²),
+    v = v⁻ + K·(z − v⁻), P = (1 − K)·P⁻: unbiased, an axle's noise does not lift it.  Unless the wheel
+    slides: its slip is then no creep, z no measurement of v (R = ∞), and the estimate runs on the
+    accelerometer alone.  The slide starts when the wheel reads more than gate_mps below v⁻ or WSP leaves
+    FILL, from the estimate of the wheel's last agreement (`rollback_s`); it ends when the wheel agrees
+    again with WSP in FILL, or, the estimate being wrong, after spin_up_s without brake torque or after
+    bridge_max_s (the wheel is then taken as the car's speed).
+
+    gate_mps = 0 is the accelerometer reference of seed 001's runs: v⁻, lifted to the wheel when the wheel
+    reads above it, never pulled down by it (a braked wheel is never faster than the car); no creep."""
+    if not math.isfinite(s.v_mps):
+        return RefSpeed(wheel_mps + creep, p.wheel_std_mps ** 2, anchor_mps=wheel_mps + creep)
+    v = max(s.v_mps + accel_mps2 * dt_s, 0.0)                      # eq. (19)
+    var = s.var + (p.accel_std_mps2 * dt_s) ** 2                    # eq. (20)
+    anchor = max(s.anchor_mps + accel_mps2 * dt_s, 0.0)
+    anchor_s = s.anchor_s + dt_s
+    if gate_mps <= 0.0:                                             # the accelerometer reference
+        v = max(v, wheel_mps) if fresh else v
+        return RefSpeed(v, var, anchor_mps=v)
+    if not fresh:
+        return s._replace(v_mps=v, var=var, anchor_mps=anchor, anchor_s=anchor_s,
+                          slide_s=s.slide_s + dt_s * s.sliding,
+                          free_s=s.free_s + dt_s * (s.sliding and torque_free))
+    z = wheel_mps + creep
+    innovation = z - v
+    sliding, slide_s, free_s, resets = s.sliding, s.slide_s, s.free_s, s.resets
+    if not sliding and (innovation < -gate_mps or not wsp_fill):
+        sliding, slide_s, free_s = True, 0.0, 0.0
+        if anchor_s <= p.rollback_s:
+            v = max(v, anchor)                                      # undo the onset the filter followed
+    elif sliding:
+        slide_s += dt_s
+        free_s += dt_s * torque_free
+        if innovation >= -p.agree_mps and wsp_fill:
+            sliding = False                                         # the wheel is back
+        elif (free_s > p.spin_up_s and not wheel_suspect) or slide_s > p.bridge_max_s:
+            sliding, v, var, resets = False, z, p.wheel_std_mps ** 2, resets + 1
+    if sliding:
+        return RefSpeed(v, var, True, slide_s, free_s, anchor, anchor_s, resets)
+    gain = var / (var + p.wheel_std_mps ** 2)                       # eq. (21)
+    v = max(v + gain * (z - v), 0.0)                                # eq. (22)
+    var = (1.0 - gain) * var                                        # eq. (23)
+    if z - v >= -p.agree_mps:
+        anchor, anchor_s = v, 0.0
+    return RefSpeed(v, var, False, 0.0, 0.0, anchor, anchor_s, resets)
+
+
 @dataclass(frozen=True)
 class BecuParams:
     cycle_us: int = 10_000                   # BECU cycle, DESIGN.md node table
@@ -220,8 +454,24 @@ class BecuParams:
     pressure_pi: PIParams = field(default_factory=lambda: PIParams(
         kp=2.0e-5, ki=4.0e-5, out_min=-1.0, out_max=1.0))
     wsp: WspParams = field(default_factory=WspParams)
-    wheel_trust_slip_mps: float = 0.2        # speed estimator: below this apparent slip, trust the axle
-    wheel_trust_gain: float = 0.2            # complementary-filter gain towards the axle speed
+    # reference speed (`reference_speed`): the wheel slides when it reads more than this below the
+    # estimate [m/s]; 0 = the accelerometer reference of seed 001's runs (the wheel only lifts it).  Above
+    # the most an accelerometer error within its fault limit moves the estimate off the axle
+    # (RefSpeedParams: 0.7 m/s² × 0.17 s = 0.12 m/s) and below WSP's lowest vent threshold (0.3 m/s); a slip
+    # growing faster than gate/τ = 0.9 m/s² is caught as a slide, a slower one followed with a lag of at
+    # most the gate (chosen)
+    wheel_trust_slip_mps: float = 0.15
+    ref: RefSpeedParams = field(default_factory=RefSpeedParams)
+    # the wheel's creep the reference speed adds back (`creep_mps`, on the adhesion the car's brake uses:
+    # squeeze-line torque of seed 001 eq. (6) / (r m g)); None: the estimate is the wheel's speed
+    creep: CreepParams | None = field(default_factory=CreepParams)
+    # EP valve fill and vent, WSP dump valve, at full opening [Pa/s]: the brake's valve data (plant_sim's
+    # BrakeParams, representative values); kp = 1/(Tp·fill) of pressure_pi gives seed 001's Tp = 50 ms
+    valve_rates_Pa_per_s: tuple[float, float, float] = (1.0e6, 1.5e6, 2.0e6)
+    # CylSensorFault: the pressure loop runs on a model of the cylinder fed with the valve commands, which
+    # assumes the valves fill this fraction slower and vent it faster than their data, so that the real
+    # cylinder ends at or above the set-point: a brake ECU that fails, brakes (chosen)
+    cyl_model_derate: float = 0.1
     emergency_decel_mps2: float = 1.3        # used when BCU_EMERGENCY is active and the demand lags
     # railway fail-safe, issue #9: a demand missing or unusable (E2E/SecOC) for this many cycles is
     # loss of command, and loss of command is braking at the emergency deceleration
@@ -244,6 +494,9 @@ class BecuParams:
     # output gate on the BCU's pressure correction φ (seed 004 eq. (34)): the authority the BCU has over
     # this car's service-brake pressure, -38 %/+67 % (chosen; the BCU's own limits are the same)
     phi_limits: tuple[float, float] = (0.6, 1.6)
+    # φ older than this is not applied: 3 cycles of BCU_BRAKE_CORR (100 ms, DBC), as the BCU judges a
+    # silent car after 3 of its status cycles; a lost or deleted correction falls back to φ = 1
+    phi_timeout_us: int = 300_000
 
     def __post_init__(self) -> None:
         if self.control not in ("pressure", "decel"):
@@ -258,12 +511,12 @@ class BecuParams:
 class Becu:
     """One car's brake ECU: step(now_us, rx) -> dict of output signals."""
 
-    INPUTS = ("AxleSpeed", "CylPressure", "AccelLong", "TargetDecel", "BCU_DEMAND.Mode", "EmergencyActive",
-              "FrictionPhi")
+    INPUTS = ("AxleSpeed", "CylPressure", "AccelLong", "TargetDecel", "BCU_DEMAND.Mode", "EmergencyActive")
+    PHI_INPUTS = ("FrictionPhi", "FbState")     # BCU_BRAKE_CORR, where the train has deceleration feedback
     OUTPUTS = ("CylPressureSet", "ValveCmd", "WspValve", "SpeedEst", "SlipSpeedEst", "WspActive",
                "GovernorActive", "IntegratorSat", "InputMissing", "OptSlipEst", "OptSlipPos",
                "GovernedDecel", "GovernorMargin", "GovernorFeasible", "SpeedSensorFault", "AccelSensorFault",
-               "AccelBiasEst")
+               "CylSensorFault", "AccelBiasEst")
 
     def __init__(self, params: BecuParams | None = None) -> None:
         self.p = params or BecuParams()
@@ -276,7 +529,7 @@ class Becu:
         self.r_gov: float | None = None              # last governed reference [m/s²]
         self.decision: GovernorDecision | None = None   # last governor decision (diagnostic)
         self.wsp = Wsp.FILL
-        self.v_ref = math.nan
+        self.ref = RefSpeed()         # the reference speed's state (`reference_speed`); v_ref is its estimate
         self.timer = CycleTimer(self.p.cycle_us)
         self.missing_inputs = 0       # cycles with a missing or non-finite input (diagnostic)
         self.failsafe_cycles = 0      # cycles braked by the fail-safe (diagnostic)
@@ -294,6 +547,24 @@ class Becu:
         self.vent_s = 0.0             # WSP: time out of FILL without a break [s]
         self.wsp_tripped = False      # WSP: the vent-time watchdog holds the cylinder in FILL
         self.wsp_watchdog_trips = 0   # times the watchdog refilled a cylinder (diagnostic)
+        # pressure transducer (issue #19)
+        self.cyl_check = CylCheck()
+        self.cyl_fault_us: int | None = None       # when CylSensorFault latched (diagnostic)
+        self.p_model = math.nan       # once it has: the modelled cylinder pressure the loop runs on [Pa]
+        self._cyl_prev = (math.nan, math.nan)   # the two previous fresh pressure readings [Pa]
+        self._valve_sent = 0.0        # ValveCmd and WspValve sent last cycle
+        self._wsp_sent = Wsp.FILL
+
+    @property
+    def v_ref(self) -> float:
+        """The reference speed [m/s] (SpeedEst; NaN before the first cycle)."""
+        return self.ref.v_mps
+
+    @v_ref.setter
+    def v_ref(self, v_mps: float) -> None:
+        """Re-anchor the reference speed (a sensor check latched): no slide bridged from here."""
+        self.ref = self.ref._replace(v_mps=v_mps, anchor_mps=v_mps, anchor_s=0.0, sliding=False, slide_s=0.0,
+                                     free_s=0.0)
 
     def pressure_for_decel(self, decel_mps2: float) -> float:
         """Set-point that gives `decel` on the squeeze line: F = m a, tau = F r, p = tau/alpha + preload."""
@@ -310,17 +581,6 @@ class Becu:
             return p_set_Pa
         lo, hi = self.p.phi_limits
         return clip(pre + (p_set_Pa - pre) / clip(phi, lo, hi), 0.0, self.p.p_max_Pa)
-
-    def estimate_speed(self, wheel_v: float, accel: float, dt_s: float) -> float:
-        """Reference speed: integrate the accelerometer, pulled to the axle while it is not slipping."""
-        if not math.isfinite(self.v_ref):
-            return wheel_v
-        v_pred = self.v_ref + accel * dt_s
-        if wheel_v >= v_pred:
-            return wheel_v
-        if v_pred - wheel_v < self.p.wheel_trust_slip_mps:
-            return v_pred + self.p.wheel_trust_gain * (wheel_v - v_pred)
-        return max(v_pred, 0.0)
 
     def decel_control(self, r0: float, decel: float, pressure: float, dt_s: float,
                       overridden: bool) -> tuple[float, bool]:
@@ -364,6 +624,13 @@ class Becu:
         age = age_us("TargetDecel", now_us) if age_us is not None else None
         return age is not None and age > self.p.failsafe_cycles * self.p.cycle_us
 
+    def phi_stale(self, now_us: int, rx: Mapping[str, float]) -> bool:
+        """The correction φ was received more than `phi_timeout_us` ago (a plain mapping, as in unit tests,
+        has no reception times: never stale)."""
+        age_us = getattr(rx, "age_us", None)
+        age = age_us("FrictionPhi", now_us) if age_us is not None else None
+        return age is not None and age > self.p.phi_timeout_us
+
     def _fresh_sensor_frame(self, now_us: int, rx: Mapping[str, float], dt_s: float) -> tuple[bool, float]:
         """(a sensor frame arrived since the last cycle, time since the previous one [s]).  A plain
         mapping (unit tests) has no reception times: every cycle is a fresh frame, `dt_s` apart."""
@@ -379,14 +646,18 @@ class Becu:
             return True, dt_s
         return t_rx != last, (t_rx - last) * 1e-6
 
-    def _check_sensors(self, now_us: int, wheel_v: float, accel: float, span_s: float) -> None:
+    def _check_sensors(self, now_us: int, wheel_v: float, accel: float, span_s: float,
+                       creep: float = 0.0) -> None:
         """Plausibility of the wheel-speed sensor and the accelerometer on a fresh sensor frame (after the
-        speed estimate of this cycle, before WSP)."""
+        speed estimate of this cycle, before WSP).  The bias compares the accelerometer with the car's
+        speed as the wheel gives it, r·ω plus its creep (`creep`, m/s): the creep's build-up as the brake
+        applies is not the accelerometer's bias."""
         sc = self.p.sensors
         prev = self._wheel_prev
         self._wheel_prev = wheel_v
+        car_v = wheel_v + creep
         if not math.isfinite(prev) or span_s <= 0.0:
-            self._anchor_wheel = wheel_v
+            self._anchor_wheel = car_v
             return
         gain = min(span_s / sc.axle_accel_tau_s, 1.0)
         self._axle_accel += gain * ((wheel_v - prev) / span_s - self._axle_accel)
@@ -407,18 +678,58 @@ class Becu:
         self._span_s += span_s
         if check.stand_s > 0.0 or check.frozen_s > 0.0:
             return                                   # the wheel is not trusted yet: wait for the span's end
-        sliding = (self.v_ref - wheel_v > sc.slide_gate_mps or self.wsp != Wsp.FILL
+        sliding = (self.v_ref - car_v > sc.slide_gate_mps or self.wsp != Wsp.FILL or self.ref.sliding
                    or abs(self._axle_accel) > sc.car_accel_max_mps2)   # the wheel does what the car cannot
         if sliding and self._span_s < sc.span_max_s:
             return                                   # bridge the slide: update once the wheel is back
         span = self._span_s
-        wheel_rate = (wheel_v - self._anchor_wheel) / span
+        wheel_rate = (car_v - self._anchor_wheel) / span
         if not (sliding and abs(wheel_rate) > sc.car_accel_max_mps2):   # a slide still on: no evidence
             self.accel_check = accel_bias_check(ac, self._accel_sum / span, wheel_rate, span, sc)
-        self._anchor_wheel, self._accel_sum, self._span_s = wheel_v, 0.0, 0.0
+        self._anchor_wheel, self._accel_sum, self._span_s = car_v, 0.0, 0.0
         if self.accel_check.fault and not ac.fault:
             self.accel_fault_us = now_us
             self.v_ref = wheel_v                     # drop what the biased accelerometer integrated
+
+    def _check_cylinder(self, now_us: int, pressure: float, span_s: float) -> None:
+        """Plausibility of the pressure transducer on a fresh sensor frame, against the valve commands sent
+        over the span (`cyl_sensor_check`).  On failing: the model of the cylinder starts where the valves
+        should have taken the pressure since the reading froze, and the pressure PI, wound up on the
+        frozen reading, restarts."""
+        prev, prev2 = self._cyl_prev
+        self._cyl_prev = (pressure, prev)
+        if not math.isfinite(prev) or span_s <= 0.0:
+            return
+        p = self.p
+        before = self.cyl_check
+        self.cyl_check = cyl_sensor_check(before, pressure, prev, prev2, self._valve_sent, self._wsp_sent,
+                                          span_s, p.p_max_Pa, p.valve_rates_Pa_per_s, p.sensors)
+        if self.cyl_check.fault and not before.fault:
+            self.cyl_fault_us = now_us
+            self.p_model = clip(self.cyl_check.base_Pa + self.cyl_check.moved_Pa, 0.0, p.p_max_Pa)
+            self.pressure_pi.reset()
+
+    def creep(self, pressure_Pa: float) -> float:
+        """The wheel's creep [m/s] for the adhesion its brake uses at this cylinder pressure: the squeeze
+        line's torque (seed 001 eq. (6)) over r, over the car's weight (`creep_mps`; 0 without CreepParams
+        or before the first estimate)."""
+        p = self.p
+        if p.creep is None or not math.isfinite(self.v_ref):
+            return 0.0
+        mu = p.brake_gain_Nm_per_Pa * (pressure_Pa - p.brake_preload_Pa) / (
+            p.wheel_radius_m * p.car_mass_kg * G_MPS2)
+        return creep_mps(mu, self.v_ref, p.creep)
+
+    def _modelled_pressure(self, dt_s: float) -> float:
+        """The cylinder pressure [Pa] the loop runs on once its transducer failed: the model fed with the
+        commands sent last cycle (`valve_pressure_rate`), derated to brake (BecuParams.cyl_model_derate)."""
+        p = self.p
+        fill, vent, dump = p.valve_rates_Pa_per_s
+        d = p.cyl_model_derate
+        rate = valve_pressure_rate(self._valve_sent, self._wsp_sent, self.p_model, p.p_max_Pa,
+                                   (fill * (1.0 - d), vent * (1.0 + d), dump * (1.0 + d)))
+        self.p_model = clip(self.p_model + rate * dt_s, 0.0, p.p_max_Pa)
+        return self.p_model
 
     def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
         p = self.p
@@ -439,16 +750,28 @@ class Becu:
 
         wheel_v = omega * p.wheel_radius_m
         sc = p.sensors
+        fresh, span_s = self._fresh_sensor_frame(now_us, rx, dt_s)
+        cyl_failed = self.cyl_check.fault
+        if fresh and ok2 and not cyl_failed:
+            self._check_cylinder(now_us, pressure, span_s)
+        if self.cyl_check.fault:                     # the loop runs on the model of the cylinder
+            pressure = self._modelled_pressure(dt_s) if cyl_failed else self.p_model
         # the car's acceleration: the accelerometer, or the axle's (bounded) once the accelerometer failed
         accel_used = accel if not self.accel_check.fault else clip(
             self._axle_accel, -sc.car_accel_max_mps2, sc.car_accel_max_mps2)
+        creep = self.creep(pressure) if p.wheel_trust_slip_mps > 0.0 else 0.0   # none: seed 001's reference
         if self.speed_check.fault:                   # no wheel: the accelerometer alone, bias-corrected
             self.v_ref = max(self.v_ref + (accel - self.accel_check.bias_mps2) * dt_s, 0.0)
-        else:
-            self.v_ref = self.estimate_speed(wheel_v, accel_used, dt_s)
-        fresh, span_s = self._fresh_sensor_frame(now_us, rx, dt_s)
+        else:                                        # the accelerometer less g·sin θ and its bias
+            seed_001 = p.wheel_trust_slip_mps <= 0.0     # seed 001's reference: the raw accelerometer,
+            car_accel = (accel_used - self.accel_check.bias_mps2     # lifted to the axle every cycle
+                         if not self.accel_check.fault and not seed_001 else accel_used)
+            suspect = self.speed_check.stand_s > 0.0 or self.speed_check.frozen_s > 0.0
+            self.ref = reference_speed(self.ref, wheel_v, car_accel, dt_s, (fresh or seed_001) and ok1,
+                                       self.wsp == Wsp.FILL, pressure <= p.ref.torque_free_Pa,
+                                       p.wheel_trust_slip_mps, p.ref, creep, suspect)
         if fresh and ok1 and ok3:
-            self._check_sensors(now_us, wheel_v, accel, span_s)
+            self._check_sensors(now_us, wheel_v, accel, span_s, creep)
         speed_fault = self.speed_check.fault
         slip = 0.0 if speed_fault else self.v_ref - wheel_v          # eq. (2), seed 001
         if speed_fault:
@@ -468,11 +791,14 @@ class Becu:
         else:
             p_set = self.pressure_for_decel(decel)
             phi, phi_ok = finite_or(rx.get("FrictionPhi", 1.0), 1.0)
-            if phi_ok and emergency < 0.5 and not lost:                  # seed 004 §5: not for emergency
+            engaged = (finite_or(rx.get("FbState", 0.0), 0.0)[0] in PHI_STATES
+                       and not self.phi_stale(now_us, rx))
+            if phi_ok and engaged and emergency < 0.5 and not lost:      # seed 004 §5: not for emergency
                 p_set = self.apply_phi(p_set, phi)
         valve = self.pressure_pi.update(p_set - pressure, dt_s, freeze=overridden)
         if overridden:
             valve = 0.0                                               # the dump valve acts, EP valve holds
+        self._valve_sent, self._wsp_sent = valve, self.wsp
         return {
             "CylPressureSet": p_set,
             "ValveCmd": valve,
@@ -491,5 +817,6 @@ class Becu:
             "GovernorFeasible": int(self.decision.feasible) if self.decision else 1,
             "SpeedSensorFault": int(speed_fault),
             "AccelSensorFault": int(self.accel_check.fault),
+            "CylSensorFault": int(self.cyl_check.fault),
             "AccelBiasEst": clip(self.accel_check.bias_mps2, -4.096, 4.094),   # the DBC signal's range
         }

@@ -35,7 +35,7 @@ from firmware_py.pi import PI, PIParams
 
 
 class FbState(IntEnum):
-    """Values are the DBC choices of BCU_STATUS.FbState."""
+    """Values are the DBC choices of FbState (BCU_STATUS, BCU_BRAKE_CORR)."""
 
     OFF = 0        # no service braking, emergency braking, or the function is not fitted: φ = 1
     MONITOR = 1    # service braking: actual/target deceleration watched, no correction

@@ -282,7 +282,7 @@ def test_acd_names_are_the_dbcs():
     db = cantools.database.load_file(DBC)
     binding = Binding.build(db, "ACD", Acd.INPUTS, Acd.OUTPUTS,
                             rx_messages=["RADIO_LEADER_POS", "RADIO_LEADER_INFO", "RADIO_SIGNAL"],
-                            tx_messages=["ACD_BRAKE_REQ"])
+                            tx_messages=["ACD_BRAKE_REQ", "ACD_STATUS"])
     assert set(binding.inputs) == set(Acd.INPUTS)
     msg = db.get_message_by_name("ACD_BRAKE_REQ")
     req = msg.get_signal_by_name("Request")
@@ -290,7 +290,8 @@ def test_acd_names_are_the_dbcs():
         AcdMode, ("NONE", "SERVICE", "EMERGENCY"), strict=True)}
     aspect = db.get_message_by_name("RADIO_SIGNAL").get_signal_by_name("Aspect")
     assert {int(k): str(v) for k, v in aspect.choices.items()} == {a.value: a.name for a in Aspect}
-    assert P.no_obstacle_m == msg.get_signal_by_name("DistanceToObstacle").maximum
+    status = db.get_message_by_name("ACD_STATUS")
+    assert P.no_obstacle_m == status.get_signal_by_name("DistanceToObstacle").maximum
     assert P.cycle_us == msg.cycle_time * 1000
 
 
@@ -357,7 +358,8 @@ def test_leader_id_zero_means_no_leader_and_outputs_fit_the_dbc():
     radio(rx, 0, lat=la, lon=lo, leader_id=3)
     out = acd.step(100_000, rx)
     assert out["Request"] == int(AcdMode.EMERGENCY)
-    data = msg.encode({"CHECKSUM": 0, "COUNTER": 0, **out})
+    data = msg.encode({"CHECKSUM": 0, "COUNTER": 0, "SecOCFreshness": 0, "SecOCMAC": 0,
+                       **{k: out[k] for k in ("Request", "RequestedDecel")}})
     back = msg.decode(data, decode_choices=False)
     assert back["Request"] == 2 and back["RequestedDecel"] == pytest.approx(P.emergency_decel_mps2)
 

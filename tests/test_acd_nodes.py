@@ -155,6 +155,28 @@ def test_bcu_ignores_a_stale_acd_request_and_says_degraded():
     assert out["EmergencyActive"] == 0 and out["TargetDecel"] == 0.0 and out["Degraded"] == 1
 
 
+def test_an_acd_falling_silent_while_it_brakes_keeps_its_request_until_standstill():
+    """A lost or deleted ACD_BRAKE_REQ never releases a brake the ACD asked for (issue #19): its last
+    request holds, Degraded, until the train stands; then, still silent, it requests nothing."""
+    bcu = Bcu(2, BcuParams(acd=True))
+    for k in range(200):                                 # 2 s of SERVICE 0.6 m/s²: ramped up
+        rx = bcu_rx(bcu, k * 10_000, BrakeStep=0, EmergencyReq=0,
+                    **{"ACD_BRAKE_REQ.Request": 1, "ACD_BRAKE_REQ.RequestedDecel": 0.6})
+        out = bcu.step(k * 10_000, rx)
+    assert out["TargetDecel"] == pytest.approx(0.6)
+    for k in range(200, 400):                            # the ACD is silent from 2 s on; the train moves
+        for i in range(1, 3):
+            rx.update([("SpeedEst", f"BECU{i}_STATUS.SpeedEst")], {"SpeedEst": 10.0}, k * 10_000)
+        out = bcu.step(k * 10_000, rx)
+        assert out["TargetDecel"] == pytest.approx(0.6) and out["Mode"] == 1
+    assert out["Degraded"] == 1
+    for i in range(1, 3):                                # standstill: the held request ends
+        rx.update([("SpeedEst", f"BECU{i}_STATUS.SpeedEst")], {"SpeedEst": 0.0}, 4_000_000)
+    for k in range(400, 600):
+        out = bcu.step(k * 10_000, rx)
+    assert out["TargetDecel"] == 0.0 and out["Degraded"] == 1
+
+
 # --- the ACD node: GPS over the serial line ---------------------------------------------------------
 
 def device_run(spec: AcdSpec, serial: str = "loop", seconds: float = 60.0, v0: float = 25.0):

@@ -66,8 +66,8 @@ def test_train_frame_ids_rule(db) -> None:
     assert not any(n.startswith(("BECU7", "BECU8", "PLANT_CAR7", "PLANT_CAR8")) for n in names)
     assert not any(n.startswith(("RADIO_", "ACD_")) for n in names)
     assert {"BCU_EMERGENCY", "DESK_CMD", "DESK_TARGET", "BCU_DEMAND", "BCU_STATUS"} <= names
-    assert len(names) == 5 + 4 * 6
-    assert len(train_frame_ids(db, 1)) == 5 + 4
+    assert len(names) == 5 + 5 * 6
+    assert len(train_frame_ids(db, 1)) == 5 + 5
     with pytest.raises(ValueError, match="1..8"):
         train_frame_ids(db, 9)
     with pytest.raises(ValueError, match="1..8"):
@@ -80,9 +80,9 @@ def test_six_car_default_worst_case_load_is_at_most_60_percent(db) -> None:
     assert isinstance(load, BusLoad)
     assert load.bitrate_bps == 500_000  # the DBC's Baudrate
     assert load.worst_case_stuffing
-    # 1620 frames/s of 135 bit: 50 (20 ms) + 2 * 10 + 100 + 6 * (100 + 100 + 20 + 20) + 10 (100 ms)
-    assert load.bits_per_s == pytest.approx(1620 * 135)
-    assert load.total == pytest.approx(1620 * 135 / 500_000)
+    # 1680 frames/s of 135 bit: 50 (20 ms) + 2 * 10 + 100 + 6 * (100 + 100 + 20 + 20 + 10) + 10 (100 ms)
+    assert load.bits_per_s == pytest.approx(1680 * 135)
+    assert load.total == pytest.approx(1680 * 135 / 500_000)
     assert load.total <= 0.60
     assert sum(r.share for r in load.rows) == pytest.approx(1.0)
     assert sum(r.load for r in load.rows) == pytest.approx(load.total)
@@ -95,7 +95,7 @@ def test_eight_car_full_load(db) -> None:
     load = static_load(base)
     print(f"\n8-car full load: {100 * load.total:.1f} % ({load.bits_per_s:.0f} bit/s)")
     assert len(load.rows) == len(base.messages) < len(db.messages)
-    assert load.bits_per_s == pytest.approx((1620 + 2 * 240) * 135)
+    assert load.bits_per_s == pytest.approx((1680 + 2 * 250) * 135)
     unstuffed = static_load(base, worst_case_stuffing=False)
     assert unstuffed.total == pytest.approx(load.total * 111 / 135)
     # with the anti-collision device: its request (100 ms) and the radio link's three frames (1 s)

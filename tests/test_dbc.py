@@ -11,8 +11,9 @@ from hil.can.dbc import DEFAULT_DBC, load_dbc
 from hil.errors import DbcError
 
 ROOT = Path(__file__).resolve().parents[1]
-SAFETY = ("BCU_EMERGENCY", "DESK_CMD", "DESK_TARGET", "ACD_BRAKE_REQ", "BCU_DEMAND") + tuple(
-    f"BECU{i}_PRESS_CMD" for i in range(1, 9))
+SAFETY = ("BCU_EMERGENCY", "DESK_CMD", "DESK_TARGET", "ACD_BRAKE_REQ", "BCU_DEMAND",
+          "BCU_BRAKE_CORR") + tuple(f"BECU{i}_{what}" for what in ("PRESS_CMD", "STATUS")
+                                    for i in range(1, 9))
 
 
 def test_dbc_matches_its_generator():
@@ -39,7 +40,8 @@ def test_schema_content():
     assert max(safety_ids) < min(other_ids), "safety frames must have the lowest identifiers"
     for name in SAFETY:
         sigs = {s.name for s in db.get_message_by_name(name).signals}
-        assert {"COUNTER", "CHECKSUM"} <= sigs, name
+        assert {"COUNTER", "CHECKSUM", "SecOCFreshness", "SecOCMAC"} <= sigs, name
+    assert {m.name for m in db.messages if any(s.name == "CHECKSUM" for s in m.signals)} == set(SAFETY)
 
 
 @pytest.mark.parametrize("content, expected", [

@@ -231,9 +231,10 @@ def test_coefficient_set_grid_and_an_untested_class():
 
 
 # ------------------------------------------------------------------------------------------------- BECU
-def becu_rx(phi, emergency=0.0):
+def becu_rx(phi, emergency=0.0, fb_state=FbState.ENGAGED):
     return {"AxleSpeed": 16.0 / 0.46, "CylPressure": 0.0, "AccelLong": 0.0, "TargetDecel": 1.32,
-            "BCU_DEMAND.Mode": 1, "EmergencyActive": emergency, "FrictionPhi": phi}
+            "BCU_DEMAND.Mode": 1, "EmergencyActive": emergency, "FrictionPhi": phi,
+            "FbState": float(fb_state)}
 
 
 @pytest.mark.parametrize("phi, emergency, factor", [
@@ -255,6 +256,15 @@ def test_becu_applies_phi_to_the_force_part(phi, emergency, factor):
         nominal = becu.pressure_for_decel(1.32)
         assert out["CylPressureSet"] == pytest.approx(min(pre + (nominal - pre) * factor, becu.p.p_max_Pa))
 
+
+@pytest.mark.parametrize("fb_state, applied", [(FbState.OFF, False), (FbState.MONITOR, False),
+                                               (FbState.ENGAGED, True), (FbState.HELD, True)])
+def test_becu_ignores_phi_unless_the_feedback_is_engaged_or_held(fb_state, applied):
+    """A φ the BCU does not report as a correction in force (OFF, MONITOR) changes nothing (issue #19)."""
+    becu = Becu()
+    out = becu.step(0, becu_rx(0.8, fb_state=fb_state))
+    nominal = becu.pressure_for_decel(1.32)
+    assert (out["CylPressureSet"] != pytest.approx(nominal)) is applied
 
 # ----------------------------------------------------------------------------------- the line test, HIL
 @pytest.fixture(scope="module")
@@ -305,7 +315,8 @@ def test_line_test_closed_loop_holds_the_band_open_loop_does_not(line_test):
     # plots: the run's (Figs. 19-20 layout, beside the foundation's plot.png) and the side-by-side comparison
     assert (closed.out_dir / "decel_feedback.png").stat().st_size > 10_000 and png.stat().st_size > 10_000
     assert (closed.out_dir / "plot.png").stat().st_size > 10_000
-    assert load_dbc().get_message_by_name("BCU_STATUS").get_signal_by_name("FrictionPhi")
+    corr = load_dbc().get_message_by_name("BCU_BRAKE_CORR")         # φ rides authenticated
+    assert {"FrictionPhi", "FbState", "SecOCMAC"} <= {s.name for s in corr.signals}
     meta = json.loads((closed.out_dir / "run.json").read_text())
     assert meta["scenario"]["decel_feedback"]["closed_loop"] is True
 
@@ -331,3 +342,22 @@ def test_feedback_without_pad_model_is_one_clear_error(tmp_path):
     with pytest.raises(ScenarioError) as err:
         load_scenario(ROOT / "scenarios" / "decel_feedback.toml", sets=["plant.pad_friction=false"])
     assert "plant.pad_friction" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_becu_drops_a_phi_older_than_three_correction_cycles():
+    """A correction that stops arriving (the BCU_BRAKE_CORR deleted or lost) falls back to φ = 1 after
+    `phi_timeout_us` (3 cycles of 100 ms): the last φ received is not applied for ever."""
+    from hil.runtime.node import RxTable
+
+    becu = Becu()
+    rx = RxTable(Becu.INPUTS + Becu.PHI_INPUTS)
+    values = becu_rx(0.8)
+    every = [(k, k) for k in Becu.INPUTS]
+    rx.update([(k, k) for k in Becu.PHI_INPUTS], values, 0)
+    nominal = becu.pressure_for_decel(1.32)
+    applied = []
+    for k in range(0, 50):                                 # 10 ms cycles, only the car's inputs refreshed
+        now = k * 10_000
+        rx.update(every, values, now)
+        applied.append(becu.step(now, rx)["CylPressureSet"] != pytest.approx(nominal))
+    assert all(applied[:31]) and not any(applied[31:])      # fresh through 300 ms, then dropped

@@ -3,7 +3,7 @@ the same frame bytes (codec, E2E, SecOC) for the same values and counters, the s
 frames, the same control, and in lockstep the same stop; and docs/external-ecu.md against the DBC.
 
 Not real time: the closed loop runs in lockstep, with railhil's BECU3 node replaced frame for frame by the
-example's BecuNode (its receive() and cycle()).
+example's BecuNode (its receive() and cycle()); the two runs' frames are the same, byte for byte.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 from types import SimpleNamespace
 
+import can
 import cantools
 import numpy as np
 import pytest
@@ -35,6 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "external_becu"
 DOC = ROOT / "docs" / "external-ecu.md"
 DEFAULT = ROOT / "scenarios" / "default.toml"
+FEEDBACK = ROOT / "scenarios" / "decel_feedback.toml"    # the BCU sends BCU_BRAKE_CORR, the BECUs take it
 CAR = 3
 FORBIDDEN = {"hil", "firmware_py", "plant_sim", "railhil"}
 ALLOWED_THIRD_PARTY = {"can", "cantools", "cryptography", "numpy"}
@@ -56,14 +58,16 @@ def ext():
 def rail():
     scenario = load_scenario(DEFAULT)
     db = load_dbc()
-    return SimpleNamespace(scenario=scenario, db=db, codec=Codec(db),
+    return SimpleNamespace(scenario=scenario, feedback=load_scenario(FEEDBACK), db=db, codec=Codec(db),
                            ext_db=cantools.database.load_file(str(ROOT / "dbc" / "train_brake.dbc")))
 
 
-def keyed_node(name: str, rail, controller=None):
-    """railhil's node `name` of the default scenario, keyed as a run keys it, its controller replaced."""
-    node = build_node(name, rail.scenario, rail.db, rail.codec)
-    node.use_keys({}, rail.scenario.secoc.window)
+def keyed_node(name: str, rail, controller=None, scenario=None):
+    """railhil's node `name` of `scenario` (default: the default scenario), keyed as a run keys it, its
+    controller replaced."""
+    scenario = scenario or rail.scenario
+    node = build_node(name, scenario, rail.db, rail.codec)
+    node.use_keys({}, scenario.secoc.window)
     if controller is not None:
         node.controller = controller
     return node
@@ -88,7 +92,7 @@ def becu_outputs(rng: random.Random) -> dict:
             "InputMissing": rng.choice((0, 1)), "OptSlipEst": 0.0, "OptSlipPos": 0.0,
             "GovernedDecel": rng.uniform(0, 1.3), "GovernorMargin": rng.uniform(-7e4, 7e4),
             "GovernorFeasible": 1, "SpeedSensorFault": 0, "AccelSensorFault": 0,
-            "AccelBiasEst": rng.uniform(-5, 5)}
+            "CylSensorFault": rng.choice((0, 1)), "AccelBiasEst": rng.uniform(-5, 5)}
 
 
 # --- (1) the bytes on the wire -------------------------------------------------------------------------
@@ -104,25 +108,35 @@ def test_the_frames_the_example_sends_are_railhils_byte_for_byte(ext, rail):
         for fc, data in node.cycle(node.offset_us + 10_000 * k):
             assert senders[fc.name].frame(out) == data, (fc.name, k)
             compared[fc.name] = compared.get(fc.name, 0) + 1
-    assert compared == {f"BECU{CAR}_PRESS_CMD": 40, f"BECU{CAR}_STATUS": 8, f"BECU{CAR}_DIAG": 8}
+    # every frame of both, at the DBC's cycle times: PRESS_CMD 10 ms, STATUS and DIAG 50 ms, EST 100 ms
+    assert compared == {name: 400 // int(rail.db.get_message_by_name(name).cycle_time) for name in senders}
+    assert compared[f"BECU{CAR}_PRESS_CMD"] == 40
 
 
 def bcu_outputs(rng: random.Random, k: int) -> dict:
     return {"Mode": 1, "BrakeStep": 7, "TargetDecel": min(k * 0.01, 1.0) + rng.uniform(0, 0.004),
             "EmergencyActive": int(k % 9 == 4), "Source": 1, "CarsSilent": 0, "Degraded": 0,
-            "TrainSpeedEst": 25.0 - 0.01 * k, "CarsImplausible": 0, "FbState": 0,
+            "TrainSpeedEst": 25.0 - 0.01 * k, "CarsImplausible": 0, "FbState": k // 10 % 4,
             "FrictionPhi": rng.uniform(0.7, 1.4), "SlopeEst": 0.0, "StopState": 0}
 
 
-def test_railhil_frames_are_taken_by_the_example_as_railhils_becu_takes_them(ext, rail):
+@pytest.mark.parametrize(("scenario", "taken_expected", "rejects"), [
+    # 50 sensor frames, 50 demands and 25 emergency frames less the two INITIAL ones
+    ("scenario", 50 + 49 + 24, (2, 0)),
+    # and 5 BCU_BRAKE_CORR (FbState OFF, MONITOR, ENGAGED, HELD, OFF) less the INITIAL one
+    ("feedback", 50 + 49 + 24 + 4, (3, 0)),
+])
+def test_railhil_frames_are_taken_by_the_example_as_railhils_becu_takes_them(ext, rail, scenario,
+                                                                               taken_expected, rejects):
     rng = random.Random(3)
-    bcu = keyed_node("BCU", rail, Script([bcu_outputs(rng, k) for k in range(100)]))
-    plant = keyed_node("PLANT", rail)                         # the real plant: its sensors, its counters
-    theirs = keyed_node(f"BECU{CAR}", rail)
+    scenario = getattr(rail, scenario)
+    bcu = keyed_node("BCU", rail, Script([bcu_outputs(rng, k) for k in range(100)]), scenario)
+    plant = keyed_node("PLANT", rail, scenario=scenario)      # the real plant: its sensors, its counters
+    theirs = keyed_node(f"BECU{CAR}", rail, scenario=scenario)
     ours = ext.becu.BecuNode(rail.ext_db, CAR, start_us=theirs.offset_us)
     inputs = {"axle_speed_rad_s": "AxleSpeed", "cyl_pressure_Pa": "CylPressure",
               "accel_mps2": "AccelLong", "target_decel_mps2": "TargetDecel", "emergency": "EmergencyActive",
-              "friction_phi": "FrictionPhi"}
+              "friction_phi": "FrictionPhi", "fb_state": "FbState"}
     taken = 0
     for t in range(0, 500_000, 1_000):
         frames = plant.cycle(t) + (bcu.cycle(t) if t % 10_000 == bcu.offset_us else [])
@@ -131,8 +145,8 @@ def test_railhil_frames_are_taken_by_the_example_as_railhils_becu_takes_them(ext
                 continue
             theirs.receive(fc.frame_id, data, t)
             taken += ours.receive(fc.frame_id, data, t)
-            for key, name in inputs.items():
-                mine, rails = ours.values.get(key, math.nan), theirs.rx[name]
+            for key, name in inputs.items():          # a signal railhil's BECU does not bind: NaN in both
+                mine, rails = ours.values.get(key, math.nan), theirs.rx.get(name, math.nan)
                 assert mine == rails or (math.isnan(mine) and math.isnan(rails)), (fc.name, t, name)
             if fc.name in theirs.rx.e2e:
                 _, receiver = ours.receivers[fc.frame_id]
@@ -141,24 +155,51 @@ def test_railhil_frames_are_taken_by_the_example_as_railhils_becu_takes_them(ext
             theirs.cycle(t)
             ours.cycle(t)
             assert ours.inputs(t).demand_age_us == theirs.rx.age_us("TargetDecel", t)
-    # 50 sensor frames, 50 demands and 25 emergency frames less the two INITIAL ones, 5 BCU_STATUS
-    assert taken == 50 + 49 + 24 + 5
-    assert ours.rejects() == (2, 0)
+            assert ours.inputs(t).phi_age_us == theirs.rx.age_us("FrictionPhi", t)       # φ's timeout
+            assert ours.inputs(t).sensors_age_us == theirs.rx.age_us("AxleSpeed", t)     # a new reading?
+    assert taken == taken_expected
+    assert ours.rejects() == rejects
+    feedback = scenario is rail.feedback                 # φ and FbState only from a BCU with the feedback
+    assert ("friction_phi" in ours.values, "fb_state" in ours.values) == (feedback, feedback)
 
 
-def test_railhils_plant_takes_the_examples_pressure_commands(ext, rail):
-    plant = keyed_node("PLANT", rail)
+def test_railhils_plant_and_bcu_take_the_examples_authenticated_frames(ext, rail):
+    plant, bcu = keyed_node("PLANT", rail), keyed_node("BCU", rail)
     ours = ext.becu.BecuNode(rail.ext_db, CAR, start_us=0)
-    fid = rail.db.get_message_by_name(f"BECU{CAR}_PRESS_CMD").frame_id
-    ours.receive(rail.db.get_message_by_name("BCU_STATUS").frame_id, bytes(8), 0)    # the train is heard
-    for k in range(30):
+    cmd = rail.db.get_message_by_name(f"BECU{CAR}_PRESS_CMD").frame_id
+    status = rail.db.get_message_by_name(f"BECU{CAR}_STATUS").frame_id
+    assert ours.receive(rail.db.get_message_by_name(f"PLANT_CAR{CAR}_SENSORS").frame_id, bytes(8), 0)
+    for k in range(30):                                     # the train is heard: everything from cycle 0
         for frame_id, data in ours.cycle(10_000 * k):
-            if frame_id == fid:
+            sent = rail.codec[frame_id].decode(data)
+            if frame_id == cmd:
                 plant.receive(frame_id, data, 10_000 * k + 300)
-                sent = rail.codec[fid].decode(data)
                 assert plant.rx[f"BECU{CAR}_PRESS_CMD.ValveCmd"] == sent["ValveCmd"] or k == 0
-    assert plant.stats.secoc_rejected == {}
+            elif frame_id == status:
+                bcu.receive(frame_id, data, 10_000 * k + 300)
+                assert bcu.rx[f"BECU{CAR}_STATUS.SpeedEst"] == sent["SpeedEst"] or k == 0
+    assert plant.stats.secoc_rejected == {} and bcu.stats.secoc_rejected == {}
     assert plant.stats.e2e_status == {"INITIAL": 1, "OK": 29}
+    assert bcu.stats.e2e_status == {"INITIAL": 1, "OK": 5}
+
+
+def test_the_authenticated_frames_wait_for_the_train_the_others_do_not(ext, rail):
+    ours = ext.becu.BecuNode(rail.ext_db, CAR, start_us=0)
+    names = {rail.db.get_message_by_name(n).frame_id: n for n in ext.becu.becu_frames(CAR)[1]}
+    authenticated = {n for n in names.values() if secoc_data_id(rail.db.get_message_by_name(n))}
+    assert authenticated == {f"BECU{CAR}_PRESS_CMD", f"BECU{CAR}_STATUS"}
+    sent = [names[fid] for k in range(10) for fid, _ in ours.cycle(10_000 * k)]      # 100 ms, no train
+    assert sorted(sent) == sorted(n for n in names.values() if n not in authenticated
+                                  for _ in range(100 // int(rail.db.get_message_by_name(n).cycle_time)))
+    assert set(sent) == {f"BECU{CAR}_DIAG", f"BECU{CAR}_EST"}
+    ours.receive(rail.db.get_message_by_name("BCU_DEMAND").frame_id, bytes(8), 100_000)   # rejected, heard
+    first = {}
+    for k in range(10, 20):
+        for fid, data in ours.cycle(10_000 * k):
+            first.setdefault(names[fid], data)
+    assert set(first) == set(names.values())
+    for name in authenticated:                             # freshness 1: the receivers' window holds it
+        assert rail.codec.by_name(name).decode(first[name])["SecOCFreshness"] == 1, name
 
 
 # --- (2) E2E and SecOC: the same verdicts as railhil's, rejections -------------------------------------
@@ -284,9 +325,10 @@ def test_the_control_steps_as_railhils_becu(ext):
     from firmware_py.becu import Becu
 
     theirs, ours = Becu(), ext.control.BrakeControl()
-    rx = RxTable(Becu.INPUTS)
+    rx = RxTable(Becu.INPUTS + Becu.PHI_INPUTS)     # a train with deceleration feedback
     r, v, p = 0.46, 25.0, 0.0
     t_demand = None
+    corrected = set()                              # FbState values under which φ changed the set-point
     for k in range(1500):                          # 15 s: ramp, slides, a lost demand, emergency
         t = 3_000 + 10_000 * k
         slip = 1.5 * max(0.0, math.sin(k / 40.0)) ** 8 if 200 < k < 900 else 0.0
@@ -297,20 +339,95 @@ def test_the_control_steps_as_railhils_becu(ext):
         rx.update([(n, n) for n in sensors], sensors, t - 2_000)
         if not 1000 <= k < 1010:                    # 100 ms without a usable demand
             t_demand = t - 1_000
-            rx.update([("TargetDecel", "TargetDecel"), ("EmergencyActive", "EmergencyActive"),
-                       ("FrictionPhi", "FrictionPhi")],
-                      {"TargetDecel": demand, "EmergencyActive": float(1200 <= k < 1250), "FrictionPhi": 1.1},
-                      t_demand)
+            rx.update([("TargetDecel", "TargetDecel"), ("EmergencyActive", "EmergencyActive")],
+                      {"TargetDecel": demand, "EmergencyActive": float(1200 <= k < 1250)}, t_demand)
+        if k % 10 == 0:                             # BCU_BRAKE_CORR, 100 ms: the four FbStates in turn,
+            rx.update([("FrictionPhi", "FrictionPhi"), ("FbState", "FbState")],      # ENGAGED over the
+                      {"FrictionPhi": 1.1 + 0.05 * math.sin(k / 100.0),              # lost demand and
+                       "FbState": float((k // 60 + 2) % 4)}, t - 1_500)              # the emergency
         want = theirs.step(t, rx)
         got = ours.step(t, ext.control.Inputs(
             axle_speed_rad_s=rx["AxleSpeed"], cyl_pressure_Pa=p, accel_mps2=accel,
             target_decel_mps2=rx["TargetDecel"], emergency=rx["EmergencyActive"],
-            friction_phi=rx["FrictionPhi"], demand_age_us=t - t_demand))
+            friction_phi=rx["FrictionPhi"], fb_state=rx["FbState"], demand_age_us=t - t_demand))
         for key, value in want.items():
             if key != "AccelBiasEst":
                 assert got[key] == pytest.approx(value, abs=1e-9), (k, key)
-        p = min(max(p + 1e6 * 0.01 * want["ValveCmd"], 0.0), 450e3)
+        if want["CylPressureSet"] != theirs.pressure_for_decel(want["GovernedDecel"]):
+            corrected.add(rx["FbState"])
+        # the cylinder as the plant's valves move it (docs/external-ecu.md): the EP valve fills at 1 MPa/s
+        # and vents at 1.5 MPa/s at full opening, the dump valve holds (HOLD) or vents at 2 MPa/s (VENT)
+        valve, dump = want["ValveCmd"], want["WspValve"]
+        rate = 0.0 if dump == 1 else -2e6 if dump == 2 else valve * (1e6 if valve > 0 else 1.5e6)
+        p = min(max(p + rate * 0.01, 0.0), 450e3)
     assert theirs.failsafe_cycles == ours.lost_cycles > 0
+    assert corrected == {2.0, 3.0}                 # φ applied while ENGAGED and HELD, never OFF or MONITOR
+
+
+@pytest.mark.parametrize("fault", ["none", "wheel held down 2 s", "cylinder pressure stuck",
+                                   "cylinder pressure reads 0", "wheel speed frozen", "wheel stands",
+                                   "accelerometer biased"])
+def test_the_control_steps_as_railhils_becu_through_sensor_faults_and_lost_frames(ext, fault):
+    """As above, with what that test does not exercise: sensor frames that do not come every cycle, a
+    BCU_BRAKE_CORR that stops for longer than φ's 300 ms timeout, and, from 7 s on, a failing sensor (with
+    an emergency brake that moves the valves while it has failed); the ages passed as BecuNode passes
+    them, every output compared, AccelBiasEst too."""
+    from firmware_py.becu import Becu
+
+    theirs, ours = Becu(), ext.control.BrakeControl()
+    rx = RxTable(Becu.INPUTS + Becu.PHI_INPUTS)
+    r, v, p = 0.46, 25.0, 0.0
+    held = {}                                      # the stuck readings
+    applied = []                                   # φ changed the set-point, per cycle
+    for k in range(1200):                          # 12 s
+        t = 3_000 + 10_000 * k
+        slip = 1.5 * max(0.0, math.sin(k / 40.0)) ** 8 if 200 < k < 600 else 0.0
+        accel = -0.9 if v > 0 else 0.0
+        v = max(v + accel * 0.01, 0.0)
+        sensors = {"AxleSpeed": max(v - slip, 0.0) / r, "CylPressure": p, "AccelLong": accel}
+        if k >= 700:                               # the sensor fails
+            if fault == "wheel held down 2 s" and k < 900:      # a slide deeper than WSP brings back
+                sensors["AxleSpeed"] *= 0.4
+            elif fault == "cylinder pressure stuck":
+                sensors["CylPressure"] = held.setdefault("p", p)
+            elif fault == "cylinder pressure reads 0":       # it jumps there: the model starts before it
+                sensors["CylPressure"] = 0.0
+            elif fault == "wheel speed frozen":
+                sensors["AxleSpeed"] = held.setdefault("w", sensors["AxleSpeed"])
+            elif fault == "wheel stands":
+                sensors["AxleSpeed"] = 0.0
+            elif fault == "accelerometer biased":
+                sensors["AccelLong"] = accel + 2.0   # a slide the wheel then ends by spinning up
+        if k % 7 != 3:                             # every 7th sensor frame lost: no new reading that cycle
+            rx.update([(n, n) for n in sensors], sensors, t - 2_000)
+        rx.update([("TargetDecel", "TargetDecel"), ("EmergencyActive", "EmergencyActive")],
+                  {"TargetDecel": min(k * 0.01, 1.0), "EmergencyActive": float(800 <= k < 900)}, t - 1_000)
+        if k % 10 == 0 and not 400 <= k < 460:     # BCU_BRAKE_CORR ENGAGED, silent for 600 ms from k = 400
+            rx.update([("FrictionPhi", "FrictionPhi"), ("FbState", "FbState")],
+                      {"FrictionPhi": 1.2, "FbState": 2.0}, t - 1_500)
+        want = theirs.step(t, rx)
+        got = ours.step(t, ext.control.Inputs(
+            axle_speed_rad_s=rx["AxleSpeed"], cyl_pressure_Pa=rx["CylPressure"], accel_mps2=rx["AccelLong"],
+            target_decel_mps2=rx["TargetDecel"], emergency=rx["EmergencyActive"],
+            friction_phi=rx["FrictionPhi"], fb_state=rx["FbState"],
+            demand_age_us=rx.age_us("TargetDecel", t), phi_age_us=rx.age_us("FrictionPhi", t),
+            sensors_age_us=rx.age_us("AxleSpeed", t)))
+        assert set(got) == set(want)
+        for key, value in want.items():
+            assert got[key] == pytest.approx(value, abs=1e-9), (k, key)
+        applied.append(want["CylPressureSet"] != theirs.pressure_for_decel(want["GovernedDecel"]))
+        valve, dump = want["ValveCmd"], want["WspValve"]
+        rate = 0.0 if dump == 1 else -2e6 if dump == 2 else valve * (1e6 if valve > 0 else 1.5e6)
+        p = min(max(p + rate * 0.01, 0.0), 450e3)
+    # the last BCU_BRAKE_CORR came at k = 390: φ applied up to 300 ms after it, not from k = 420 until the
+    # frames return at k = 460
+    assert all(applied[390:420]) and not any(applied[420:460]) and applied[460]
+    flags = {"cylinder pressure stuck": "CylSensorFault", "cylinder pressure reads 0": "CylSensorFault",
+             "wheel speed frozen": "SpeedSensorFault", "wheel stands": "SpeedSensorFault",
+             "accelerometer biased": "AccelSensorFault"}
+    if fault in flags or fault == "none":           # the failing sensor is found (and only that one)
+        assert {f for f in ("CylSensorFault", "SpeedSensorFault", "AccelSensorFault") if got[f]} == (
+            {flags[fault]} if fault in flags else set())
 
 
 # --- the closed loop in lockstep -----------------------------------------------------------------------
@@ -324,13 +441,26 @@ def stopping_distance(outcome, t_brake_s: float, n_cars: int) -> float:
     return float(cols["x_m_1"][stop[0]] - np.interp(t_brake_s, t, cols["x_m_1"]))
 
 
-def run_default(rail, ext=None):
+class Frames(can.Listener):
+    """Every frame of a run, in bus order: (time [s], frame id, data)."""
+
+    def __init__(self) -> None:
+        self.frames: list[tuple[float, int, bytes]] = []
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.frames.append((msg.timestamp, msg.arbitration_id, bytes(msg.data)))
+
+
+def run_train(rail, scenario, ext=None, writer=None):
+    """A lockstep run of `scenario`: (setup, outcome, the example's BecuNode as BECU3 or None); `writer`
+    gets every frame."""
     from hil.runtime.lockstep import prepare_lockstep, run_lockstep
 
-    setup = prepare_lockstep(rail.scenario, rail.db, rail.codec)
+    setup = prepare_lockstep(scenario, rail.db, rail.codec)
     node = next(n for n in setup.nodes if n.name == f"BECU{CAR}")
+    ours = None
     if ext is not None:                            # railhil's BECU3, frame for frame the example's
-        ours = ext.becu.BecuNode(rail.ext_db, CAR, window=rail.scenario.secoc.window, start_us=node.offset_us)
+        ours = ext.becu.BecuNode(rail.ext_db, CAR, window=scenario.secoc.window, start_us=node.offset_us)
         codec = rail.codec
 
         def cycle(now_us, nominal_us=None):
@@ -340,22 +470,35 @@ def run_default(rail, ext=None):
 
         node.receive_values = lambda frame_id, values, t_us, data=None: ours.receive(frame_id, data, t_us)
         node.cycle = cycle
-    return setup, run_lockstep(rail.scenario, rail.db, rail.codec, None, setup=setup)
+    return setup, run_lockstep(scenario, rail.db, rail.codec, writer, setup=setup), ours
 
 
-def test_the_default_train_stops_as_far_with_the_example_as_becu3(ext, rail):
-    t_brake = rail.scenario.desk[0].at_s
-    n = rail.scenario.train.cars
-    _, reference = run_default(rail)
-    setup, outcome = run_default(rail, ext)
+@pytest.mark.parametrize(("scenario", "rejects"), [
+    ("scenario", (2, 0)),                          # the default train: the INITIAL demand and emergency
+    ("feedback", (3, 0)),                          # and the INITIAL BCU_BRAKE_CORR; φ engaged in the stop
+])
+def test_the_train_stops_as_far_with_the_example_as_becu3(ext, rail, scenario, rejects):
+    scenario = getattr(rail, scenario)
+    t_brake = scenario.desk[0].at_s
+    n = scenario.train.cars
+    theirs_frames, our_frames = Frames(), Frames()
+    _, reference, _ = run_train(rail, scenario, writer=theirs_frames)
+    setup, outcome, becu = run_train(rail, scenario, ext, writer=our_frames)
     assert outcome.reason == "standstill"
     ours, theirs = stopping_distance(outcome, t_brake, n), stopping_distance(reference, t_brake, n)
     assert ours == pytest.approx(theirs, rel=0.02)
-    plant = outcome.node_stats["PLANT"]
-    assert not plant["secoc_rejected"]
-    assert [e[2] for e in plant["e2e_events"] if e[1] == f"BECU{CAR}_PRESS_CMD"] == ["INITIAL"]
+    for name, message in (("PLANT", f"BECU{CAR}_PRESS_CMD"), ("BCU", f"BECU{CAR}_STATUS")):
+        stats = outcome.node_stats[name]
+        assert not stats["secoc_rejected"], name
+        assert [e[2] for e in stats["e2e_events"] if e[1] == message] == ["INITIAL"], name
     bcu = next(n for n in setup.nodes if n.name == "BCU").controller
     assert not bcu.implausible[CAR - 1]
+    assert becu.rejects() == rejects
+    # the example's control is railhil's BECU step for step: the two runs are the same, frame for frame
+    mine, rails = our_frames.frames, theirs_frames.frames
+    first = next((k for k, (a, b) in enumerate(zip(mine, rails, strict=False)) if a != b), None)
+    assert first is None, (rail.db.get_message_by_frame_id(mine[first][1]).name, mine[first], rails[first])
+    assert len(mine) == len(rails) > 0
 
 
 # --- (3) the example is not railhil --------------------------------------------------------------------
@@ -401,7 +544,7 @@ def test_the_program_says_where_it_is_and_ends_cleanly_on_sigterm():
     try:
         line = read_line(proc)
         assert line.strip() == (f"external BECU{CAR}: on virtual external-becu-test, sending "
-                                f"BECU{CAR}_PRESS_CMD, BECU{CAR}_STATUS, BECU{CAR}_DIAG")
+                                f"BECU{CAR}_PRESS_CMD, BECU{CAR}_STATUS, BECU{CAR}_DIAG, BECU{CAR}_EST")
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=10)
     finally:
@@ -418,7 +561,8 @@ def test_the_program_runs_its_cycle_for_the_duration_asked():
     assert summary, proc.stdout
     cycles, sent = int(summary[1]), int(summary[2])
     assert 0 < cycles <= 31                    # 10 ms cycles for 0.3 s (fewer on a stalled machine)
-    assert 0 < sent <= 2 * 7                   # STATUS and DIAG every 50 ms; no command: no train heard
+    assert 0 < sent <= 7 + 4                   # DIAG every 50 ms, EST every 100 ms; no train heard: no
+    #                                            PRESS_CMD and no STATUS (authenticated)
 
 
 def test_a_bus_that_does_not_open_is_one_line_and_exit_2():
@@ -452,7 +596,7 @@ def cell(text: str, n: int) -> int | None:
     return int(m[1], 0) + (n if m[2] else 0)
 
 
-def test_the_frame_table_of_the_wire_contract_matches_the_dbc(rail):
+def test_the_frame_table_of_the_wire_contract_matches_the_dbc(ext, rail):
     rows = doc_table("| frame | id |")
     documented = set()
     for name_cell, id_cell, length, cycle, sender, _, profile, data_id, secoc_id in rows:
@@ -473,14 +617,19 @@ def test_the_frame_table_of_the_wire_contract_matches_the_dbc(rail):
                 assert cfg.length == (4 if secoc_data_id(msg) else msg.length), where
             assert secoc_data_id(msg) == cell(secoc_id, n), where
             documented.add(name)
-    # every frame the foundation's nodes of the default train send or receive is in the table
+    # every frame the foundation's nodes of the default train, and of a train with deceleration feedback
+    # (BCU_BRAKE_CORR), send or receive is in the table, and every frame the example sends or receives
     used = set()
-    for name in node_names(rail.scenario):
-        node = build_node(name, rail.scenario, rail.db, rail.codec)
-        used |= {tx.codec.name for tx in node.tx}
-        used |= {rail.db.get_message_by_frame_id(f).name for f in node.rx_ids}
+    for scenario in (rail.scenario, rail.feedback):
+        for name in node_names(scenario):
+            node = build_node(name, scenario, rail.db, rail.codec)
+            used |= {tx.codec.name for tx in node.tx}
+            used |= {rail.db.get_message_by_frame_id(f).name for f in node.rx_ids}
     used.add("DESK_TARGET")                       # sent by DESK, read by the BCU with precise stopping
     assert used <= documented
+    for n in range(1, 9):
+        rx, tx = ext.becu.becu_frames(n)
+        assert set(rx + tx) <= documented, n
     protected = {m.name for m in rail.db.messages if e2e_config(m) or secoc_data_id(m)}
     assert protected - documented == {"ACD_BRAKE_REQ"}      # a study's frame (anticollision)
 

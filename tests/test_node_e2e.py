@@ -16,8 +16,8 @@ from hil.runtime.assembly import build_node
 from hil.runtime.node import DEV_SECOC_KEY, authentic_length, e2e_config, secoc_data_id
 from hil.scenario import load_scenario
 
-SAFETY = {"BCU_EMERGENCY", "DESK_CMD", "DESK_TARGET", "ACD_BRAKE_REQ", "BCU_DEMAND"} | {
-    f"BECU{i}_PRESS_CMD" for i in range(1, 9)}
+SAFETY = {"BCU_EMERGENCY", "DESK_CMD", "DESK_TARGET", "ACD_BRAKE_REQ", "BCU_DEMAND", "BCU_BRAKE_CORR"} | {
+    f"BECU{i}_{what}" for what in ("PRESS_CMD", "STATUS") for i in range(1, 9)}
 
 
 def test_the_dbc_marks_exactly_the_safety_frames_profile_1_with_their_id_as_data_id():
@@ -43,7 +43,9 @@ def test_every_safety_frame_of_a_lockstep_trace_checks_ok(default_lockstep):
                                                            bytes(msg.data)[:authentic])
             per = statuses.setdefault(cfg.name, {})
             per[status.value] = per.get(status.value, 0) + 1
-    assert set(statuses) == SAFETY - {"ACD_BRAKE_REQ"} - {f"BECU{i}_PRESS_CMD" for i in (7, 8)}
+    # the default train: 6 cars, no anti-collision device, no deceleration feedback
+    assert set(statuses) == SAFETY - {"ACD_BRAKE_REQ", "BCU_BRAKE_CORR"} - {
+        f"BECU{i}_{what}" for what in ("PRESS_CMD", "STATUS") for i in (7, 8)}
     for name, per in statuses.items():
         assert per.get("INITIAL") == 1 and set(per) == {"INITIAL", "OK"}, (name, per)
     stats = default_lockstep.outcome.node_stats

@@ -117,7 +117,7 @@ def test_timing_gives_a_verdict_for_every_cyclic_frame(realtime_run):
 
     report = analyse(frame_arrays(open_trace(out / "trace.blf")), with_functions(load_dbc(), []),
                      bitrate_bps=500_000, ignore=["*7_*", "*8_*"])      # the base train's frames, 6 cars
-    assert len(report.messages) == 29 and all(m.verdict in ("PASS", "FAIL") for m in report.messages)
+    assert len(report.messages) == 35 and all(m.verdict in ("PASS", "FAIL") for m in report.messages)
     assert 0.3 < report.load.average < 0.5                  # the static worst case is 43.7 %
 
 

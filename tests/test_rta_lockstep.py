@@ -33,7 +33,7 @@ def test_default_run_stays_within_its_rta_bounds(default_lockstep):
     outcome = default_lockstep.outcome
     bounds, report = bounds_for(outcome)
     rows = check(outcome, bounds)
-    assert len(rows) == 29                                   # every cyclic frame of a 6-car run
+    assert len(rows) == 35                                   # every cyclic frame of a 6-car run
     # not vacuous: somewhere the measured worst case reaches a good part of its bound (the phase
     # offsets of the nodes keep the critical instant of the analysis from happening)
     assert max(measured / bound for _, measured, bound in rows) > 0.3

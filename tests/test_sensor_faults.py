@@ -1,6 +1,8 @@
-"""Sensor faults and stuck signals (issue #9): injected at the source (`[[faults]]` kinds `sensor` and
-`stuck`), detected and excluded by the BECU (SpeedSensorFault, AccelSensorFault) and the BCU
-(CarsImplausible), without releasing a brake; and no false detection in the fault-free scenarios.
+"""Sensor faults and stuck signals (issues #9, #19): injected at the source (`[[faults]]` kinds `sensor` and
+`stuck`), detected and excluded by the BECU (SpeedSensorFault, AccelSensorFault, CylSensorFault) and the
+BCU (CarsImplausible, Degraded), without releasing a brake; and no false detection in the fault-free
+scenarios.  A stuck brake-cylinder pressure transducer (`sensor` = "pressure", mode "stuck": the physical
+transducer, in the plant node) is detected in every injected case, its time to detect printed.
 
 Lockstep runs through the public API (hil.runtime.run) on the real DBC; what the ECUs concluded is read back
 from the run's BLF trace with python-can's reader and decoded by cantools; what the brakes did comes
@@ -20,10 +22,14 @@ from firmware_py.becu import (
     STEEPEST_GRADIENT_MPS2,
     AccelCheck,
     Becu,
+    CylCheck,
     SensorCheckParams,
     SpeedCheck,
+    Wsp,
     accel_bias_check,
+    cyl_sensor_check,
     speed_sensor_check,
+    valve_pressure_rate,
     vent_watchdog,
 )
 from hil.can.dbc import load_dbc
@@ -36,6 +42,7 @@ from hil.scenario import load_scenario, parse_scenario
 STOP_30 = ROOT / "scenarios" / "stop_30kmh.toml"
 SC = SensorCheckParams()
 BP = BcuParams()
+RATES = (1.0e6, 1.5e6, 2.0e6)      # BecuParams().valve_rates_Pa_per_s: fill, vent, dump at full opening
 T0 = 1.5                     # fault window start [s]: the emergency brake is applied from 0.5 s
 DIAG_PERIOD_S = 0.05         # BECUn_DIAG / BECUn_STATUS cycle (DBC GenMsgCycleTime)
 BCU_STATUS_PERIOD_S = 0.1    # BCU_STATUS cycle (DBC)
@@ -120,7 +127,9 @@ def test_vent_watchdog_table(vent_s, tripped, venting, recovered, expected):
 
 
 def test_the_becu_refills_a_cylinder_vented_longer_than_the_watchdog_allows():
-    """A wheel that reads 5 m/s slower than the accelerometer says, for 8 s: WSP vents, the watchdog
+    """A wheel that reads 5 m/s slower than the accelerometer says, for 8 s, and a cylinder that WSP's
+    dump valve does not empty (its transducer, alive, reads 200 kPa throughout, so neither the frozen-
+    transducer check nor the reference speed's spin-up rule ends the slide): WSP vents, the watchdog
     refills after max_vent_s, and the brake stays applied."""
     becu = Becu()
     limit = becu.p.wsp.max_vent_s
@@ -129,10 +138,107 @@ def test_the_becu_refills_a_cylinder_vented_longer_than_the_watchdog_allows():
     becu.step(0, rx)
     venting = []
     for k in range(1, 800):
-        out = becu.step(k * 10_000, {**rx, "AxleSpeed": 15 / 0.46 + 1e-3 * (k % 2)})   # alive, 5 m/s slip
+        out = becu.step(k * 10_000, {**rx, "AxleSpeed": 15 / 0.46 + 1e-3 * (k % 2),   # alive, 5 m/s slip
+                                     "CylPressure": 200e3 + 10.0 * (k % 2)})           # alive, not vented
         venting.append(out["WspActive"])
     vented_s = sum(venting) * 0.01
     assert vented_s == pytest.approx(limit, abs=0.02) and venting[-1] == 0 and becu.wsp_watchdog_trips == 1
+    assert out["CylSensorFault"] == 0
+
+
+def test_a_vented_wheel_that_does_not_spin_up_is_trusted_again():
+    """The same wheel, 5 m/s below the accelerometer's speed, with a cylinder that the dump valve empties:
+    a wheel without brake torque spins up (seed 001 eq. (3) with τ = 0), so after spin_up_s without
+    torque the reference speed takes the wheel (the accelerometer was wrong) and WSP stops venting."""
+    becu = Becu()
+    rp = becu.p.ref
+    rx = {"AxleSpeed": 20 / 0.46, "CylPressure": 200e3, "AccelLong": 0.0, "TargetDecel": 1.0, "Mode": 1,
+          "EmergencyActive": 0}
+    becu.step(0, rx)
+    venting, pressure = [], 200e3
+    for k in range(1, 200):
+        out = becu.step(k * 10_000, {**rx, "AxleSpeed": 15 / 0.46 + 1e-3 * (k % 2),
+                                     "CylPressure": pressure + 10.0 * (k % 2)})
+        venting.append(out["WspActive"])
+        rate = valve_pressure_rate(out["ValveCmd"], out["WspValve"], pressure, 450e3, RATES)   # plant_sim's
+        pressure = min(max(pressure + rate * 0.01, 0.0), 450e3)
+    empty_s = (200e3 - rp.torque_free_Pa) / 2e6                 # until the pressure is below torque_free_Pa
+    vented_s = sum(venting) * 0.01
+    assert vented_s == pytest.approx(empty_s + rp.spin_up_s, abs=0.03)
+    # the wheel's speed (the bias estimate took up a little of the 5 m/s step the accelerometer did not see)
+    assert venting[-1] == 0 and becu.ref.resets == 1 and becu.v_ref == pytest.approx(15.0, abs=0.05)
+    assert becu.wsp_watchdog_trips == 0 and out["CylSensorFault"] == 0
+
+
+@pytest.mark.parametrize("valve, wsp, p, expected", [
+    (0.5, Wsp.FILL, 100e3, 0.5e6),             # EP valve filling
+    (-0.5, Wsp.FILL, 100e3, -0.75e6),          # ... venting
+    (0.5, Wsp.HOLD, 100e3, 0.0),               # the dump valve isolates the cylinder
+    (0.5, Wsp.VENT, 100e3, -2.0e6),            # ... or dumps it
+    (1.0, Wsp.FILL, 450e3, 0.0),               # nothing beyond p̄ ...
+    (-1.0, Wsp.FILL, 0.0, 0.0),                # ... or below 0
+])
+def test_valve_pressure_rate_table(valve, wsp, p, expected):
+    assert valve_pressure_rate(valve, wsp, p, 450e3, RATES) == expected
+
+
+def feed_cyl_check(readings, valve, wsp=Wsp.FILL, span=0.01):
+    """Run cyl_sensor_check over readings [Pa] with one valve command; (final state, time it failed)."""
+    state, prev, before, failed_at = CylCheck(), math.nan, math.nan, None
+    for k, r in enumerate(readings):
+        if prev == prev:
+            state = cyl_sensor_check(state, r, prev, before, valve, wsp, span, 450e3, RATES, SC)
+        before, prev = prev, r
+        if state.fault and failed_at is None:
+            failed_at = k * span
+    return state, failed_at
+
+
+@pytest.mark.parametrize("readings, valve, wsp, fails", [
+    ([0.0] * 20, 1.0, Wsp.FILL, True),                        # reads 0 while the valve fills at full
+    ([300e3] * 20, -1.0, Wsp.FILL, True),                     # reads 300 kPa while it vents at full
+    ([300e3] * 20, 0.0, Wsp.VENT, True),                      # ... while the dump valve vents
+    ([300e3 + 10 * (k % 2) for k in range(20)], 1.0, Wsp.FILL, False),   # a live transducer
+    ([0.0] * 100, -1.0, Wsp.FILL, False),                     # venting an empty cylinder: no evidence
+    ([445e3] * 100, 1.0, Wsp.FILL, False),                    # filling at the reservoir's pressure: none
+    ([200e3] * 100, 0.01, Wsp.FILL, False),                   # within the valve's dead band: none
+    ([200e3] * 100, 1.0, Wsp.HOLD, False),                    # the cylinder isolated: none
+])
+def test_cyl_sensor_check_table(readings, valve, wsp, fails):
+    state, _ = feed_cyl_check(readings, valve, wsp)
+    assert state.fault == fails
+
+
+def test_a_frozen_transducer_fails_once_the_valves_moved_the_limit_and_the_model_starts_there():
+    state, failed_at = feed_cyl_check([0.0] * 20, 1.0)               # 1 MPa/s: 50 kPa in 50 ms
+    assert failed_at == pytest.approx(SC.cyl_frozen_dp_Pa / RATES[0] + 0.01, abs=0.011)
+    assert state.base_Pa == 0.0 and state.moved_Pa == pytest.approx(state.evidence_Pa)
+    # a transducer that jumps to 450 kPa and stays there while the cylinder held 300 kPa: faster than any
+    # valve moves a cylinder, so the pressure when it froze is the reading before the jump
+    state, _ = feed_cyl_check([300e3, 300.5e3, 450e3] + [450e3] * 10, -1.0)
+    assert state.fault and state.base_Pa == 300.5e3 and state.moved_Pa < 0.0
+    assert cyl_sensor_check(state, 1.0, 2.0, 3.0, 1.0, Wsp.FILL, 0.01, 450e3, RATES, SC) is state   # latched
+
+
+def test_the_becu_runs_the_pressure_loop_on_its_model_once_the_transducer_failed():
+    """The transducer reads 0 while the BECU fills for a 1.0 m/s² demand (set-point 260 kPa): CylSensorFault
+    within 0.1 s, then the loop closes on the model of the cylinder, derated to brake: the valve closes
+    once the modelled pressure reaches the set-point, by when the plant's cylinder (nominal valves) holds
+    at least the set-point."""
+    becu = Becu()
+    rx = {"AxleSpeed": 20 / 0.46, "CylPressure": 0.0, "AccelLong": -1.0, "TargetDecel": 1.0, "Mode": 1,
+          "EmergencyActive": 0}
+    p_true, failed_at = 0.0, None
+    for k in range(100):
+        out = becu.step(k * 10_000, {**rx, "AxleSpeed": (20 - 0.01 * k) / 0.46})
+        u = out["ValveCmd"]
+        p_true = min(max(p_true + 0.01 * u * (1e6 if u > 0 else 1.5e6), 0.0), 450e3)
+        if out["CylSensorFault"] and failed_at is None:
+            failed_at = k * 0.01
+    assert failed_at is not None and failed_at <= 0.1
+    assert becu.p_model == pytest.approx(out["CylPressureSet"], rel=0.01) and abs(out["ValveCmd"]) < 0.01
+    assert out["CylPressureSet"] <= p_true <= 1.15 * out["CylPressureSet"]
+    assert out["SpeedSensorFault"] == 0 and out["AccelSensorFault"] == 0
 
 
 @pytest.mark.parametrize("speeds, trusted, expected", [
@@ -288,6 +394,70 @@ def test_an_accelerometer_bias_is_estimated_and_detected(tmp_path, fault_free, b
     assert_brake_held_and_train_stopped(report, fault_free, 4, detected)
 
 
+#: stuck cylinder-pressure transducer cases: (car, injected at [s], stuck at [Pa] (None: its last reading),
+#: when the valves start to move the pressure [s], bound on the time to detect from then [s], what)
+CYL_CASES = [
+    (2, 0.2, None, 0.5, 0.2, "before braking, at 0 kPa (found when the brake applies at 0.5 s)"),
+    (3, 0.6, None, 0.6, 0.2, "during the pressure rise"),
+    (1, 1.5, 0.0, 1.5, 0.2, "braking at ~330 kPa, reads 0 (open circuit)"),
+    (4, 1.0, 100e3, 1.0, 0.2, "braking at ~330 kPa, reads 100 kPa"),
+    (6, 1.5, 450e3, 1.5, 0.2, "braking at ~330 kPa, reads 450 kPa (short to supply)"),
+    (5, 1.5, None, 1.5, 3.0, "braking, frozen at its reading of the set-point: found once the pressure "
+                             "PI's integrator has moved the valve"),
+]
+
+
+@pytest.mark.parametrize("car, t0, value, moving_s, bound_s, what", CYL_CASES,
+                         ids=[f"car{c[0]}-{c[1]}s-{c[2]}" for c in CYL_CASES])
+def test_a_stuck_cylinder_pressure_sensor_is_detected_and_the_brake_stays_applied(
+        tmp_path, fault_free, car, t0, value, moving_s, bound_s, what):
+    """CylSensorFault latches within the bound after the valves start to move the pressure (every injected
+    case: different cars, injection before braking, during the rise, at different stuck values; the times
+    are printed); the BCU goes Degraded; the car's brake stays applied (the loop runs on the model of the
+    cylinder) and no other flag is raised."""
+    fault = {"kind": "sensor", "car": car, "sensor": "pressure", "mode": "stuck", "from_s": t0, "to_s": 60.0}
+    if value is not None:
+        fault["value"] = value
+    report = run_scenario_lockstep(emergency_stop(fault), tmp_path / "run")
+    assert report.kpis["faults_injected"]["sensor"] > 0
+    trace = decode_trace(report, DIAG + ["BCU_STATUS"])
+    t, sig = trace[f"BECU{car}_DIAG"]
+    detected = first_time(t, sig["CylSensorFault"])
+    assert detected is not None, what
+    print(f"\nstuck CylPressure, car {car}, from {t0} s at {'its last reading' if value is None else value}: "
+          f"{what}: CylSensorFault at {detected:.3f} s, {detected - moving_s:.3f} s after the valves move it "
+          f"(bound {bound_s} s)")
+    assert detected - moving_s <= bound_s
+    flagged = report.kpis["plausibility_flags"]["CylSensorFault"]
+    assert flagged == {f"car{car}": pytest.approx(detected, abs=1e-3)}
+    for i, name in enumerate(DIAG, start=1):
+        flags = ("SpeedSensorFault", "AccelSensorFault") + (("CylSensorFault",) if i != car else ())
+        assert not any(trace[name][1][s].any() for s in flags), (name, flags)
+    ts, st = trace["BCU_STATUS"]
+    assert np.all(st["Degraded"][ts > detected + DIAG_PERIOD_S + BCU_STATUS_PERIOD_S] == 1)
+    assert not st["CarsImplausible"].any()
+    assert_brake_held_and_train_stopped(report, fault_free, car, detected)
+
+
+def test_a_stuck_cylinder_pressure_sensor_is_detected_in_service_braking_with_wsp(tmp_path, default_lockstep):
+    """The default run (service braking, the wet section): car 3's transducer frozen at its reading at 7 s,
+    as WSP starts venting that car: found within 0.2 s (the dump valve should move the pressure), the train
+    stops no later than without the fault (the loop on the model, derated to brake)."""
+    car, t0 = 3, 7.0
+    base = load_scenario(ROOT / "scenarios" / "default.toml")
+    fault = {"kind": "sensor", "car": car, "sensor": "pressure", "mode": "stuck", "from_s": t0, "to_s": 90.0}
+    report = run_scenario_lockstep(parse_scenario({**base.model_dump(), "faults": [fault]}), tmp_path / "run",
+                                   plots=False)
+    t, sig = decode_trace(report, [f"BECU{car}_DIAG"])[f"BECU{car}_DIAG"]
+    detected = first_time(t, sig["CylSensorFault"])
+    assert detected is not None
+    print(f"\nstuck CylPressure, default, car {car}, from {t0} s at its last reading (WSP venting): "
+          f"CylSensorFault at {detected:.3f} s, {detected - t0:.3f} s after the injection (bound 0.2 s)")
+    assert detected - t0 <= 0.2
+    assert report.outcome.reason == "standstill"
+    assert report.kpis["stopping_distance_m"] <= default_lockstep.kpis["stopping_distance_m"] + 0.5
+
+
 def test_a_stuck_speed_estimate_is_excluded_by_the_bcu(tmp_path, fault_free):
     """BECU3's software reports SpeedEst = 40 m/s from T0: the frame is valid on the bus, the BCU
     finds it implausible after 3 status cycles, excludes it from the train speed, flags it."""
@@ -333,6 +503,7 @@ def assert_no_detection(report, n):
     for i in range(1, n + 1):
         sig = trace[f"BECU{i}_DIAG"][1]
         assert not sig["SpeedSensorFault"].any() and not sig["AccelSensorFault"].any(), i
+        assert not sig["CylSensorFault"].any(), i
         assert np.abs(sig["AccelBiasEst"]).max() < SC.bias_limit_mps2 / 2, i
     assert not trace["BCU_STATUS"][1]["CarsImplausible"].any()
 
@@ -360,3 +531,4 @@ def test_wsp_still_works_on_low_adhesion(tmp_path):
     assert_no_detection(report, 1)
     t, sig = decode_trace(report, ["BECU1_STATUS"])["BECU1_STATUS"]
     assert sig["WspActive"].sum() >= 20
+

@@ -333,7 +333,7 @@ def test_cli_on_a_lockstep_run_passes_when_unsent_frames_are_ignored(tmp_path, c
     ignore = ["--ignore", "*7_*", "--ignore", "*8_*"]
     assert main(args + ignore + ["--format", "json"]) == 0
     report = json.loads(capsys.readouterr().out)
-    assert len(report["messages"]) == 29 and {m["verdict"] for m in report["messages"]} == {"PASS"}
+    assert len(report["messages"]) == 35 and {m["verdict"] for m in report["messages"]} == {"PASS"}
     # the bit-timed lockstep bus never exceeds the response-time bound, and the driver's brake step
     # (at 0.5 s) reaches the first car's brake cylinder within 50 ms
     chain = "DESK_CMD.BrakeStep -> BCU_DEMAND.TargetDecel -> BECU1_PRESS_CMD.CylPressureSet -> " \
@@ -341,7 +341,7 @@ def test_cli_on_a_lockstep_run_passes_when_unsent_frames_are_ignored(tmp_path, c
     assert main(args + ignore + ["--rta", "--chain", chain, "--chain-max-ms", "50", "--format", "json"]) == 0
     report = json.loads(capsys.readouterr().out)
     rta = report["rta"]["messages"]
-    assert len(rta) == 29 and all(m["schedulable"] and m["verdict"] == "PASS" for m in rta)
+    assert len(rta) == 35 and all(m["schedulable"] and m["verdict"] == "PASS" for m in rta)
     assert all(m["c_us"] <= m["measured"]["max_us"] <= m["response_us"] for m in rta)
     (chain_report,) = report["chains"]
     assert chain_report["instances"] == chain_report["completed"] == 1 and chain_report["verdict"] == "PASS"

@@ -14,10 +14,12 @@ Conventions
   `CHECKSUM` (byte 0) and `COUNTER` (low nibble of byte 1): the AUTOSAR E2E profile 1 layout.  The
   message attributes `E2EProfile` ("P01") and `E2EDataID` (the frame id: unique on this bus, data id
   mode BOTH) tell the node runtime to protect and check them (hil/can/e2e.py).
-- The brake demand, the pressure commands and the emergency frame (whose EmergencyActive = 0
-  releases) are authenticated,
-  SecOC profile 1: bytes 0-3 are the E2E-protected authentic part, `SecOCFreshness` (byte 4) and
-  `SecOCMAC` (bytes 5-7) the trailer; attribute `SecOCDataID` names the data id (hil/can/secoc.py).
+- Every frame whose signals reach an actuator or a target is authenticated (tests/test_protection.py
+  derives which from the node bindings): the brake demand, the pressure commands, the emergency frame
+  (whose EmergencyActive = 0 releases), the desk's command and target, the cars' status, the ACD's
+  request and the BCU's pressure correction; SecOC profile 1: bytes 0-3 are the E2E-protected
+  authentic part, `SecOCFreshness` (byte 4) and `SecOCMAC` (bytes 5-7) the trailer; attribute
+  `SecOCDataID` names the data id (hil/can/secoc.py).
 - Names: message `<SENDER>_<WHAT>`, per-car messages `<SENDER><n>_<WHAT>` / `PLANT_CAR<n>_<WHAT>`,
   signals CamelCase with no car index, so a binding can substitute the index.
 """
@@ -56,13 +58,15 @@ def messages() -> list[Msg]:
                 Sig("EmergencyReq", 15, 1, maximum=1, comment="1 = driver emergency brake request"),
             ] + secoc("the desk command"), secoc_data_id=0x018),
         Msg(0x019, "DESK_TARGET", "DESK", ["BCU"], 100,
-            "Driver desk / ATO target stop point (precise stopping).",
+            "Driver desk / ATO target stop point (precise stopping; authenticated: a forged target "
+            "would move where the train stops).",
             e2e("the target stop point") + [
                 Sig("TargetStopValid", 12, 1, maximum=1,
                     comment="1 = TargetStopPos holds a target stop point"),
-                Sig("TargetStopPos", 16, 24, scale=0.01, maximum=167772.15, unit="m",
+                # 19 bits so that the SecOC trailer fits: 2 cm steps, a tenth of seed 002's ±30 cm band
+                Sig("TargetStopPos", 13, 19, scale=0.02, maximum=10485.74, unit="m",
                     comment="target stop point of the leading car's front, track position"),
-            ]),
+            ] + secoc("the target stop point"), secoc_data_id=0x019),
         Msg(0x028, "BCU_DEMAND", "BCU", becus(), 10,
             "Train brake demand distributed to every car.",
             e2e("the demand") + [
@@ -101,17 +105,24 @@ def messages() -> list[Msg]:
             ]))
     for i in range(1, MAX_CARS + 1):
         msgs.append(Msg(
-            0x140 + i, f"BECU{i}_STATUS", f"BECU{i}", ["BCU"] + [b for b in becus() if b != f"BECU{i}"], 50,
-            f"Car {i}: BECU{i} estimates and mode flags.",
-            [
-                Sig("SpeedEst", 0, 16, scale=0.01, maximum=655.35, unit="m/s",
-                    comment="reference (ground) speed estimate"),
-                Sig("SlipSpeedEst", 16, 16, scale=0.001, minimum=-32.768, maximum=32.767, unit="m/s",
-                    signed=True, comment="slip speed estimate s = v - r*omega (seed 001 eq. 2)"),
-                Sig("WspActive", 32, 1, maximum=1,
+            0x040 + i, f"BECU{i}_STATUS", f"BECU{i}", ["BCU"] + [b for b in becus() if b != f"BECU{i}"], 50,
+            f"Car {i}: BECU{i} reference speed and mode flags (authenticated: the BCU's standstill, "
+            f"odometer and deceleration feedback act on them).",
+            e2e("the car's status") + [
+                Sig("WspActive", 12, 1, maximum=1,
                     comment="1 = wheel-slide protection is venting or holding"),
-                Sig("IntegratorSat", 34, 1, maximum=1, comment="1 = a PI integrator is saturated or frozen"),
-                Sig("InputMissing", 35, 1, maximum=1, comment="1 = an input signal is missing or non-finite"),
+                Sig("IntegratorSat", 14, 1, maximum=1, comment="1 = a PI integrator is saturated or frozen"),
+                Sig("InputMissing", 15, 1, maximum=1, comment="1 = an input signal is missing or non-finite"),
+                Sig("SpeedEst", 16, 16, scale=0.01, maximum=655.35, unit="m/s",
+                    comment="reference (ground) speed estimate"),
+            ] + secoc("the car's status"), secoc_data_id=0x040 + i))
+    for i in range(1, MAX_CARS + 1):
+        msgs.append(Msg(
+            0x170 + i, f"BECU{i}_EST", f"BECU{i}", ["BCU"] + [b for b in becus() if b != f"BECU{i}"], 100,
+            f"Car {i}: BECU{i} slip estimates (the log; the preview of seed 000 reads its optimal slip).",
+            [
+                Sig("SlipSpeedEst", 0, 16, scale=0.001, minimum=-32.768, maximum=32.767, unit="m/s",
+                    signed=True, comment="slip speed estimate s = v - r*omega (seed 001 eq. 2)"),
             ]))
     for i in range(1, MAX_CARS + 1):
         msgs.append(Msg(
@@ -122,11 +133,14 @@ def messages() -> list[Msg]:
                     comment="1 = wheel-speed sensor stuck or implausible: excluded, WSP inhibited"),
                 Sig("AccelSensorFault", 34, 1, maximum=1,
                     comment="1 = accelerometer biased or implausible: excluded, the axle speed is used"),
+                Sig("CylSensorFault", 35, 1, maximum=1,
+                    comment="1 = brake-cylinder pressure transducer frozen while the valve moves the "
+                            "pressure: the pressure loop runs open, on the set-point"),
                 Sig("AccelBiasEst", 40, 12, scale=0.002, minimum=-4.096, maximum=4.094, unit="m/s^2",
                     signed=True, comment="accelerometer reading minus the axle's acceleration, filtered"),
             ]))
     msgs += [
-        Msg(0x160, "BCU_STATUS", "BCU", ["DESK"] + becus(), 100,
+        Msg(0x160, "BCU_STATUS", "BCU", ["DESK"], 100,
             "BCU state for the desk and the log.",
             [
                 Sig("Mode", 0, 2, maximum=3, comment="BCU brake mode", choices=BCU_MODES),

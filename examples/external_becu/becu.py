@@ -8,13 +8,16 @@ all keep the wire contract of docs/external-ecu.md.
     python examples/external_becu/becu.py --car 3 --interface udp_multicast \\
         --channel 239.74.163.2 --bus-kwargs port=43113
 
-Receives PLANT_CARn_SENSORS, BCU_DEMAND, BCU_EMERGENCY, BCU_STATUS; sends BECUn_PRESS_CMD (10 ms),
-BECUn_STATUS and BECUn_DIAG (50 ms), at the cycle times of the DBC.  The cycle runs on absolute 10 ms
-deadlines of time.monotonic_ns(); between deadlines it waits in bus.recv(timeout=remaining).
+Receives PLANT_CARn_SENSORS, BCU_DEMAND, BCU_EMERGENCY and BCU_BRAKE_CORR (which only a train with
+deceleration feedback sends); sends BECUn_PRESS_CMD (10 ms), BECUn_STATUS and BECUn_DIAG (50 ms) and
+BECUn_EST (100 ms), at the cycle times of the DBC.  The cycle runs on absolute 10 ms deadlines of
+time.monotonic_ns(); between deadlines it waits in bus.recv(timeout=remaining).
 
-BECUn_PRESS_CMD starts with the first frame heard from the train: railhil's receivers start their SecOC
-freshness at 0 and accept at most `window` frames ahead, so a pressure command sent long before the
-train starts would be locked out for the whole run.  BECUn_STATUS and BECUn_DIAG go out from the start.
+The authenticated frames it sends (those with a SecOCDataID in the DBC, which carry SecOCFreshness and
+SecOCMAC: BECUn_PRESS_CMD and BECUn_STATUS) start with the first frame heard from the train: railhil's
+receivers start their SecOC freshness at 0 and accept at most `window` frames ahead, so an authenticated
+frame sent long before the train starts would be locked out for the whole run.  The others (BECUn_DIAG,
+BECUn_EST) go out from the start.
 
 Ctrl-C or SIGTERM end it with a one-line summary; a bus that cannot be opened is `error: ...` and exit 2.
 """
@@ -46,8 +49,8 @@ CATCH_UP_CYCLES = 5           # up to this many cycles late: run them back to ba
 
 def becu_frames(car: int) -> tuple[list[str], list[str]]:
     """(frames received, frames sent) by the BECU of car `car`."""
-    return ([f"PLANT_CAR{car}_SENSORS", "BCU_DEMAND", "BCU_EMERGENCY", "BCU_STATUS"],
-            [f"BECU{car}_PRESS_CMD", f"BECU{car}_STATUS", f"BECU{car}_DIAG"])
+    return ([f"PLANT_CAR{car}_SENSORS", "BCU_DEMAND", "BCU_EMERGENCY", "BCU_BRAKE_CORR"],
+            [f"BECU{car}_PRESS_CMD", f"BECU{car}_STATUS", f"BECU{car}_DIAG", f"BECU{car}_EST"])
 
 
 # the control's inputs: (message, signal) -> Inputs field
@@ -57,7 +60,8 @@ _INPUTS = {
     ("SENSORS", "AccelLong"): "accel_mps2",
     ("BCU_DEMAND", "TargetDecel"): "target_decel_mps2",
     ("BCU_EMERGENCY", "EmergencyActive"): "emergency",
-    ("BCU_STATUS", "FrictionPhi"): "friction_phi",
+    ("BCU_BRAKE_CORR", "FrictionPhi"): "friction_phi",
+    ("BCU_BRAKE_CORR", "FbState"): "fb_state",
 }
 
 
@@ -66,7 +70,7 @@ class _Due:
     sender: Sender
     cycle_us: int
     next_us: int
-    needs_train: bool        # a command frame: not before the train is heard
+    needs_train: bool        # an authenticated frame: not before the train is heard
 
 
 @dataclass
@@ -99,10 +103,11 @@ class BecuNode:
         self.due: list[_Due] = []
         for name in tx_names:
             msg = db.get_message_by_name(name)
-            self.due.append(_Due(Sender(msg, keys.get(name, default)), int(msg.cycle_time) * 1000, start_us,
-                                 needs_train=name.endswith("_PRESS_CMD")))
+            sender = Sender(msg, keys.get(name, default))     # authenticates when the DBC gives a SecOCDataID
+            self.due.append(_Due(sender, int(msg.cycle_time) * 1000, start_us,
+                                 needs_train=sender.data_id is not None))
         self.values: dict[str, float] = {}
-        self.demand_us: int | None = None       # reception time of the last usable BCU_DEMAND
+        self.taken_us: dict[str, int] = {}       # message kind -> reception time of its last usable frame
         self.train_heard = False
         self.stats = Stats()
 
@@ -120,13 +125,16 @@ class BecuNode:
         for (k, sig), key in _INPUTS.items():
             if k == kind and sig in values:
                 self.values[key] = values[sig]
-        if kind == "BCU_DEMAND":
-            self.demand_us = t_us
+        self.taken_us[kind] = t_us
         return True
 
     def inputs(self, now_us: int) -> Inputs:
-        age = None if self.demand_us is None else now_us - self.demand_us
-        return Inputs(**self.values, demand_age_us=age)
+        def age(kind: str) -> int | None:
+            t_us = self.taken_us.get(kind)
+            return None if t_us is None else now_us - t_us
+
+        return Inputs(**self.values, demand_age_us=age("BCU_DEMAND"), phi_age_us=age("BCU_BRAKE_CORR"),
+                      sensors_age_us=age("SENSORS"))
 
     def cycle(self, now_us: int) -> list[tuple[int, bytes]]:
         """One control cycle at `now_us`: E2E checks of missed frames, the control step, the frames due."""
@@ -237,9 +245,9 @@ def run(bus: can.BusABC, node: BecuNode, args) -> int:
     except Exception:                   # a bus that opened has a configuration; only the print needs it
         where = given
     period_ns = node.control.p.cycle_us * 1000
-    name, (cmd, status, diag) = node.name, node.tx_names
-    print(f"external {name}: on {where.get('interface')} {where.get('channel')}, sending {cmd}, {status}, "
-          f"{diag}", flush=True)
+    name = node.name
+    print(f"external {name}: on {where.get('interface')} {where.get('channel')}, sending "
+          f"{', '.join(node.tx_names)}", flush=True)
 
     t0 = time.monotonic_ns()
     end_ns = t0 + round(args.duration * 1e9) if args.duration else None

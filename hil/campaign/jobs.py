@@ -2,15 +2,17 @@
 processes (or in this process), in order, with a progress bar; and the options every reproduction has.
 
 A campaign file's points go through hil.campaign.sweep (cached, resumable, local or Dask); a
-reproduction's runs are a fixed list that it reduces itself, so they only need this.
+reproduction's runs are a fixed list that it reduces itself, so they only need this.  `executor_map`
+runs such a list on any executor a campaign runs on (hil.campaign.sweep.executor_for: this process,
+local processes or a Dask cluster): the threat matrix's cells go that way.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Callable, Iterable
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import TypeVar
 
@@ -42,6 +44,39 @@ def map_jobs(fn: Callable[[J], R], jobs: Iterable[J], workers: int, desc: str,
     finally:
         bar.close()
     return results
+
+
+def executor_map(fn: Callable[..., R], jobs: Sequence[tuple], executor: Executor | None,
+                 done: Callable[[R], None] | None = None,
+                 failed: Callable[[tuple, BaseException], R] | None = None) -> list[R]:
+    """`fn(*job)` for every job, results in job order: in this process, one after the other, when
+    `executor` is None; else all submitted to `executor` at once (local processes, a Dask cluster's
+    executor), so `fn` and the jobs must pickle.  `done(result)` is called as each finishes (completion
+    order).  A job whose future raised (a worker died, a lost connection) gives `failed(job, exc)`; without
+    `failed` that exception propagates.  Ctrl-C cancels the jobs not started and propagates."""
+    results: dict[int, R] = {}
+    if executor is None:
+        for i, job in enumerate(jobs):
+            results[i] = fn(*job)
+            if done is not None:
+                done(results[i])
+        return [results[i] for i in range(len(jobs))]
+    futures: dict[Future, int] = {executor.submit(fn, *job): i for i, job in enumerate(jobs)}
+    try:
+        for fut in as_completed(futures):
+            i = futures[fut]
+            try:
+                results[i] = fut.result()
+            except Exception as exc:
+                if failed is None:
+                    raise
+                results[i] = failed(jobs[i], exc)
+            if done is not None:
+                done(results[i])
+    finally:
+        for fut in futures:
+            fut.cancel()
+    return [results[i] for i in range(len(jobs))]
 
 
 def add_run_options(p: argparse.ArgumentParser, out: str, what: str, jobs: int = 2) -> None:

@@ -1,15 +1,20 @@
-"""`railhil faults matrix SCENARIO` — every EN 50159 threat on every safety frame, in lockstep: what
-the receivers detected and what happened to the train.  Definitions in hil.safety.threat_matrix.
+"""`railhil faults matrix SCENARIO | --all` — every EN 50159 threat on every protected frame, a babbling
+node and each sender bus-off, in lockstep: what the receivers detected and what happened to the train.
+Definitions in hil.safety.threat_matrix; the table in hil.safety.matrix_report.
 
-Writes matrix.md (a Markdown table) and matrix.json to the output folder and prints the table.
-Exit 0 when every threat was detected within 3 cycles by every receiver and no outcome was unsafe
-or released a brake, 1 otherwise (a verdict), 2 for bad input.
+`--all` runs the matrix on every scenario family (ALL_SCENARIOS).  The runs go through the campaign
+executor (hil.campaign.sweep.executor_for): in this process (`--jobs 1`), on local worker processes
+(`--jobs N`) or on a Dask cluster (`--dask ADDRESS`).  Progress (cells done / total, ETA) on stderr.
+
+Writes matrix.md and matrix.json to the output folder and prints the totals, the verdict and the cells
+that failed (one scenario: every cell).  Exit 0 when every cell was detected within 3 cycles by every
+receiver and none was unsafe, released a brake, moved a target or failed to run; 1 otherwise (a
+verdict); 2 for bad input; 130 when interrupted.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -17,12 +22,19 @@ from pathlib import Path
 
 from hil.errors import RailhilError
 
+#: the scenario families of `--all` (shipped scenarios, by name)
+ALL_SCENARIOS = ("default", "stop_30kmh", "precise_stop", "decel_feedback", "rg_low_adhesion",
+                 "acd_anticollision", "consensus_case1")
+PRINT_ALL_CELLS = 150     # print every cell when there are at most this many, else the failed ones
+
 
 class FaultsArgError(RailhilError, ValueError):
     """An option of `railhil faults` that names something the scenario or the DBC does not have."""
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
+    from hil.safety.threat_matrix import THREATS
+
     p = sub.add_parser(
         "faults",
         help="fault injection campaigns: the EN 50159 threat matrix",
@@ -32,91 +44,114 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     fsub.required = True
     m = fsub.add_parser(
         "matrix",
-        help="every threat x every safety frame: detection and outcome on plant truth",
-        description="Runs the scenario once without faults, then once per (safety frame, threat): "
-                    "repetition, deletion, insertion, resequencing, corruption, delay, masquerade over "
-                    "2 s from 2 s after the first brake command. A cell is detected when every "
-                    "receiver of the frame reported a non-OK E2E status or a SecOC rejection within 3 "
-                    "cycles of the frame; unsafe when the train did not stop or stopped more than "
-                    "5 % + 1 m beyond the fault-free run; released when a car's cylinder pressure fell "
-                    "below half of the fault-free value for more than 0.1 s. Exit 0 when every cell is "
-                    "detected, safe and not released; 1 otherwise; 2 for bad input.",
+        help="every threat x every protected frame: detection and outcome on plant truth",
+        description="Runs the scenario once without faults, then once per cell: every EN 50159 threat "
+                    "(repetition, deletion, insertion, resequencing, corruption, delay, masquerade) on "
+                    "every E2E-protected frame the scenario sends and receives, each sending node gone "
+                    "bus-off, and a babbling node, over 2 s from 2 s after braking is established. A cell "
+                    "is detected when every receiver of every frame it hits reported a non-OK E2E status "
+                    "or a SecOC rejection within 3 cycles of the frame; unsafe by the scenario family's "
+                    "criterion against the fault-free run (stop distance > 5 % + 1 m longer, stop error "
+                    "> 0.3 m past the target, gap to the train ahead, coupler displacement); released "
+                    "when a car's cylinder pressure fell below half of the fault-free value for more than "
+                    "0.1 s; target moved when a receiving controller was handed content its legitimate "
+                    "sender did not send. --all runs every scenario family. Exit 0 when every cell is "
+                    "detected and none is unsafe, released, moved or failed; 1 otherwise; 2 for bad input.",
     )
-    m.add_argument("scenario", type=Path, help="scenario TOML file (a short stop keeps the matrix quick)")
+    m.add_argument("scenario", type=Path, nargs="?", default=None,
+                   help="scenario TOML file or a shipped scenario's name (or --all)")
+    m.add_argument("--all", action="store_true",
+                   help=f"every scenario family: {', '.join(ALL_SCENARIOS)}")
     m.add_argument("--message", action="append", default=[], metavar="NAME",
-                   help="only this safety frame; repeatable (default: every E2E-protected frame the "
+                   help="only the cells that hit this protected frame (its threats, its sender's bus-off, "
+                        "babbling); repeatable; one SCENARIO only (default: every E2E-protected frame the "
                         "scenario sends and receives)")
     m.add_argument("--threat", action="append", default=[], metavar="KIND",
-                   help="only this threat; repeatable (default: all seven)")
-    m.add_argument("--jobs", type=int, default=os.cpu_count() or 1, metavar="N",
-                   help="parallel processes (default: the number of CPUs)")
+                   help=f"only this threat; repeatable (default: all nine: {', '.join(THREATS)})")
+    where = m.add_mutually_exclusive_group()
+    where.add_argument("-j", "--jobs", type=int, default=os.cpu_count() or 1, metavar="N",
+                       help="local worker processes running cells in parallel (default: the number of "
+                            "CPUs; 1 = in this process)")
+    where.add_argument("--dask", metavar="ADDRESS", default=None,
+                       help="run the cells on the Dask distributed cluster whose scheduler is at ADDRESS, "
+                            "e.g. tcp://host:8786 (needs the dask extra)")
+    m.add_argument("--dask-timeout", type=float, default=10.0, metavar="S",
+                   help="seconds to wait for the Dask scheduler to answer (default 10)")
     m.add_argument("-o", "--out", type=Path, default=None, metavar="DIR",
-                   help="folder for matrix.md and matrix.json (default runs/<scenario>-faults-<date>)")
+                   help="folder for matrix.md and matrix.json (default runs/<scenario>-faults-<date>, "
+                        "runs/faults-matrix-all-<date> with --all)")
     m.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     m.set_defaults(func=matrix)
 
 
-COLUMNS = ("message", "threat", "injected", "detected", "worst_ms", "first_status", "distance_change_m",
-           "released", "unsafe")
+def _scenarios(args: argparse.Namespace) -> list[tuple[str, object]]:
+    from hil.resources import resolve_scenario
+    from hil.scenario import load_scenario
 
-
-def _row(c) -> dict:
-    return {"message": c.message, "threat": c.threat, "injected": c.injected,
-            "detected": "yes" if c.detected else "NO", "worst_ms": "" if c.worst_detection_ms is None
-            else f"{c.worst_detection_ms:.1f}", "first_status": c.first_status or c.error,
-            "distance_change_m": "" if c.distance_change_m is None else f"{c.distance_change_m:+.2f}",
-            "released": "YES" if c.released else "no", "unsafe": "YES" if c.unsafe else "no"}
-
-
-def markdown(cells, baseline: dict, scenario_name: str) -> str:
-    lines = [f"# Threat matrix: {scenario_name}", "",
-             f"Fault-free stopping distance {baseline['stopping_distance_m']:.2f} m. "
-             "Definitions: hil/safety/threat_matrix.py.", "",
-             "| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
-    for c in cells:
-        r = _row(c)
-        lines.append("| " + " | ".join(str(r[k]) for k in COLUMNS) + " |")
-    n = len(cells)
-    lines += ["", f"{sum(c.detected for c in cells)} of {n} detected within 3 cycles; "
-              f"{sum(c.unsafe for c in cells)} unsafe; {sum(c.released for c in cells)} released a brake"]
-    return "\n".join(lines) + "\n"
+    if args.all and args.scenario is not None:
+        raise FaultsArgError(f"--all and a SCENARIO ({args.scenario}): expected one of them")
+    if not args.all and args.scenario is None:
+        raise FaultsArgError("expected a SCENARIO (a TOML file or a shipped scenario's name) or --all")
+    if args.all and args.message:
+        raise FaultsArgError(f"--message {args.message[0]!r} with --all: a frame of one SCENARIO only")
+    refs = list(ALL_SCENARIOS) if args.all else [args.scenario]
+    return [(str(resolve_scenario(ref)), load_scenario(ref)) for ref in refs]
 
 
 def matrix(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from hil.campaign.sweep import check_positive, executor_for
     from hil.can.codec import loaded_dbc
     from hil.report.kpis import check_out_dir
-    from hil.safety.injection import MESSAGE_THREATS
-    from hil.safety.threat_matrix import as_rows, run_matrix, safety_messages
-    from hil.scenario import load_scenario
+    from hil.safety import matrix_report
+    from hil.safety.threat_matrix import THREATS, plan, run_matrices, safety_messages
 
-    if args.jobs < 1:
-        raise FaultsArgError(f"--jobs {args.jobs}: expected at least 1")
-    scenario = load_scenario(args.scenario)
-    db, _ = loaded_dbc(scenario.dbc)            # the DBC the matrix's runs use (once per process)
-    available = safety_messages(scenario, db)
-    bad = [m for m in args.message if m not in available]
+    check_positive("--jobs", args.jobs)
+    if args.dask_timeout <= 0:
+        raise FaultsArgError(f"--dask-timeout {args.dask_timeout}: expected a positive number of seconds")
+    bad = [t for t in args.threat if t not in THREATS]
     if bad:
-        raise FaultsArgError(f"--message {bad[0]!r}: not a safety frame this scenario sends and receives; "
-                             f"those are {', '.join(available)}")
-    bad = [t for t in args.threat if t not in MESSAGE_THREATS]
-    if bad:
-        raise FaultsArgError(f"--threat {bad[0]!r}: expected one of {', '.join(MESSAGE_THREATS)}")
-    messages = args.message or available
-    threats = args.threat or list(MESSAGE_THREATS)
-    out = check_out_dir(args.out or Path("runs") / f"{scenario.name}-faults-{time.strftime('%Y%m%d-%H%M%S')}")
-    bar = None if args.quiet else tqdm(total=len(messages) * len(threats), unit="run", file=sys.stderr,
-                                       desc="threat matrix")
-    cells, baseline = run_matrix(scenario, messages, threats, jobs=args.jobs,
-                                 progress=(lambda c: bar.update(1)) if bar else None)
-    if bar:
-        bar.close()
-    text = markdown(cells, baseline, scenario.name)
-    (out / "matrix.md").write_text(text)
-    (out / "matrix.json").write_text(json.dumps({"scenario": scenario.name, "baseline": baseline,
-                                                 "cells": as_rows(cells)}, indent=2) + "\n")
+        raise FaultsArgError(f"--threat {bad[0]!r}: expected one of {', '.join(THREATS)}")
+    scenarios = _scenarios(args)
+    if args.message:
+        scenario = scenarios[0][1]
+        available = safety_messages(scenario, loaded_dbc(scenario.dbc)[0])
+        bad = [m for m in args.message if m not in available]
+        if bad:
+            raise FaultsArgError(f"--message {bad[0]!r}: not a protected frame this scenario sends and "
+                                 f"receives; those are {', '.join(available) or 'none'}")
+    threats = args.threat or list(THREATS)
+    planned = plan(scenarios, threats, args.message or None)
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    default = f"faults-matrix-all-{stamp}" if args.all else f"{scenarios[0][1].name}-faults-{stamp}"
+    out = check_out_dir(args.out or Path("runs") / default)
+    n_cells = sum(len(mx.specs) for mx in planned)
+    bars: dict[str, tqdm] = {}
+
+    def progress(phase: str, done: int, total: int) -> None:
+        if args.quiet:
+            return
+        if phase not in bars:
+            for bar in bars.values():
+                bar.close()
+            desc = "fault-free runs" if phase == "fault-free" else "threat matrix cells"
+            bars[phase] = tqdm(total=total, unit="run", file=sys.stderr, desc=desc)
+        bars[phase].update(done - bars[phase].n)
+
+    t0 = time.perf_counter()
+    try:
+        with executor_for(args.jobs, args.dask, args.dask_timeout) as executor:     # connects first
+            matrices = run_matrices(scenarios, executor, threats, args.message or None, progress, planned)
+    finally:
+        for bar in bars.values():
+            bar.close()
+    wall = time.perf_counter() - t0
+    files = matrix_report.write(matrices, out)
+    cells = [c for mx in matrices for c in mx.cells]
+    text = matrix_report.markdown(matrices) if n_cells <= PRINT_ALL_CELLS else matrix_report.summary(matrices)
     print(text, end="")
-    print(f"files: {out / 'matrix.md'}, {out / 'matrix.json'}")
-    ok = all(c.detected and not c.unsafe and not c.released and not c.error for c in cells)
-    return 0 if ok else 1
+    if n_cells > PRINT_ALL_CELLS:
+        print(f"(every one of the {n_cells} cells in {files[0]})")
+    print(f"{len(cells)} cells in {wall:.0f} s wall; files: {', '.join(str(f) for f in files)}")
+    return 0 if matrix_report.totals(cells).passed else 1

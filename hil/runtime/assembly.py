@@ -7,7 +7,8 @@ process from the same function, so the node code is the same in both modes.
 The foundation's train is PLANT, DESK, BCU and BECU1..n.  Each study that is part of the scenario
 (hil.scenario.registry) may add or replace nodes (its nodes.py `node_names(scenario, names)` and
 `build_node(...)`, None for a node it leaves to the foundation) and add frames to the BCU's binding
-(`bcu_messages(scenario, rx, tx)`); the parameters of every controller come from hil.scenario.params.
+(`bcu_messages(scenario, rx, tx)`) and to each BECU's (`becu_messages(scenario, rx, tx)`); the parameters
+of every controller come from hil.scenario.params.
 """
 
 from __future__ import annotations
@@ -54,8 +55,8 @@ def node_names(scenario: Scenario) -> list[str]:
 
 
 def becu_messages(i: int) -> tuple[list[str], list[str]]:
-    return ([f"PLANT_CAR{i}_SENSORS", "BCU_DEMAND", "BCU_EMERGENCY", "BCU_STATUS"],
-            [f"BECU{i}_PRESS_CMD", f"BECU{i}_STATUS", f"BECU{i}_DIAG"])
+    return ([f"PLANT_CAR{i}_SENSORS", "BCU_DEMAND", "BCU_EMERGENCY"],
+            [f"BECU{i}_PRESS_CMD", f"BECU{i}_STATUS", f"BECU{i}_DIAG", f"BECU{i}_EST"])
 
 
 def build_plant(scenario: Scenario) -> Plant:
@@ -101,8 +102,14 @@ def build_foundation_node(name: str, scenario: Scenario, db: Database, codec: Co
         i = int(name[4:])
         ctrl = Becu(params.becu_params(scenario, i))
         rx_msgs, tx_msgs = becu_messages(i)
+        for study in registry.active(scenario):    # the frames of the BCU functions the car takes part in
+            hook = getattr(study.part("nodes"), "becu_messages", None)
+            if hook is not None:
+                hook(scenario, rx_msgs, tx_msgs)
         period, offset = ctrl.p.cycle_us, BECU_OFFSET_US + 500 * (i - 1)
         inputs, outputs = ctrl.INPUTS, ctrl.OUTPUTS
+        if "BCU_BRAKE_CORR" in rx_msgs:
+            inputs += ctrl.PHI_INPUTS
     else:
         raise BindingError(f"no node {name!r} in this scenario; nodes are {', '.join(node_names(scenario))}")
     binding = Binding.build(db, name, inputs, outputs, rx_msgs, tx_msgs, dbc_name)

@@ -69,8 +69,8 @@ def plausibility_events(trace: DecodedTrace | Path, db, codec: Codec, n_cars: in
                         speed: float = 1.0) -> dict[str, dict[str, float]]:
     """When the ECUs first flagged a sensor or a car (issue #9), from the trace (read once:
     hil.report.kpis.read_run_trace; a path is read here): simulated time [s] of the first BECUn_DIAG
-    frame with SpeedSensorFault / AccelSensorFault = 1 and of the first BCU_STATUS frame with a car's
-    CarsImplausible bit, by flag and car ("car2"), in the order the trace has them."""
+    frame with SpeedSensorFault / AccelSensorFault / CylSensorFault = 1 and of the first BCU_STATUS frame
+    with a car's CarsImplausible bit, by flag and car ("car2"), in the order the trace has them."""
     decoded = trace if isinstance(trace, DecodedTrace) else read_run_trace(trace, db, codec)
     hits: list[tuple[int, int, str, str, float]] = []    # (frame row, order in the frame, flag, car, t)
 
@@ -84,7 +84,7 @@ def plausibility_events(trace: DecodedTrace | Path, db, codec: Codec, n_cars: in
     for i in range(1, n_cars + 1):
         name = f"BECU{i}_DIAG"
         columns = decoded.table(name).columns
-        for order, sig in enumerate(("SpeedSensorFault", "AccelSensorFault")):
+        for order, sig in enumerate(("SpeedSensorFault", "AccelSensorFault", "CylSensorFault")):
             if sig in columns:
                 first(name, columns[sig] >= 0.5, order, sig, f"car{i}")
     status = decoded.table("BCU_STATUS").columns

@@ -1,24 +1,31 @@
 """The frames of the anti-collision study (seed 002): the ACD's brake request and the radio link.
 
 Part of dbc/generator/train_brake.py (run that script to write the DBC).
-Identifiers: 0x020 (safety: the ACD's request), 0x180-0x182 (radio), 0x183 (the GPS model's truth feed).
+Identifiers: 0x020 (safety: the ACD's request), 0x180-0x182 (radio), 0x183 (the GPS model's truth feed),
+0x184 (its status).
 """
 
 from __future__ import annotations
 
-from hil.can.dbcschema import Extra, Msg, Sig, becus, e2e  # noqa: F401
+from hil.can.dbcschema import Extra, Msg, Sig, becus, e2e, secoc  # noqa: F401
 
 
 def messages() -> list[Msg]:
     return [
         Msg(0x020, "ACD_BRAKE_REQ", "ACD", ["BCU"], 100,
-            "Anti-collision device brake request to the BCU.",
+            "Anti-collision device brake request to the BCU (authenticated: a forged request brakes the "
+            "train, a forged NONE hides one).",
             e2e("the ACD request") + [
                 Sig("Request", 12, 2, maximum=3, comment="requested braking",
                     choices={0: "NONE", 1: "SERVICE", 2: "EMERGENCY"}),
-                Sig("RequestedDecel", 16, 16, scale=0.001, maximum=65.535, unit="m/s^2",
+                # 10 bits so that the SecOC trailer fits: 0.01 m/s² steps up to 10.23 m/s²
+                Sig("RequestedDecel", 14, 10, scale=0.01, maximum=10.23, unit="m/s^2",
                     comment="deceleration the ACD asks for (positive = braking)"),
-                Sig("DistanceToObstacle", 32, 24, scale=0.01, maximum=167772.15, unit="m",
+            ] + secoc("the ACD request"), secoc_data_id=0x020),
+        Msg(0x184, "ACD_STATUS", "ACD", ["DESK"], 100,
+            "Anti-collision device state for the desk and the log (no node acts on it).",
+            [
+                Sig("DistanceToObstacle", 0, 24, scale=0.01, maximum=167772.15, unit="m",
                     comment="distance to the leader's last wagon or to the red signal"),
             ]),
         Msg(0x180, "RADIO_LEADER_POS", "PLANT", ["ACD"], 1000,

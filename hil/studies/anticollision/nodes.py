@@ -551,7 +551,7 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
     elif name == ACD_NODE:
         ctrl = AcdDevice(spec, scenario.seed, _serial_kind(spec))
         rx_msgs = ["RADIO_LEADER_POS", "RADIO_LEADER_INFO", "RADIO_SIGNAL", "ACD_GNSS_TRUTH"]
-        tx_msgs = ["ACD_BRAKE_REQ"]
+        tx_msgs = ["ACD_BRAKE_REQ", "ACD_STATUS"]
         period, offset = ctrl.acd.p.cycle_us, ACD_OFFSET_US
     else:
         return None

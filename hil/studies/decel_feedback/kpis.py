@@ -29,7 +29,7 @@ STEADY_TOL = 0.02        # ... and steady: the target through T_q within 2 % of 
 RATIO_TAU_S = 0.2        # the truth's deceleration is filtered like the BCU's ratio (τ, s)
 
 FEEDBACK_SIGNALS = {"target": ("BCU_DEMAND", "TargetDecel"), "state": ("BCU_STATUS", "FbState"),
-                    "phi": ("BCU_STATUS", "FrictionPhi"), "slope": ("BCU_STATUS", "SlopeEst")}
+                    "phi": ("BCU_BRAKE_CORR", "FrictionPhi"), "slope": ("BCU_STATUS", "SlopeEst")}
 
 
 def kpis(run: RunView) -> dict:

@@ -44,7 +44,8 @@ def run_plots(run: RunView) -> list[Path]:
     for i in range(1, n + 1):
         ax_p.plot(t, cols[f"p_Pa_{i}"] / 1e3, lw=0.8, label=f"car {i}")
     if sig["phi"][0].size:
-        ax_f.step(sig["phi"][0], sig["phi"][1], where="post", color="tab:red", lw=1.0, label="φ (BCU_STATUS)")
+        ax_f.step(sig["phi"][0], sig["phi"][1], where="post", color="tab:red", lw=1.0,
+                  label="φ (BCU_BRAKE_CORR)")
     if "mu_pad_1" in cols:
         ax_f.plot(t, cols["mu_pad_1"] / PAD_MU_NOMINAL, lw=0.8, color="tab:green",
                   label="μ_d/μ_d0 car 1 (plant)")

@@ -82,13 +82,13 @@ def messages() -> list[Msg]:
 
 
 def signals() -> list[Extra]:
-    """Each BECU's own estimate of σ° with the position it was measured at (BECUn_STATUS): what the cars
+    """Each BECU's own estimate of σ° with the position it was measured at (BECUn_EST): what the cars
     behind read as preview when σ° is estimated."""
     return [
-        Extra("BECU{i}_STATUS", signals=[
-            Sig("OptSlipEst", 36, 10, scale=0.0005, maximum=0.5115,
+        Extra("BECU{i}_EST", signals=[
+            Sig("OptSlipEst", 16, 10, scale=0.0005, maximum=0.5115,
                 comment="estimated optimal slip ratio sigma^o here (seed 000 eq. 2); 0 = no estimate"),
-            Sig("OptSlipPos", 46, 18, scale=0.1, maximum=26214.3, unit="m",
+            Sig("OptSlipPos", 26, 18, scale=0.1, maximum=26214.3, unit="m",
                 comment="track position at which OptSlipEst was measured"),
         ]),
     ]

@@ -17,7 +17,7 @@ def messages() -> list[Msg]:
 def signals() -> list[Extra]:
     return [
         Extra("BECU{i}_STATUS", after="WspActive", signals=[
-            Sig("GovernorActive", 33, 1, maximum=1, comment="1 = reference governor limits the demand"),
+            Sig("GovernorActive", 13, 1, maximum=1, comment="1 = reference governor limits the demand"),
         ]),
         Extra("BECU{i}_DIAG", first=True, signals=[
             Sig("GovernedDecel", 0, 16, scale=0.001, maximum=65.535, unit="m/s^2",
