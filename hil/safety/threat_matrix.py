@@ -79,7 +79,6 @@ scenario's cells first.  `run_cell` runs one cell.  hil.safety.matrix_report wri
 
 from __future__ import annotations
 
-import gc
 import math
 import time
 from collections import deque
@@ -558,17 +557,12 @@ def baseline_job(scenario_json: str) -> Baseline | str:
 
 def cell_job(scenario_json: str, spec: CellSpec, baseline: Baseline, frames: dict[str, Frame]) -> Cell:
     """A worker's job: one cell; an error is recorded in the cell, the others go on (never raises).
-
-    A finished lockstep run is garbage in a reference cycle (run_lockstep's `release` closure calls
-    itself), freed only by a full collection, which a worker running hundreds of cells seldom does on its
-    own: a worker grew by 25 MB per precise_stop cell, to 3.5 GB.  One full collection per cell (~0.1 s)
-    keeps it at the size of one run."""
+    (A finished lockstep run is freed at once: run_lockstep breaks its `release` closure's cycle, which
+    once grew a worker by 25 MB per precise_stop cell, to 3.5 GB.)"""
     try:
         return run_cell(Scenario.model_validate_json(scenario_json), spec, baseline, frames)
     except Exception as exc:
         return failed_cell(spec, f"{type(exc).__name__}: {' '.join(str(exc).split())}")
-    finally:
-        gc.collect()
 
 
 def failed_cell(spec: CellSpec, error: str) -> Cell:
