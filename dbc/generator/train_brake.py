@@ -63,7 +63,8 @@ def messages() -> list[Msg]:
             e2e("the target stop point") + [
                 Sig("TargetStopValid", 12, 1, maximum=1,
                     comment="1 = TargetStopPos holds a target stop point"),
-                # 19 bits so that the SecOC trailer fits: 2 cm steps, a tenth of seed 002's ±30 cm band
+                # 19 bits so that the SecOC trailer fits: 2 cm steps, against the ±30 cm platform-door goal of
+                # the precise-stop study (docs/studies/precise-stop.md; seed 002 itself reports ±2-7 m)
                 Sig("TargetStopPos", 13, 19, scale=0.02, maximum=10485.74, unit="m",
                     comment="target stop point of the leading car's front, track position"),
             ] + secoc("the target stop point"), secoc_data_id=0x019),
