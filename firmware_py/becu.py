@@ -34,11 +34,15 @@ real slide lasts, or when its reading is frozen while the accelerometer says the
 speed estimate then runs on the accelerometer alone and WSP is inhibited (the brake stays applied).
 The accelerometer's bias (accelerometer − the axle's acceleration, filtered) is AccelBiasEst; above a
 limit for a time it is AccelSensorFault (latched) and the axle's acceleration replaces it.  A vent-time
-watchdog refills a cylinder that WSP has kept vented too long.  See `speed_sensor_check`,
-`accel_bias_check` and `vent_watchdog`.  The brake-cylinder pressure transducer is declared failed
-(CylSensorFault, latched, issue #19) when its reading stays identical while the EP or dump valve should
-have moved the pressure by more than a limit; the pressure loop then runs on a model of the cylinder fed
-with the valve commands, biased to brake (`cyl_sensor_check`, `valve_pressure_rate`).
+watchdog refills a cylinder that WSP has kept vented too long.  While a vented wheel spins back up (its
+axle accelerates faster than RefSpeedParams.spin_up_accel_mps2, as no braked car does) the clocks of the
+watchdog, of the reference speed's spin-up rule and of its slide bridge stand still: a wheel locked at
+speed takes seconds to come back (issue #19: locked by the actuator's fail-safe while commands were
+lost).  See `speed_sensor_check`, `accel_bias_check` and `vent_watchdog`.  The brake-cylinder pressure
+transducer is declared failed (CylSensorFault, latched, issue #19) when its reading stays identical while
+the EP or dump valve should have moved the pressure by more than a limit; the pressure loop then runs on a
+model of the cylinder fed with the valve commands, biased to brake (`cyl_sensor_check`,
+`valve_pressure_rate`).
 """
 
 from __future__ import annotations
@@ -104,15 +108,19 @@ def wsp_transition(state: Wsp, slip_mps: float, speed_mps: float, p: WspParams) 
 
 
 def vent_watchdog(vent_s: float, tripped: bool, venting: bool, recovered: bool, dt_s: float,
-                  max_vent_s: float) -> tuple[float, bool]:
+                  max_vent_s: float, spinning_up: bool = False) -> tuple[float, bool]:
     """Pure vent-time watchdog: (time vented continuously [s], tripped).
 
     `venting`: WSP wants the cylinder out of FILL this cycle; `recovered`: the wheel's slip is back
-    below the refill threshold.  Trips when venting lasts longer than `max_vent_s`; while tripped the
-    caller keeps the cylinder in FILL; it re-arms once the wheel has recovered."""
+    below the refill threshold; `spinning_up`: the vented wheel accelerates as only a wheel spinning back
+    up to the car's speed does (RefSpeedParams.spin_up_accel_mps2): the vent is working, the wheel is
+    healthy, and that time does not count (the "axle health discriminatory" timer of CA 2025196: a wheel
+    that takes seconds to spin up from a lock is not refilled onto the rail half-way).  Trips when
+    venting lasts longer than `max_vent_s` otherwise; while tripped the caller keeps the cylinder in
+    FILL; it re-arms once the wheel has recovered."""
     if tripped:
         return 0.0, not recovered
-    vent_s = vent_s + dt_s if venting else 0.0
+    vent_s = vent_s + dt_s * (not spinning_up) if venting else 0.0
     return (0.0, True) if vent_s > max_vent_s else (vent_s, False)
 
 
@@ -191,6 +199,7 @@ class SpeedCheck(NamedTuple):
     stand_s: float = 0.0         # time the reading has said "stands" while the car moves [s]
     frozen_s: float = 0.0        # time the reading has been frozen (≥ frozen_min_mps) [s]
     frozen_dv_mps: float = 0.0   # bias-corrected accelerometer integrated over the frozen span [m/s]
+    stands: bool = False         # the last reading said "stands" while the car moves
 
 
 def speed_sensor_check(s: SpeedCheck, wheel_mps: float, prev_wheel_mps: float, v_ref_mps: float,
@@ -203,16 +212,19 @@ def speed_sensor_check(s: SpeedCheck, wheel_mps: float, prev_wheel_mps: float, v
     bias estimate, over the span; span_s: time since the previous reading [s]."""
     if s.fault:
         return s
-    stand_s = s.stand_s + span_s if (wheel_mps < p.stand_mps and v_ref_mps > p.moving_mps) else 0.0
+    # the time between two readings counts only when both stood: a gap in the readings (frames lost,
+    # the bus blocked) is no evidence that the wheel stood through it
+    stands = wheel_mps < p.stand_mps and v_ref_mps > p.moving_mps
+    stand_s = (s.stand_s + span_s if s.stands else 0.0) if stands else 0.0
     if wheel_mps == prev_wheel_mps and wheel_mps >= p.frozen_min_mps:
         frozen_s, dv = s.frozen_s + span_s, s.frozen_dv_mps + accel_mps2 * span_s
     else:
         frozen_s, dv = 0.0, 0.0
     if stand_s > p.lock_s:
-        return SpeedCheck(True, "stands", stand_s, frozen_s, dv)
+        return SpeedCheck(True, "stands", stand_s, frozen_s, dv, stands)
     if abs(dv) > p.frozen_dv_mps:
-        return SpeedCheck(True, "frozen", stand_s, frozen_s, dv)
-    return SpeedCheck(False, "", stand_s, frozen_s, dv)
+        return SpeedCheck(True, "frozen", stand_s, frozen_s, dv, stands)
+    return SpeedCheck(False, "", stand_s, frozen_s, dv, stands)
 
 
 class AccelCheck(NamedTuple):
@@ -362,6 +374,13 @@ class RefSpeedParams:
     # preload, below the release line's zero)
     torque_free_Pa: float = 10e3           # [Pa]
     spin_up_s: float = 0.5                 # [s]
+    # ... but a wheel still accelerating faster than this is spinning up, not yet at the car's speed: a
+    # wheel locked by the actuator's fail-safe while the BECU's commands were lost takes seconds to spin
+    # back up from a lock (its adhesion is low at full slide, seed 000 §2.1): that time counts neither
+    # towards spin_up_s nor bridge_max_s (issue #19).  Above the 0.588 m/s² a car may gain torque-free
+    # on the steepest gradient (STEEPEST_GRADIENT_MPS2); a braked car never accelerates faster; the axle
+    # of a braked wheel at the car's speed decelerates with the car [m/s²] (chosen)
+    spin_up_accel_mps2: float = 1.0
     # whatever the wheel does, a slide is bridged at most this long: longer than the WSP vent watchdog
     # (WspParams.max_vent_s, 5 s) and the locked-wheel check (SensorCheckParams.lock_s, 1 s) (chosen)
     bridge_max_s: float = 6.0              # [s]
@@ -373,7 +392,7 @@ class RefSpeed(NamedTuple):
     v_mps: float = math.nan          # the estimate [m/s]
     var: float = 0.0                 # its variance P [m²/s²]
     sliding: bool = False            # the wheel is bridged: the estimate runs on the accelerometer alone
-    slide_s: float = 0.0             # time in the slide [s]
+    slide_s: float = 0.0             # time in the slide, the wheel not spinning up [s]
     free_s: float = 0.0              # ... of which without brake torque [s]
     anchor_mps: float = math.nan     # the estimate when the wheel last agreed, carried on the accelerometer
     anchor_s: float = 0.0            # time since the wheel last agreed [s]
@@ -382,7 +401,7 @@ class RefSpeed(NamedTuple):
 
 def reference_speed(s: RefSpeed, wheel_mps: float, accel_mps2: float, dt_s: float, fresh: bool,
                     wsp_fill: bool, torque_free: bool, gate_mps: float, p: RefSpeedParams,
-                    creep: float = 0.0, wheel_suspect: bool = False) -> RefSpeed:
+                    creep: float = 0.0, wheel_suspect: bool = False, spinning_up: bool = False) -> RefSpeed:
     """One cycle of the car's reference speed (pure).
 
     wheel_mps: the axle's r·ω; accel_mps2: the car's acceleration, the accelerometer less its bias
@@ -391,7 +410,10 @@ def reference_speed(s: RefSpeed, wheel_mps: float, accel_mps2: float, dt_s: floa
     is below RefSpeedParams.torque_free_Pa; gate_mps: the slide gate (BecuParams.wheel_trust_slip_mps);
     creep: the slip speed the wheel needs for the adhesion its brake uses (`creep_mps`) [m/s];
     wheel_suspect: the wheel-speed sensor check is timing the reading ("stands" or "frozen",
-    `speed_sensor_check`): a slide is then not ended by the spin-up rule, that check decides.
+    `speed_sensor_check`): a slide is then not ended by the spin-up rule, that check decides;
+    spinning_up: the axle accelerates faster than RefSpeedParams.spin_up_accel_mps2, as a wheel spinning
+    back up to the car's speed: the slide goes on, however long, and that time counts towards neither
+    spin_up_s nor bridge_max_s.
 
     Time update, seed 004 eqs. (19)–(20) with A = 1, the accelerometer as input u_k and W = dt:
     v⁻ = v + a·dt, P⁻ = P + (σ_a·dt)².  Measurement update on a fresh reading z = w + creep (the car's speed
@@ -416,8 +438,8 @@ def reference_speed(s: RefSpeed, wheel_mps: float, accel_mps2: float, dt_s: floa
         return RefSpeed(v, var, anchor_mps=v)
     if not fresh:
         return s._replace(v_mps=v, var=var, anchor_mps=anchor, anchor_s=anchor_s,
-                          slide_s=s.slide_s + dt_s * s.sliding,
-                          free_s=s.free_s + dt_s * (s.sliding and torque_free))
+                          slide_s=s.slide_s + dt_s * (s.sliding and not spinning_up),
+                          free_s=s.free_s + dt_s * (s.sliding and torque_free and not spinning_up))
     z = wheel_mps + creep
     innovation = z - v
     sliding, slide_s, free_s, resets = s.sliding, s.slide_s, s.free_s, s.resets
@@ -426,8 +448,8 @@ def reference_speed(s: RefSpeed, wheel_mps: float, accel_mps2: float, dt_s: floa
         if anchor_s <= p.rollback_s:
             v = max(v, anchor)                                      # undo the onset the filter followed
     elif sliding:
-        slide_s += dt_s
-        free_s += dt_s * torque_free
+        slide_s += dt_s * (not spinning_up)
+        free_s += dt_s * (torque_free and not spinning_up)
         if innovation >= -p.agree_mps and wsp_fill:
             sliding = False                                         # the wheel is back
         elif (free_s > p.spin_up_s and not wheel_suspect) or slide_s > p.bridge_max_s:
@@ -543,7 +565,9 @@ class Becu:
         self._axle_accel = 0.0        # d(r·ω)/dt, filtered [m/s²]
         self._anchor_wheel = math.nan  # bias filter: wheel reading at its last update [m/s] ...
         self._accel_sum = 0.0         # ... the accelerometer integrated since [m/s] ...
-        self._span_s = 0.0            # ... over this time [s]
+        self._span_s = 0.0            # ... over this time [s] ...
+        self._span_tainted = False    # ... begun in a slide, and the wheel has spun up since: no evidence
+        self._span_in_slide = False   # the span began while the wheel slid
         self.vent_s = 0.0             # WSP: time out of FILL without a break [s]
         self.wsp_tripped = False      # WSP: the vent-time watchdog holds the cylinder in FILL
         self.wsp_watchdog_trips = 0   # times the watchdog refilled a cylinder (diagnostic)
@@ -676,7 +700,10 @@ class Becu:
             return                                   # no axle to compare the accelerometer with
         self._accel_sum += accel * span_s
         self._span_s += span_s
-        if check.stand_s > 0.0 or check.frozen_s > 0.0:
+        # a span begun mid-slide in which the wheel spins back up holds the slide's recovery, not its onset:
+        # the wheel's speed change over it is not the car's (the slip's rise and fall do not cancel)
+        self._span_tainted |= self._span_in_slide and self._axle_accel > self.p.ref.spin_up_accel_mps2
+        if check.stands or check.frozen_s > 0.0:
             return                                   # the wheel is not trusted yet: wait for the span's end
         sliding = (self.v_ref - car_v > sc.slide_gate_mps or self.wsp != Wsp.FILL or self.ref.sliding
                    or abs(self._axle_accel) > sc.car_accel_max_mps2)   # the wheel does what the car cannot
@@ -684,9 +711,11 @@ class Becu:
             return                                   # bridge the slide: update once the wheel is back
         span = self._span_s
         wheel_rate = (car_v - self._anchor_wheel) / span
-        if not (sliding and abs(wheel_rate) > sc.car_accel_max_mps2):   # a slide still on: no evidence
+        spinning_up = wheel_rate > self.p.ref.spin_up_accel_mps2       # a vented wheel coming back
+        if not (sliding and (abs(wheel_rate) > sc.car_accel_max_mps2 or spinning_up) or self._span_tainted):
             self.accel_check = accel_bias_check(ac, self._accel_sum / span, wheel_rate, span, sc)
         self._anchor_wheel, self._accel_sum, self._span_s = car_v, 0.0, 0.0
+        self._span_in_slide, self._span_tainted = sliding, False
         if self.accel_check.fault and not ac.fault:
             self.accel_fault_us = now_us
             self.v_ref = wheel_v                     # drop what the biased accelerometer integrated
@@ -750,6 +779,7 @@ class Becu:
 
         wheel_v = omega * p.wheel_radius_m
         sc = p.sensors
+        spinning_up = self._axle_accel > p.ref.spin_up_accel_mps2    # as of the last sensor frame
         fresh, span_s = self._fresh_sensor_frame(now_us, rx, dt_s)
         cyl_failed = self.cyl_check.fault
         if fresh and ok2 and not cyl_failed:
@@ -766,10 +796,10 @@ class Becu:
             seed_001 = p.wheel_trust_slip_mps <= 0.0     # seed 001's reference: the raw accelerometer,
             car_accel = (accel_used - self.accel_check.bias_mps2     # lifted to the axle every cycle
                          if not self.accel_check.fault and not seed_001 else accel_used)
-            suspect = self.speed_check.stand_s > 0.0 or self.speed_check.frozen_s > 0.0
+            suspect = self.speed_check.stands or self.speed_check.frozen_s > 0.0
             self.ref = reference_speed(self.ref, wheel_v, car_accel, dt_s, (fresh or seed_001) and ok1,
                                        self.wsp == Wsp.FILL, pressure <= p.ref.torque_free_Pa,
-                                       p.wheel_trust_slip_mps, p.ref, creep, suspect)
+                                       p.wheel_trust_slip_mps, p.ref, creep, suspect, spinning_up)
         if fresh and ok1 and ok3:
             self._check_sensors(now_us, wheel_v, accel, span_s, creep)
         speed_fault = self.speed_check.fault
@@ -779,7 +809,7 @@ class Becu:
         else:
             wanted = wsp_transition(self.wsp, slip, self.v_ref, p.wsp)
             self.vent_s, tripped = vent_watchdog(self.vent_s, self.wsp_tripped, wanted != Wsp.FILL,
-                                                 wanted == Wsp.FILL, dt_s, p.wsp.max_vent_s)
+                                                 wanted == Wsp.FILL, dt_s, p.wsp.max_vent_s, spinning_up)
             self.wsp_watchdog_trips += tripped and not self.wsp_tripped
             self.wsp_tripped = tripped
             self.wsp = Wsp.FILL if tripped else wanted

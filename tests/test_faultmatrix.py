@@ -49,7 +49,8 @@ def short_precise_stop():
     return parse_scenario({**base.model_dump(), "train": train}, "precise_stop")
 
 
-SCENARIOS = {"stop_30kmh": lambda: scenario("stop_30kmh"),
+SCENARIOS = {"default": lambda: scenario("default"),
+             "stop_30kmh": lambda: scenario("stop_30kmh"),
              "decel_feedback": lambda: scenario("decel_feedback"),
              "acd_anticollision": lambda: scenario("acd_anticollision"),
              "precise_stop": short_precise_stop}
@@ -147,6 +148,7 @@ def test_fault_free_run_gives_the_window_from_the_bcus_first_demand():
     ("decel_feedback", "delay", "BCU_BRAKE_CORR"),
     ("acd_anticollision", "masquerade", "ACD_BRAKE_REQ"),
     ("precise_stop", "masquerade", "DESK_TARGET"),
+    ("default", "deletion", "BECU6_PRESS_CMD"),    # the wheel the actuator's fail-safe locked spins back up
 ])
 def test_cell_is_detected_and_leaves_the_train_safe(name, threat, target):
     s, b = setup(name)

@@ -80,6 +80,19 @@ def test_a_standing_wheel_fails_only_after_lock_s_and_a_slide_that_ends_does_not
     assert not state.fault and state.stand_s == 0.0
 
 
+def test_a_gap_in_the_readings_is_not_time_the_wheel_stood():
+    """The bus was blocked for 2 s (a babbling node): the first reading after it says "stands".  The
+    2 s since the last reading (20 m/s) are no evidence the wheel stood: the timer starts at that
+    reading, and the sensor fails only lock_s of standing readings later."""
+    state = speed_sensor_check(SpeedCheck(), 20.0, 20.0, 20.0, 0.0, 0.01, SC)
+    state = speed_sensor_check(state, 0.0, 20.0, 20.0, 0.0, 2.0, SC)               # after the gap
+    assert state.stands and state.stand_s == 0.0 and not state.fault
+    for _ in range(round(SC.lock_s / 0.01) - 1):
+        state = speed_sensor_check(state, 0.0, 0.0, 20.0, 0.0, 0.01, SC)
+    assert not state.fault and state.stand_s == pytest.approx(SC.lock_s - 0.01)
+    assert speed_sensor_check(state, 0.0, 0.0, 20.0, 0.0, 0.02, SC).fault
+
+
 def test_a_frozen_reading_fails_once_the_accelerometer_moved_frozen_dv():
     _, failed_at = feed_speed_check([10.0] * 200, lambda k: 10.0, -1.0)
     assert failed_at == pytest.approx(SC.frozen_dv_mps / 1.0, abs=0.011)
@@ -124,6 +137,45 @@ def test_the_bias_limit_is_above_the_steepest_gradient():
 def test_vent_watchdog_table(vent_s, tripped, venting, recovered, expected):
     got = vent_watchdog(vent_s, tripped, venting, recovered, 0.01, 4.999)
     assert got[0] == pytest.approx(expected[0]) and got[1] == expected[1]
+
+
+def test_the_watchdog_does_not_count_the_time_a_vented_wheel_spins_up():
+    assert vent_watchdog(4.995, False, True, False, 0.01, 4.999, spinning_up=True) == (4.995, False)
+    assert vent_watchdog(4.995, False, True, False, 0.01, 4.999, spinning_up=False) == (0.0, True)
+
+
+def test_a_locked_wheel_that_spins_up_slowly_stays_vented_until_it_is_back():
+    """A wheel locked while the BECU's commands were lost (the actuator's fail-safe filled the cylinder,
+    issue #19): when the commands return the wheel stands at 0 while the car runs at 20 m/s and
+    decelerates at 0.5 m/s².  Vented, it spins up at 2 m/s² (low adhesion at full slide, seed 000 §2.1):
+    ~7.7 s, longer than spin_up_s, bridge_max_s and the vent watchdog.  The reference speed bridges the
+    whole spin-up and WSP keeps venting until the wheel is back; neither the spin-up rule, the bridge
+    limit, the watchdog nor the accelerometer check takes the spinning wheel for the car's speed."""
+    becu = Becu()
+    dt, car_v, wheel_v, pressure = 0.01, 20.0, 20.0, 200e3
+    rx = {"CylPressure": pressure, "AccelLong": -0.5, "TargetDecel": 0.5, "Mode": 1, "EmergencyActive": 0}
+    for k in range(200):                                       # 2 s rolling with the car
+        car_v -= 0.5 * dt
+        becu.step(k * 10_000, {**rx, "AxleSpeed": (car_v - 0.02 + 1e-3 * (k % 2)) / 0.46})
+    wheel_v, k0, back_at, min_gap = 0.0, 200, None, math.inf   # then the wheel stands (locked)
+    for k in range(k0, k0 + 2000):
+        car_v -= 0.5 * dt
+        out = becu.step(k * 10_000, {**rx, "AxleSpeed": (wheel_v + 1e-3 * (k % 2)) / 0.46,
+                                     "CylPressure": pressure + 10.0 * (k % 2)})
+        rate = valve_pressure_rate(out["ValveCmd"], out["WspValve"], pressure, 450e3, RATES)
+        pressure = min(max(pressure + rate * dt, 0.0), 450e3)
+        if k > k0 + 30 and back_at is None:                    # a lock shows after a few cycles
+            min_gap = min(min_gap, car_v - becu.v_ref)
+        if back_at is not None:                                # back: it rolls with the car
+            wheel_v = car_v - 0.02
+        elif pressure < 10e3 or wheel_v > 0.0:                 # torque-free: it spins up, else stays locked
+            wheel_v = min(wheel_v + 2.0 * dt, car_v - 0.02)
+            back_at = (k - k0) * dt if wheel_v >= car_v - 0.02 else None
+    assert back_at is not None and back_at > max(becu.p.wsp.max_vent_s, becu.p.ref.bridge_max_s)
+    assert becu.ref.resets == 0 and becu.wsp_watchdog_trips == 0
+    assert out["SpeedSensorFault"] == 0 and out["AccelSensorFault"] == 0
+    assert abs(min_gap) < 0.5                                   # the estimate stayed with the car
+    assert out["WspActive"] == 0 and pressure > 100e3          # braking again, the wheel rolling
 
 
 def test_the_becu_refills_a_cylinder_vented_longer_than_the_watchdog_allows():

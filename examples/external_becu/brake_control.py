@@ -81,6 +81,9 @@ class RefSpeedParams:
     spin_up_s: float = 0.5                # ... and spins up to the car's speed within this: the wheel is
     #                                       taken again after it (the estimate was wrong)
     bridge_max_s: float = 6.0             # a slide is bridged at most this long (> the 5 s WSP watchdog)
+    # a wheel accelerating faster than this is spinning back up to the car's speed (from a lock it takes
+    # seconds): that time counts towards neither spin_up_s, bridge_max_s nor the vent watchdog [m/s²]
+    spin_up_accel_mps2: float = 1.0
     # the creep: seed 000 eq. (1) with θ of the plant's "dry" rail (plant_sim.params.RAIL_CONDITIONS)
     theta: tuple[float, float, float] = (0.35416, 11.030, 8.6158)
     pi1_s_per_m: float = 1.0 / 40.0       # k1(v) = 1 + v/40, seed 000 §3
@@ -262,6 +265,7 @@ class SpeedCheck(NamedTuple):
     stand_s: float = 0.0         # time the reading has said "stands" while the car moves [s]
     frozen_s: float = 0.0        # time the reading has repeated [s]
     frozen_dv_mps: float = 0.0   # the accelerometer less its bias, integrated over that time [m/s]
+    stands: bool = False         # the last reading said "stands" while the car moves
 
 
 def speed_sensor_check(s: SpeedCheck, wheel_mps: float, prev_mps: float, v_ref_mps: float,
@@ -270,16 +274,19 @@ def speed_sensor_check(s: SpeedCheck, wheel_mps: float, prev_mps: float, v_ref_m
     speed and the accelerometer less its bias."""
     if s.fault:
         return s
-    stand_s = s.stand_s + span_s if (wheel_mps < sc.stand_mps and v_ref_mps > sc.moving_mps) else 0.0
+    # the time between two readings counts only when both stood: a gap in the readings (frames lost,
+    # the bus blocked) is no evidence that the wheel stood through it
+    stands = wheel_mps < sc.stand_mps and v_ref_mps > sc.moving_mps
+    stand_s = (s.stand_s + span_s if s.stands else 0.0) if stands else 0.0
     if wheel_mps == prev_mps and wheel_mps >= sc.frozen_min_mps:
         frozen_s, dv = s.frozen_s + span_s, s.frozen_dv_mps + accel_mps2 * span_s
     else:
         frozen_s, dv = 0.0, 0.0
     if stand_s > sc.lock_s:
-        return SpeedCheck(True, "stands", stand_s, frozen_s, dv)
+        return SpeedCheck(True, "stands", stand_s, frozen_s, dv, stands)
     if abs(dv) > sc.frozen_dv_mps:
-        return SpeedCheck(True, "frozen", stand_s, frozen_s, dv)
-    return SpeedCheck(False, "", stand_s, frozen_s, dv)
+        return SpeedCheck(True, "frozen", stand_s, frozen_s, dv, stands)
+    return SpeedCheck(False, "", stand_s, frozen_s, dv, stands)
 
 
 class AccelCheck(NamedTuple):
@@ -323,7 +330,7 @@ class RefSpeed(NamedTuple):
     v_mps: float = math.nan          # the estimate, SpeedEst [m/s]
     var: float = 0.0                 # its variance P [m²/s²]
     sliding: bool = False            # the wheel slides: the estimate runs on the accelerometer alone
-    slide_s: float = 0.0             # time in the slide [s]
+    slide_s: float = 0.0             # time in the slide, the wheel not spinning up [s]
     free_s: float = 0.0              # ... of which without brake torque [s]
     anchor_mps: float = math.nan     # the estimate when the wheel last agreed, carried on the accelerometer
     anchor_s: float = 0.0            # time since the wheel last agreed [s]
@@ -331,10 +338,12 @@ class RefSpeed(NamedTuple):
 
 def reference_speed(s: RefSpeed, wheel_mps: float, accel_mps2: float, dt_s: float, fresh: bool,
                     wsp_fill: bool, torque_free: bool, creep: float, wheel_suspect: bool,
-                    rp: RefSpeedParams) -> RefSpeed:
+                    rp: RefSpeedParams, spinning_up: bool = False) -> RefSpeed:
     """One cycle of the reference speed.  accel_mps2: the accelerometer less its bias; fresh: a new wheel
     reading r·ω = wheel_mps came; creep: the slip its brake needs (`creep_mps`); wheel_suspect: the
-    wheel-speed sensor check is timing the reading (a slide is then not ended by the spin-up rule).
+    wheel-speed sensor check is timing the reading (a slide is then not ended by the spin-up rule);
+    spinning_up: the axle accelerates faster than rp.spin_up_accel_mps2 (that time counts for neither
+    spin_up_s nor bridge_max_s).
 
     Time update, seed 004 eqs. (19)–(20): v⁻ = v + a·dt, P⁻ = P + (σ_a·dt)².  Measurement z = r·ω + creep
     (seed 001 eq. (2), v = rω + s), eqs. (21)–(23): K = P⁻/(P⁻ + σ_w²), v = v⁻ + K·(z − v⁻),
@@ -350,8 +359,8 @@ def reference_speed(s: RefSpeed, wheel_mps: float, accel_mps2: float, dt_s: floa
     anchor_s = s.anchor_s + dt_s
     if not fresh:
         return s._replace(v_mps=v, var=var, anchor_mps=anchor, anchor_s=anchor_s,
-                          slide_s=s.slide_s + dt_s * s.sliding,
-                          free_s=s.free_s + dt_s * (s.sliding and torque_free))
+                          slide_s=s.slide_s + dt_s * (s.sliding and not spinning_up),
+                          free_s=s.free_s + dt_s * (s.sliding and torque_free and not spinning_up))
     z = wheel_mps + creep
     innovation = z - v
     sliding, slide_s, free_s = s.sliding, s.slide_s, s.free_s
@@ -360,8 +369,8 @@ def reference_speed(s: RefSpeed, wheel_mps: float, accel_mps2: float, dt_s: floa
         if anchor_s <= rp.rollback_s:
             v = max(v, anchor)                                      # undo the onset the filter followed
     elif sliding:
-        slide_s += dt_s
-        free_s += dt_s * torque_free
+        slide_s += dt_s * (not spinning_up)
+        free_s += dt_s * (torque_free and not spinning_up)
         if innovation >= -rp.agree_mps and wsp_fill:
             sliding = False                                         # the wheel is back
         elif (free_s > rp.spin_up_s and not wheel_suspect) or slide_s > rp.bridge_max_s:
@@ -418,6 +427,8 @@ class BrakeControl:
         self.axle_accel = 0.0         # d(r·ω)/dt, filtered [m/s²]
         self.span_start = math.nan    # the bias filter's span: the car's speed by the wheel at its start,
         self.span_accel = 0.0         # the accelerometer integrated since [m/s],
+        self.span_in_slide = False    # it began in a slide,
+        self.span_tainted = False     # ... and the wheel has spun up since: no evidence,
         self.span_s = 0.0             # and its length [s]
 
     def _dt_s(self, now_us: int) -> float:
@@ -500,7 +511,9 @@ class BrakeControl:
             return                                   # no wheel to compare the accelerometer with
         self.span_accel += accel * span_s
         self.span_s += span_s
-        if check.stand_s > 0.0 or check.frozen_s > 0.0:
+        # begun mid-slide, the wheel spinning back up: the span holds the recovery, not the onset
+        self.span_tainted |= self.span_in_slide and self.axle_accel > self.p.ref.spin_up_accel_mps2
+        if check.stands or check.frozen_s > 0.0:
             return                                   # the wheel is not trusted yet: wait for the span's end
         sliding = (self.ref.v_mps - car_v > sc.slide_gate_mps or self.wsp != Wsp.FILL or self.ref.sliding
                    or abs(self.axle_accel) > sc.car_accel_max_mps2)
@@ -508,9 +521,11 @@ class BrakeControl:
             return                                   # bridge the slide
         span = self.span_s
         wheel_rate = (car_v - self.span_start) / span
-        if not (sliding and abs(wheel_rate) > sc.car_accel_max_mps2):   # a slide still on: no evidence
+        spinning_up = wheel_rate > self.p.ref.spin_up_accel_mps2       # a vented wheel coming back
+        if not (sliding and (abs(wheel_rate) > sc.car_accel_max_mps2 or spinning_up) or self.span_tainted):
             self.accel_check = accel_bias_check(ac, self.span_accel / span, wheel_rate, span, sc)
         self.span_start, self.span_accel, self.span_s = car_v, 0.0, 0.0
+        self.span_in_slide, self.span_tainted = sliding, False
         if self.accel_check.fault and not ac.fault:
             self._set_v_ref(wheel_v)                 # drop what the biased accelerometer integrated
 
@@ -542,6 +557,7 @@ class BrakeControl:
             self.lost_cycles += 1
 
         wheel_v = omega * p.wheel_radius_m
+        spinning_up = self.axle_accel > p.ref.spin_up_accel_mps2    # as of the last sensor frame
         fresh, span_s = self._new_sensor_frame(now_us, rx.sensors_age_us, dt_s)
         stuck = self.cyl_check.fault
         if fresh and ok2 and not stuck:
@@ -555,10 +571,10 @@ class BrakeControl:
         if self.speed_check.fault:                        # no wheel: the accelerometer alone
             self._set_v_ref(max(self.ref.v_mps + (accel - ac.bias_mps2) * dt_s, 0.0))
         else:
-            suspect = self.speed_check.stand_s > 0.0 or self.speed_check.frozen_s > 0.0
+            suspect = self.speed_check.stands or self.speed_check.frozen_s > 0.0
             self.ref = reference_speed(self.ref, wheel_v, car_accel, dt_s, fresh and ok1,
                                        self.wsp == Wsp.FILL, pressure <= p.ref.torque_free_Pa, creep,
-                                       suspect, p.ref)
+                                       suspect, p.ref, spinning_up)
         if fresh and ok1 and ok3:
             self._check_wheel_and_accel(wheel_v, accel, span_s, creep)
         speed_fault = self.speed_check.fault
@@ -572,7 +588,8 @@ class BrakeControl:
             if self.wsp_tripped:                          # watchdog: re-armed once the wheel recovered
                 self.vent_s, self.wsp_tripped = 0.0, wanted != Wsp.FILL
             else:
-                self.vent_s = self.vent_s + dt_s if wanted != Wsp.FILL else 0.0
+                # time the vented wheel spins back up does not count
+                self.vent_s = self.vent_s + dt_s * (not spinning_up) if wanted != Wsp.FILL else 0.0
                 if self.vent_s > p.max_vent_s:
                     self.vent_s, self.wsp_tripped = 0.0, True
             self.wsp = Wsp.FILL if self.wsp_tripped else wanted
