@@ -47,6 +47,9 @@ class RxTable(Mapping[str, float]):
     def __getitem__(self, name: str) -> float:
         return self._values[name]
 
+    def get(self, name: str, default: float | None = None) -> float | None:   # Mapping.get, without a
+        return self._values.get(name, default)                               # try/except per call
+
     def __iter__(self) -> Iterator[str]:
         return iter(self._values)
 
