@@ -220,7 +220,7 @@ def test_precise_stop_short_runs_every_method(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(7200)                # 60 lockstep runs on two workers: ~25 min on a quiet 2-core host
+@pytest.mark.timeout(7200)                # 80 lockstep runs on two workers: ~3 min on a 2-core host
 def test_precise_stop_randomized_campaign(tmp_path):
     """Issue #5 acceptance: ≥ 20 seeded randomized runs per method, stop point 400–1500 m ahead, balises
     200 m and 25 m before it (and the PI once more without them).  Prints the table; asserts the goal

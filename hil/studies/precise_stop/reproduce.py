@@ -103,8 +103,8 @@ def table_lines(t: dict) -> list[str]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--runs", type=int, default=20,
-                   help="seeded randomized runs per method (default 20; about 40 s of wall time per run on "
-                        "one core, so the default takes about 25 min on 2 cores)")
+                   help="seeded randomized runs per method (default 20; about 5 s of wall time per run on "
+                        "one core, so the default takes about 3 min on 2 cores)")
     p.add_argument("--distance", type=float, default=None, metavar="M",
                    help="every stop point this far ahead [m] (default: seeded, uniform in 400-1500 m)")
     p.add_argument("--method", dest="methods", action="append", choices=METHODS + (NO_BALISES,),
