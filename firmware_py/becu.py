@@ -35,14 +35,14 @@ speed estimate then runs on the accelerometer alone and WSP is inhibited (the br
 The accelerometer's bias (accelerometer − the axle's acceleration, filtered) is AccelBiasEst; above a
 limit for a time it is AccelSensorFault (latched) and the axle's acceleration replaces it.  A vent-time
 watchdog refills a cylinder that WSP has kept vented too long.  While a vented wheel spins back up (its
-axle accelerates faster than RefSpeedParams.spin_up_accel_mps2, as no braked car does) the clocks of the
-watchdog, of the reference speed's spin-up rule and of its slide bridge stand still: a wheel locked at
-speed takes seconds to come back (issue #19: locked by the actuator's fail-safe while commands were
-lost).  See `speed_sensor_check`, `accel_bias_check` and `vent_watchdog`.  The brake-cylinder pressure
-transducer is declared failed (CylSensorFault, latched, issue #19) when its reading stays identical while
-the EP or dump valve should have moved the pressure by more than a limit; the pressure loop then runs on a
-model of the cylinder fed with the valve commands, biased to brake (`cyl_sensor_check`,
-`valve_pressure_rate`).
+axle accelerates faster than RefSpeedParams.spin_up_accel_mps2, as no braked car does, setting new highs:
+`Becu._spin_up_check`) the clocks of the watchdog, of the reference speed's spin-up rule and of its slide
+bridge stand still: a wheel locked at speed takes seconds to come back (issue #19: locked by the
+actuator's fail-safe while commands were lost).  See `speed_sensor_check`, `accel_bias_check` and
+`vent_watchdog`.  The brake-cylinder pressure transducer is declared failed (CylSensorFault, latched,
+issue #19) when its reading stays identical while the EP or dump valve should have moved the pressure by
+more than a limit; the pressure loop then runs on a model of the cylinder fed with the valve commands,
+biased to brake (`cyl_sensor_check`, `valve_pressure_rate`).
 """
 
 from __future__ import annotations
@@ -114,9 +114,10 @@ def vent_watchdog(vent_s: float, tripped: bool, venting: bool, recovered: bool, 
 
     `venting`: WSP wants the cylinder out of FILL this cycle; `recovered`: the wheel's slip is back
     below the refill threshold; `spinning_up`: the vented wheel accelerates as only a wheel spinning back
-    up to the car's speed does (RefSpeedParams.spin_up_accel_mps2): the vent is working, the wheel is
-    healthy, and that time does not count (the "axle health discriminatory" timer of CA 2025196: a wheel
-    that takes seconds to spin up from a lock is not refilled onto the rail half-way).  Trips when
+    up to the car's speed does (RefSpeedParams.spin_up_accel_mps2, `Becu._spin_up_check`): the vent is
+    working, the wheel is healthy, and that time does not count (the "axle health discriminatory" timer
+    of CA 2025196: a wheel that takes seconds to spin up from a lock is not refilled onto the rail
+    half-way).  Trips when
     venting lasts longer than `max_vent_s` otherwise; while tripped the caller keeps the cylinder in
     FILL; it re-arms once the wheel has recovered."""
     if tripped:
@@ -311,6 +312,10 @@ def cyl_sensor_check(s: CylCheck, reading_Pa: float, prev_Pa: float, before_Pa: 
 
 
 G_MPS2 = 9.81                 # standard gravity [m/s²]
+# the spin-up check's smoothing of the wheel reading, a fraction per fresh reading: τ = 50 ms at 10 ms
+# readings, a third of the plant's reading noise, below the 12 mm/s a wheel spinning up at 1.25 m/s² gains
+# a reading (chosen)
+SPIN_UP_SMOOTHING = 0.2
 
 
 @dataclass(frozen=True)
@@ -572,6 +577,10 @@ class Becu:
         self._wheel_prev = math.nan   # previous fresh wheel reading r·ω [m/s]
         self._rx_us: int | None = None   # reception time of the sensor frame used last cycle
         self._axle_accel = 0.0        # d(r·ω)/dt, filtered [m/s²]
+        self._wheel_smooth = math.nan  # the wheel reading smoothed (SPIN_UP_SMOOTHING) [m/s] ...
+        self._wheel_low = math.nan    # ... its lowest since WSP left FILL [m/s] ...
+        self._wheel_high = math.nan   # ... the highest since that low [m/s] ...
+        self._spinning_up = False     # ... and the last one was a new high while the axle accelerated
         self._anchor_wheel = math.nan  # bias filter: wheel reading at its last update [m/s] ...
         self._accel_sum = 0.0         # ... the accelerometer integrated since [m/s] ...
         self._span_s = 0.0            # ... over this time [s] ...
@@ -729,6 +738,25 @@ class Becu:
             self.accel_fault_us = now_us
             self.v_ref = wheel_v                     # drop what the biased accelerometer integrated
 
+    def _spin_up_check(self, wheel_v: float) -> None:
+        """On a fresh wheel reading: is the vented wheel spinning back up (RefSpeedParams.spin_up_accel_mps2)?
+        Its axle accelerates faster than a braked car can (as of the last reading: `_axle_accel`), and the
+        reading, smoothed (SPIN_UP_SMOOTHING), is the highest since its lowest since WSP left FILL (the
+        wheel may lock after the vent began, while its commands are lost).  The new-high condition keeps a
+        noisy sensor from passing for a spinning wheel: noise sets new records ever more rarely (the n-th
+        reading of a standing signal is one with probability 1/n), a wheel spinning up sets one every
+        reading."""
+        w = self._wheel_smooth
+        w = wheel_v if not math.isfinite(w) else w + SPIN_UP_SMOOTHING * (wheel_v - w)
+        self._wheel_smooth = w
+        if self.wsp == Wsp.FILL or not math.isfinite(self._wheel_high) or w < self._wheel_low:
+            self._wheel_high = self._wheel_low = w
+            self._spinning_up = False
+            return
+        high = w > self._wheel_high
+        self._wheel_high = max(self._wheel_high, w)
+        self._spinning_up = high and self._axle_accel > self.p.ref.spin_up_accel_mps2
+
     def _check_cylinder(self, now_us: int, pressure: float, span_s: float) -> None:
         """Plausibility of the pressure transducer on a fresh sensor frame, against the valve commands sent
         over the span (`cyl_sensor_check`).  On failing: the model of the cylinder starts where the valves
@@ -788,8 +816,10 @@ class Becu:
 
         wheel_v = omega * p.wheel_radius_m
         sc = p.sensors
-        spinning_up = self._axle_accel > p.ref.spin_up_accel_mps2    # as of the last sensor frame
         fresh, span_s = self._fresh_sensor_frame(now_us, rx, dt_s)
+        if fresh and ok1:
+            self._spin_up_check(wheel_v)
+        spinning_up = self._spinning_up
         cyl_failed = self.cyl_check.fault
         if fresh and ok2 and not cyl_failed:
             self._check_cylinder(now_us, pressure, span_s)

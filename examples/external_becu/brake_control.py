@@ -42,6 +42,7 @@ from enum import IntEnum
 from typing import NamedTuple
 
 G_MPS2 = 9.81                 # standard gravity [m/s²]
+SPIN_UP_SMOOTHING = 0.2       # the spin-up check's smoothing of the wheel reading per reading (τ = 50 ms)
 
 
 class Wsp(IntEnum):
@@ -425,6 +426,10 @@ class BrakeControl:
         self.accel_check = AccelCheck()
         self.wheel_prev = math.nan    # previous new r·ω [m/s]
         self.axle_accel = 0.0         # d(r·ω)/dt, filtered [m/s²]
+        self.wheel_smooth = math.nan  # the reading smoothed (SPIN_UP_SMOOTHING) [m/s]; its lowest since
+        self.wheel_low = math.nan     # WSP left FILL [m/s], the highest since
+        self.wheel_high = math.nan    # that low, and whether the last one was a new high while the axle
+        self.spinning_up = False      # accelerated
         self.span_start = math.nan    # the bias filter's span: the car's speed by the wheel at its start,
         self.span_accel = 0.0         # the accelerometer integrated since [m/s],
         self.span_in_slide = False    # it began in a slide,
@@ -557,8 +562,19 @@ class BrakeControl:
             self.lost_cycles += 1
 
         wheel_v = omega * p.wheel_radius_m
-        spinning_up = self.axle_accel > p.ref.spin_up_accel_mps2    # as of the last sensor frame
         fresh, span_s = self._new_sensor_frame(now_us, rx.sensors_age_us, dt_s)
+        if fresh and ok1:            # the vented wheel spinning back up: the smoothed reading sets a new
+            w = self.wheel_smooth    # high since its lowest while the axle accelerates (noise sets ever
+            w = wheel_v if not math.isfinite(w) else w + SPIN_UP_SMOOTHING * (wheel_v - w)   # fewer)
+            self.wheel_smooth = w
+            if self.wsp == Wsp.FILL or not math.isfinite(self.wheel_high) or w < self.wheel_low:
+                self.wheel_high = self.wheel_low = w
+                self.spinning_up = False
+            else:
+                high = w > self.wheel_high
+                self.wheel_high = max(self.wheel_high, w)
+                self.spinning_up = high and self.axle_accel > p.ref.spin_up_accel_mps2
+        spinning_up = self.spinning_up
         stuck = self.cyl_check.fault
         if fresh and ok2 and not stuck:
             self._check_cylinder(pressure, span_s)
