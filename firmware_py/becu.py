@@ -117,9 +117,8 @@ def vent_watchdog(vent_s: float, tripped: bool, venting: bool, recovered: bool, 
     up to the car's speed does (RefSpeedParams.spin_up_accel_mps2, `Becu._spin_up_check`): the vent is
     working, the wheel is healthy, and that time does not count (the "axle health discriminatory" timer
     of CA 2025196: a wheel that takes seconds to spin up from a lock is not refilled onto the rail
-    half-way).  Trips when
-    venting lasts longer than `max_vent_s` otherwise; while tripped the caller keeps the cylinder in
-    FILL; it re-arms once the wheel has recovered."""
+    half-way).  Trips when venting lasts longer than `max_vent_s` otherwise; while tripped the caller
+    keeps the cylinder in FILL; it re-arms once the wheel has recovered."""
     if tripped:
         return 0.0, not recovered
     vent_s = vent_s + dt_s * (not spinning_up) if venting else 0.0
@@ -425,9 +424,9 @@ def reference_speed(s: RefSpeed, wheel_mps: float, accel_mps2: float, dt_s: floa
     creep: the slip speed the wheel needs for the adhesion its brake uses (`creep_mps`) [m/s];
     wheel_suspect: the wheel-speed sensor check is timing the reading ("stands" or "frozen",
     `speed_sensor_check`): a slide is then not ended by the spin-up rule, that check decides;
-    spinning_up: the axle accelerates faster than RefSpeedParams.spin_up_accel_mps2, as a wheel spinning
-    back up to the car's speed: the slide goes on, however long, and that time counts towards neither
-    spin_up_s nor bridge_max_s.
+    spinning_up: the wheel is spinning back up to the car's speed (`Becu._spin_up_check`: its axle
+    accelerates faster than RefSpeedParams.spin_up_accel_mps2, its smoothed reading setting new highs):
+    the slide goes on, however long, and that time counts towards neither spin_up_s nor bridge_max_s.
 
     Time update, seed 004 eqs. (19)–(20) with A = 1, the accelerometer as input u_k and W = dt:
     v⁻ = v + a·dt, P⁻ = P + (σ_a·dt)².  Measurement update on a fresh reading z = w + creep (the car's speed
@@ -729,8 +728,8 @@ class Becu:
             return                                   # bridge the slide: update once the wheel is back
         span = self._span_s
         wheel_rate = (car_v - self._anchor_wheel) / span
-        spinning_up = wheel_rate > self.p.ref.spin_up_accel_mps2       # a vented wheel coming back
-        if not (sliding and (abs(wheel_rate) > sc.car_accel_max_mps2 or spinning_up) or self._span_tainted):
+        rising = wheel_rate > self.p.ref.spin_up_accel_mps2            # a vented wheel coming back
+        if not (sliding and (abs(wheel_rate) > sc.car_accel_max_mps2 or rising) or self._span_tainted):
             self.accel_check = accel_bias_check(ac, self._accel_sum / span, wheel_rate, span, sc)
         self._anchor_wheel, self._accel_sum, self._span_s = car_v, 0.0, 0.0
         self._span_in_slide, self._span_tainted = sliding, False

@@ -343,8 +343,8 @@ def reference_speed(s: RefSpeed, wheel_mps: float, accel_mps2: float, dt_s: floa
     """One cycle of the reference speed.  accel_mps2: the accelerometer less its bias; fresh: a new wheel
     reading r·ω = wheel_mps came; creep: the slip its brake needs (`creep_mps`); wheel_suspect: the
     wheel-speed sensor check is timing the reading (a slide is then not ended by the spin-up rule);
-    spinning_up: the axle accelerates faster than rp.spin_up_accel_mps2 (that time counts for neither
-    spin_up_s nor bridge_max_s).
+    spinning_up: the wheel spins back up (its axle accelerates faster than rp.spin_up_accel_mps2, its
+    smoothed reading setting new highs): that time counts for neither spin_up_s nor bridge_max_s.
 
     Time update, seed 004 eqs. (19)–(20): v⁻ = v + a·dt, P⁻ = P + (σ_a·dt)².  Measurement z = r·ω + creep
     (seed 001 eq. (2), v = rω + s), eqs. (21)–(23): K = P⁻/(P⁻ + σ_w²), v = v⁻ + K·(z − v⁻),
@@ -526,8 +526,8 @@ class BrakeControl:
             return                                   # bridge the slide
         span = self.span_s
         wheel_rate = (car_v - self.span_start) / span
-        spinning_up = wheel_rate > self.p.ref.spin_up_accel_mps2       # a vented wheel coming back
-        if not (sliding and (abs(wheel_rate) > sc.car_accel_max_mps2 or spinning_up) or self.span_tainted):
+        rising = wheel_rate > self.p.ref.spin_up_accel_mps2            # a vented wheel coming back
+        if not (sliding and (abs(wheel_rate) > sc.car_accel_max_mps2 or rising) or self.span_tainted):
             self.accel_check = accel_bias_check(ac, self.span_accel / span, wheel_rate, span, sc)
         self.span_start, self.span_accel, self.span_s = car_v, 0.0, 0.0
         self.span_in_slide, self.span_tainted = sliding, False
