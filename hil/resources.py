@@ -1,7 +1,8 @@
-"""Where the files railhil ships are: the DBC, the scenarios, the rail profiles and the campaigns.
+"""Where the files railhil ships are: the DBC, the scenarios, the rail profiles, the campaigns and the test
+programmes.
 
 In a source checkout (and an editable install) they are the repository's folders `dbc/`, `scenarios/`,
-`scenarios/profiles/` and `campaigns/`.  A wheel carries the same folders as package data under
+`scenarios/profiles/`, `campaigns/` and `programmes/`.  A wheel carries the same folders as package data under
 `hil/_data/` (pyproject.toml maps them there), so an installed railhil finds them from any directory.
 
 A scenario may be named instead of given by path: `railhil run default` is the shipped
@@ -39,6 +40,11 @@ def profiles_dir() -> Path:
 
 def campaigns_dir() -> Path:
     return data_root() / "campaigns"
+
+
+def programmes_dir() -> Path:
+    """The test programmes (`railhil wsp-test`'s wsp_test.toml)."""
+    return data_root() / "programmes"
 
 
 DEFAULT_DBC_NAME = "train_brake.dbc"

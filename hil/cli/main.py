@@ -35,6 +35,8 @@ COMMANDS = {
                "cycle-time conformance of a trace against the DBC, bus load, response-time analysis, "
                "latency chains"),
     "faults": ("hil.cli.faults", "fault injection campaigns: the EN 50159 threat matrix"),
+    "wsp-test": ("hil.cli.wsp_test", "WSP type test (EN 15595 style): strategies side by side on low, "
+                 "extremely low and suddenly changing adhesion at three speeds"),
     "campaign": ("hil.cli.campaign", "parameter sweeps of a scenario (grid and seeded random), in parallel "
                  "or on a Dask cluster; resumable"),
     "reproduce": ("hil.cli.reproduce", "reproduce a paper's simulation campaigns next to its figures (one "

@@ -920,6 +920,34 @@ def write_campaign_report(out_dir: Path, table: tuple[list[str], list[dict]] | N
     return out
 
 
+@dataclass(frozen=True)
+class Section:
+    """A section of a tables-and-figures page (render_sections_report)."""
+
+    title: str
+    text: str                              # a paragraph, plain text
+    header: list[str]
+    rows: list[list[object]]
+    images: list[Path]
+
+
+def render_sections_report(title: str, intro: str, sections: list[Section], banner: str = "",
+                           failed: bool = False) -> str:
+    """A page of sections, each a paragraph, a table and figures (inlined PNG): a test programme's report
+    (hil.typetest).  `banner`: one line under the title, red when `failed`."""
+    nav = _nav([(f"s{k}", s.title) for k, s in enumerate(sections)])
+    head = f"<h1>{_e(title)}</h1><p>{_e(intro)}</p>"
+    if banner:
+        head += f"<div class='banner {'fail' if failed else 'pass'}'>{_e(banner)}</div>"
+    body = [head, nav]
+    for k, s in enumerate(sections):
+        numeric = {i for i, _ in enumerate(s.header) if s.rows and all(
+            isinstance(r[i], (int, float)) or r[i] is None for r in s.rows)}
+        body.append(f"<h2 id=s{k}>{_e(s.title)}</h2><p>{_e(s.text)}</p>"
+                    f"<div class=scroll>{_table(s.header, s.rows, numeric)}</div>{_images(s.images)}")
+    return _page(title, "".join(body))
+
+
 def write_report(folder: Path) -> Path:
     """report.html of a run folder (it has run.json) or a campaign folder (it has results.csv)."""
     folder = Path(folder)

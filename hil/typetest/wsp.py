@@ -1,0 +1,118 @@
+"""Running a WSP test programme: every run in lockstep through the campaign executor (this process, local
+worker processes or a Dask cluster), in two rounds: the dry references first (each strategy's demand at
+each speed, hil.typetest.metrics.Demand), then every condition, whose metrics need that demand.
+
+Each run keeps its folder (trace, truth.csv, kpis.json, run.json) under OUT/STRATEGY/CONDITION-SPEEDkmh;
+its metrics are computed in the worker from the plant truth (hil.typetest.metrics) and come back small.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from concurrent.futures import Executor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hil.scenario import Scenario
+from hil.typetest.metrics import Demand, MetricParams, demand_from_dry, run_metrics, train_speed
+from hil.typetest.programme import REFERENCE, Programme, RunSpec
+
+PATH_STEP_S = 0.1          # the speed-over-distance path kept per run for the figures [s]
+
+
+@dataclass
+class RunResult:
+    spec: RunSpec
+    status: str                          # "ok" or "failed"
+    error: str = ""
+    metrics: dict = field(default_factory=dict)
+    demand: Demand | None = None         # a reference run's: the demand of its strategy at its speed
+    path: tuple[list[float], list[float]] = ((), ())   # (lead car position from the command [m], speed)
+    wall_s: float = 0.0
+
+
+def available_for(scenario: Scenario) -> Callable[[float, float], float]:
+    """available(x_lead, v) [m/s²]: the peak adhesion μ°(θ(x), v) × g under each car (the plant's rail and
+    curve, seed 000 eq. (2)) averaged over the cars, plus the train's running resistance (Davis, eq. (4)
+    seed 003) ÷ its mass; the cars at their rest pitch behind the leading one."""
+    from hil.scenario.params import build_track, plant_params
+    from plant_sim.adhesion import mu_opt
+    from plant_sim.dynamics import car_constants, davis_resistance_scalar
+
+    pp = plant_params(scenario)
+    track = build_track(scenario)
+    cc = car_constants(pp.train)
+    n = len(cc.mass_kg)
+    offsets = np.arange(n) * cc.car_pitch_m
+    total_mass = sum(cc.mass_kg)
+    ap, g = pp.adhesion, pp.train.g_mps2
+
+    def available(x_lead_m: float, v_mps: float) -> float:
+        theta = track.theta_at(x_lead_m - offsets)
+        mu = mu_opt(theta, np.full(n, max(v_mps, 0.0)), ap)
+        resist = sum(davis_resistance_scalar(max(v_mps, 0.0), cc.c0_N, cc.c1_Ns_per_m, c2)
+                     for c2 in cc.c2_Ns2_per_m2) / total_mass
+        return float(g * np.mean(mu) + resist)
+
+    return available
+
+
+def run_job(spec: RunSpec, run_dir: str, params: MetricParams, demand: Demand | None) -> RunResult:
+    """One run in lockstep into `run_dir` and its metrics (the worker's job; never raises).  A reference run
+    (demand None) derives its strategy's demand from itself."""
+    from hil.runtime.run import prepare_worker, run_scenario_lockstep
+
+    prepare_worker(spec.scenario)
+    t0 = time.perf_counter()
+    try:
+        report = run_scenario_lockstep(spec.scenario, Path(run_dir), interactive_report=False, plots=False)
+        if report.outcome.reason == "interrupted":
+            raise KeyboardInterrupt
+        cols = report.outcome.truth.columns()
+        t_cmd = report.kpis.get("brake_start_s")
+        if t_cmd is None:
+            raise ValueError("the run has no brake command (kpis.json brake_start_s)")
+        own = demand_from_dry(cols, t_cmd) if spec.condition == REFERENCE else None
+        metrics = run_metrics(cols, t_cmd, params, own or demand, available_for(spec.scenario))
+        t = cols["t_s"]
+        i0 = int(np.searchsorted(t, t_cmd - 1e-9))
+        step = max(1, round(PATH_STEP_S / float(np.median(np.diff(t)))))
+        x = cols["x_m_1"][i0::step] - cols["x_m_1"][i0]
+        v = train_speed(cols)[i0::step]
+        return RunResult(spec, "ok", metrics=metrics, demand=own, path=(x.tolist(), v.tolist()),
+                         wall_s=time.perf_counter() - t0)
+    except Exception as exc:             # one failing run is recorded, the others go on
+        return RunResult(spec, "failed", error=f"{type(exc).__name__}: {' '.join(str(exc).split())}",
+                         wall_s=time.perf_counter() - t0)
+
+
+def _failed(job: tuple, exc: BaseException) -> RunResult:
+    return RunResult(job[0], "failed", error=f"{type(exc).__name__}: {' '.join(str(exc).split())}")
+
+
+def run_programme(prog: Programme, specs: list[RunSpec], out_dir: Path, executor: Executor | None = None,
+                  progress: Callable[[RunResult], None] | None = None) -> list[RunResult]:
+    """Every run of `specs` (references first), results in the order of `specs`."""
+    from hil.campaign.jobs import executor_map
+
+    params = prog.metric_params
+    refs = [s for s in specs if s.condition == REFERENCE]
+    done: dict[int, RunResult] = {}
+    ref_results = executor_map(run_job, [(s, str(out_dir / s.folder), params, None) for s in refs], executor,
+                               progress, _failed)
+    demands = {}
+    for s, r in zip(refs, ref_results, strict=True):
+        done[id(s)] = r
+        demands[(s.strategy, s.speed_kmh)] = r.demand
+    rest = [s for s in specs if s.condition != REFERENCE]
+    rest_results = executor_map(run_job, [(s, str(out_dir / s.folder), params,
+                                           demands.get((s.strategy, s.speed_kmh))) for s in rest],
+                                executor, progress, _failed)
+    for s, r in zip(rest, rest_results, strict=True):
+        if r.status == "ok" and demands.get((s.strategy, s.speed_kmh)) is None:
+            r.metrics = {**r.metrics, "note": "its dry reference failed: no ideal stop"}
+        done[id(s)] = r
+    return [done[id(s)] for s in specs]
