@@ -85,6 +85,24 @@ class WspParams:
     # Canadian patent CA 2025196 (axle health discriminatory safety timer); UIC 541-05 limits continuous
     # venting too, but its figure was not found in the sources at hand
     max_vent_s: float = 5.0
+    # "dump": vent to zero, refill to the demand (the limit cycle of seed 001 §II-C's WSP); "slip": keep the
+    # slip near the adhesion peak: refill only up to a pressure ceiling, `ceiling_fraction` of the pressure
+    # at which the wheel began to slide (the adhesion the rail gave, estimated), raised by
+    # `ceiling_rise_Pa_per_s` while the wheel holds, to find more adhesion when the rail improves
+    mode: str = "dump"
+    ceiling_fraction: float = 0.9          # (chosen)
+    ceiling_rise_Pa_per_s: float = 20e3    # 0.2 bar/s (chosen)
+
+
+def slip_ceiling(ceiling_Pa: float, before: Wsp, now: Wsp, pressure_Pa: float, dt_s: float,
+                 p: WspParams) -> float:
+    """Pure update of the slip mode's pressure ceiling [Pa] (inf: none): set at a slide's onset (FILL ->
+    out of FILL) to ceiling_fraction × the cylinder pressure then, raised while in FILL."""
+    if before == Wsp.FILL and now != Wsp.FILL:
+        return p.ceiling_fraction * pressure_Pa
+    if now == Wsp.FILL and math.isfinite(ceiling_Pa):
+        return ceiling_Pa + p.ceiling_rise_Pa_per_s * dt_s
+    return ceiling_Pa
 
 
 def wsp_transition(state: Wsp, slip_mps: float, speed_mps: float, p: WspParams) -> Wsp:
@@ -588,6 +606,7 @@ class Becu:
         self.vent_s = 0.0             # WSP: time out of FILL without a break [s]
         self.wsp_tripped = False      # WSP: the vent-time watchdog holds the cylinder in FILL
         self.wsp_watchdog_trips = 0   # times the watchdog refilled a cylinder (diagnostic)
+        self.ceiling_Pa = math.inf    # slip-mode WSP: refill no higher than this [Pa] (slip_ceiling)
         # pressure transducer (issue #19)
         self.cyl_check = CylCheck()
         self.cyl_fault_us: int | None = None       # when CylSensorFault latched (diagnostic)
@@ -850,7 +869,10 @@ class Becu:
                                                  wanted == Wsp.FILL, dt_s, p.wsp.max_vent_s, spinning_up)
             self.wsp_watchdog_trips += tripped and not self.wsp_tripped
             self.wsp_tripped = tripped
-            self.wsp = Wsp.FILL if tripped else wanted
+            before, self.wsp = self.wsp, Wsp.FILL if tripped else wanted
+            if p.wsp.mode == "slip":
+                self.ceiling_Pa = (slip_ceiling(self.ceiling_Pa, before, self.wsp, pressure, dt_s, p.wsp)
+                                   if self.v_ref >= p.wsp.min_speed_mps and not tripped else math.inf)
 
         overridden = self.wsp != Wsp.FILL
         governed = False
@@ -863,6 +885,8 @@ class Becu:
                        and not self.phi_stale(now_us, rx))
             if phi_ok and engaged and emergency < 0.5 and not lost:      # seed 004 §5: not for emergency
                 p_set = self.apply_phi(p_set, phi)
+        if p_set > self.ceiling_Pa:                                   # slip-mode WSP: refill to the ceiling
+            p_set = self.ceiling_Pa
         valve = self.pressure_pi.update(p_set - pressure, dt_s, freeze=overridden)
         if overridden:
             valve = 0.0                                               # the dump valve acts, EP valve holds

@@ -189,3 +189,21 @@ def test_short_programme_end_to_end(tmp_path, capsys):
     for name in ("table.md", "table.csv", "report.html", "wsp_low.png", "wsp_reference.png"):
         assert (out / name).is_file(), name
     assert (out / "dump" / "low-40kmh" / "truth.csv").is_file()
+
+
+def test_slip_wsp_ceiling_is_learnt_at_the_slide_onset_and_rises_in_fill():
+    from firmware_py.becu import Wsp, WspParams, slip_ceiling
+
+    p = WspParams(mode="slip", ceiling_fraction=0.9, ceiling_rise_Pa_per_s=20e3)
+    c = slip_ceiling(math.inf, Wsp.FILL, Wsp.FILL, 3e5, 0.01, p)
+    assert c == math.inf                                         # no slide yet: no ceiling
+    c = slip_ceiling(c, Wsp.FILL, Wsp.VENT, 2e5, 0.01, p)
+    assert c == pytest.approx(1.8e5)                             # 0.9 x the pressure at the onset
+    assert slip_ceiling(c, Wsp.VENT, Wsp.HOLD, 0.5e5, 0.01, p) == c    # held while out of FILL
+    assert slip_ceiling(c, Wsp.HOLD, Wsp.FILL, 1e5, 0.5, p) == pytest.approx(1.8e5 + 10e3)   # 0.2 bar/s
+
+
+def test_dump_wsp_has_no_ceiling():
+    from firmware_py.becu import Becu, BecuParams
+
+    assert BecuParams().wsp.mode == "dump" and Becu(BecuParams()).ceiling_Pa == math.inf

@@ -103,6 +103,10 @@ def step_decel_mps2(scenario: Scenario) -> tuple[float, ...]:
     return tuple(steps) if steps is not None else BcuParams().step_decel_mps2
 
 
+SLIP_WSP_HOLD = 0.8       # slip-mode WSP: VENT -> HOLD below this fraction of the vent threshold (chosen)
+SLIP_WSP_REFILL = 0.5     # ... HOLD -> FILL below this fraction (chosen; the dump WSP's: 0.5 and 0.25)
+
+
 def becu_params(scenario: Scenario, car: int) -> BecuParams:
     """BecuParams of car `car` (1-based): the foundation's BECU unless [becu] says otherwise, then what
     the active studies add (the reference governor)."""
@@ -122,6 +126,9 @@ def becu_params(scenario: Scenario, car: int) -> BecuParams:
                 refill_fraction=b.wsp_refill_slip_mps / b.wsp_vent_slip_mps)
         if b.wheel_trust_slip_mps is not None:
             kw["wheel_trust_slip_mps"] = b.wheel_trust_slip_mps
+    if b.wsp_mode == "slip":
+        kw["wsp"] = dataclasses.replace(kw.get("wsp", d.wsp), mode="slip", hold_fraction=SLIP_WSP_HOLD,
+                                        refill_fraction=SLIP_WSP_REFILL)
     registry.call(scenario, "scenario", "becu_params", car, kw)
     return BecuParams(**kw) if kw else d
 
