@@ -144,12 +144,14 @@ def measure(hosting: str, with_cyclictest: bool = False) -> dict:
         if done.returncode != 0:
             raise RuntimeError(f"the real-time run failed: {done.stderr.strip().splitlines()[-1:]}")
         kpis = json.loads((Path(tmp) / "kpis.json").read_text())
+        hosts = json.loads((Path(tmp) / "run.json").read_text()).get("realtime", {}).get("host_frames", {})
     try:
         periodic_ns = out.get(timeout=30)
     except queue.Empty:
         periodic_ns = []
     periodic.join(5)
     return {"rt": kpis["realtime"], "simulated_s": kpis["simulated_s"], "cpu_s": cpu,
+            "host_cpu_s": {h: v["cpu_s"] for h, v in hosts.items() if "cpu_s" in v},
             "send_periodic": [ns / 1e3 for ns in periodic_ns],
             "cyclictest": cyclictest_figures(cyc_text) if cyc_text else None}
 
@@ -205,6 +207,11 @@ def _rows(m: dict, hosting: str) -> list[tuple[str, str]]:
                  f"{'held' if rt['held'] else 'NOT HELD'}: {rt['misses_bench']} / {rt['misses_machine']}"))
     rows.append(("  CPU s per simulated s (the whole command)",
                  f"{m['cpu_s'] / m['simulated_s']:.3f} ({m['cpu_s']:.1f} s for {m['simulated_s']:.1f} s)"))
+    if m.get("host_cpu_s"):
+        by = m["host_cpu_s"]
+        hosts = ", ".join(f"{h} {c:.1f}" for h, c in sorted(by.items(), key=lambda kv: -kv[1]))
+        rows.append(("  CPU s by process (the rest: the runner's startup and report, the probes)",
+                     f"{hosts}; rest {m['cpu_s'] - sum(by.values()):.1f}"))
     return rows
 
 

@@ -547,7 +547,8 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
             watch.shutdown()
         end = time.monotonic() + JOIN_TIMEOUT_S
         want = len(procs) - len(plan) + len(simulated) - len(probe_errors)    # nodes, recorder, probes
-        while len(payloads) < want and time.monotonic() < end:
+        hosts_cpu = set(plan) | {"RECORDER"}        # each reports its CPU seconds after its results
+        while (len(payloads) < want or not hosts_cpu <= set(host_info)) and time.monotonic() < end:
             try:
                 kind, name, detail = results.get(timeout=0.2)
             except queue.Empty:
