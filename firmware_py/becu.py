@@ -86,23 +86,45 @@ class WspParams:
     # venting too, but its figure was not found in the sources at hand
     max_vent_s: float = 5.0
     # "dump": vent to zero, refill to the demand (the limit cycle of seed 001 §II-C's WSP); "slip": keep the
-    # slip near the adhesion peak: refill only up to a pressure ceiling, `ceiling_fraction` of the pressure
-    # at which the wheel began to slide (the adhesion the rail gave, estimated), raised by
-    # `ceiling_rise_Pa_per_s` while the wheel holds, to find more adhesion when the rail improves
+    # slip near the adhesion peak (`slip_ceiling`, `early_vent`): refill only up to a pressure ceiling,
+    # ceiling_fraction of the pressure at which the wheel began to slide (the adhesion the rail gave,
+    # estimated), raised in FILL by ceiling_rise_Pa_per_s and dropped after ceiling_release_s in FILL
+    # without a new slide (the rail has improved: on low adhesion the wheel slides again within ~1.3 s);
+    # vent early, once the slip passes early_vent_fraction of the vent threshold while the axle
+    # decelerates faster than early_vent_decel_mps2, which no car does (a slide's onset: venting then
+    # keeps the slide shallow)
     mode: str = "dump"
     ceiling_fraction: float = 0.9          # (chosen)
     ceiling_rise_Pa_per_s: float = 20e3    # 0.2 bar/s (chosen)
+    ceiling_release_s: float = 1.5         # [s] (chosen: railhil wsp-test, sudden change of adhesion)
+    early_vent_fraction: float = 0.3       # (chosen)
+    early_vent_decel_mps2: float = 2.5     # (chosen: SensorCheckParams.car_accel_max_mps2)
 
 
-def slip_ceiling(ceiling_Pa: float, before: Wsp, now: Wsp, pressure_Pa: float, dt_s: float,
+def slip_ceiling(ceiling_Pa: float, before: Wsp, now: Wsp, pressure_Pa: float, fill_s: float, dt_s: float,
                  p: WspParams) -> float:
     """Pure update of the slip mode's pressure ceiling [Pa] (inf: none): set at a slide's onset (FILL ->
-    out of FILL) to ceiling_fraction × the cylinder pressure then, raised while in FILL."""
+    out of FILL) to ceiling_fraction × the cylinder pressure then; in FILL raised by ceiling_rise_Pa_per_s,
+    none once `fill_s` (the time in FILL since the slide) passes ceiling_release_s."""
     if before == Wsp.FILL and now != Wsp.FILL:
         return p.ceiling_fraction * pressure_Pa
     if now == Wsp.FILL and math.isfinite(ceiling_Pa):
-        return ceiling_Pa + p.ceiling_rise_Pa_per_s * dt_s
+        return math.inf if fill_s > p.ceiling_release_s else ceiling_Pa + p.ceiling_rise_Pa_per_s * dt_s
     return ceiling_Pa
+
+
+def early_vent(wanted: Wsp, slip_mps: float, speed_mps: float, axle_accel_mps2: float, p: WspParams) -> Wsp:
+    """Pure: the slip mode vents at a slide's onset, before the vent threshold (WspParams, "slip")."""
+    if (p.mode == "slip" and wanted == Wsp.FILL and speed_mps >= p.min_speed_mps
+            and axle_accel_mps2 < -p.early_vent_decel_mps2
+            and slip_mps > p.early_vent_fraction * vent_threshold(speed_mps, p)):
+        return Wsp.VENT
+    return wanted
+
+
+def vent_threshold(speed_mps: float, p: WspParams) -> float:
+    """The slip speed above which WSP vents at `speed_mps` [m/s]."""
+    return p.vent_slip_mps + p.vent_slip_per_speed * speed_mps
 
 
 def wsp_transition(state: Wsp, slip_mps: float, speed_mps: float, p: WspParams) -> Wsp:
@@ -114,7 +136,7 @@ def wsp_transition(state: Wsp, slip_mps: float, speed_mps: float, p: WspParams) 
     """
     if speed_mps < p.min_speed_mps:
         return Wsp.FILL
-    vent_at = p.vent_slip_mps + p.vent_slip_per_speed * speed_mps
+    vent_at = vent_threshold(speed_mps, p)
     if slip_mps > vent_at:
         return Wsp.VENT
     if state == Wsp.VENT and p.refill_fraction >= p.hold_fraction:
@@ -607,6 +629,7 @@ class Becu:
         self.wsp_tripped = False      # WSP: the vent-time watchdog holds the cylinder in FILL
         self.wsp_watchdog_trips = 0   # times the watchdog refilled a cylinder (diagnostic)
         self.ceiling_Pa = math.inf    # slip-mode WSP: refill no higher than this [Pa] (slip_ceiling)
+        self.fill_s = 0.0             # ... time in FILL since the last slide [s]
         # pressure transducer (issue #19)
         self.cyl_check = CylCheck()
         self.cyl_fault_us: int | None = None       # when CylSensorFault latched (diagnostic)
@@ -864,15 +887,18 @@ class Becu:
         if speed_fault:
             self.wsp = Wsp.FILL                      # WSP inhibited: a failed sensor never vents the brake
         else:
-            wanted = wsp_transition(self.wsp, slip, self.v_ref, p.wsp)
+            wanted = early_vent(wsp_transition(self.wsp, slip, self.v_ref, p.wsp), slip, self.v_ref,
+                                self._axle_accel, p.wsp)
             self.vent_s, tripped = vent_watchdog(self.vent_s, self.wsp_tripped, wanted != Wsp.FILL,
                                                  wanted == Wsp.FILL, dt_s, p.wsp.max_vent_s, spinning_up)
             self.wsp_watchdog_trips += tripped and not self.wsp_tripped
             self.wsp_tripped = tripped
             before, self.wsp = self.wsp, Wsp.FILL if tripped else wanted
             if p.wsp.mode == "slip":
-                self.ceiling_Pa = (slip_ceiling(self.ceiling_Pa, before, self.wsp, pressure, dt_s, p.wsp)
-                                   if self.v_ref >= p.wsp.min_speed_mps and not tripped else math.inf)
+                self.fill_s = self.fill_s + dt_s if self.wsp == Wsp.FILL else 0.0
+                active = self.v_ref >= p.wsp.min_speed_mps and not tripped
+                self.ceiling_Pa = (slip_ceiling(self.ceiling_Pa, before, self.wsp, pressure, self.fill_s,
+                                                dt_s, p.wsp) if active else math.inf)
 
         overridden = self.wsp != Wsp.FILL
         governed = False

@@ -191,16 +191,33 @@ def test_short_programme_end_to_end(tmp_path, capsys):
     assert (out / "dump" / "low-40kmh" / "truth.csv").is_file()
 
 
-def test_slip_wsp_ceiling_is_learnt_at_the_slide_onset_and_rises_in_fill():
+def test_slip_wsp_ceiling_is_learnt_at_the_slide_onset_rises_in_fill_and_is_released():
     from firmware_py.becu import Wsp, WspParams, slip_ceiling
 
-    p = WspParams(mode="slip", ceiling_fraction=0.9, ceiling_rise_Pa_per_s=20e3)
-    c = slip_ceiling(math.inf, Wsp.FILL, Wsp.FILL, 3e5, 0.01, p)
+    p = WspParams(mode="slip", ceiling_fraction=0.9, ceiling_rise_Pa_per_s=20e3, ceiling_release_s=1.5)
+    c = slip_ceiling(math.inf, Wsp.FILL, Wsp.FILL, 3e5, 0.0, 0.01, p)
     assert c == math.inf                                         # no slide yet: no ceiling
-    c = slip_ceiling(c, Wsp.FILL, Wsp.VENT, 2e5, 0.01, p)
+    c = slip_ceiling(c, Wsp.FILL, Wsp.VENT, 2e5, 0.0, 0.01, p)
     assert c == pytest.approx(1.8e5)                             # 0.9 x the pressure at the onset
-    assert slip_ceiling(c, Wsp.VENT, Wsp.HOLD, 0.5e5, 0.01, p) == c    # held while out of FILL
-    assert slip_ceiling(c, Wsp.HOLD, Wsp.FILL, 1e5, 0.5, p) == pytest.approx(1.8e5 + 10e3)   # 0.2 bar/s
+    assert slip_ceiling(c, Wsp.VENT, Wsp.HOLD, 0.5e5, 0.0, 0.01, p) == c    # held while out of FILL
+    assert slip_ceiling(c, Wsp.HOLD, Wsp.FILL, 1e5, 0.5, 0.5, p) == pytest.approx(1.8e5 + 10e3)  # 0.2 bar/s
+    assert slip_ceiling(c, Wsp.FILL, Wsp.FILL, 1e5, 1.51, 0.01, p) == math.inf  # 1.5 s without a slide
+
+
+def test_slip_wsp_vents_early_at_a_slides_onset_only():
+    from firmware_py.becu import Wsp, WspParams, early_vent, vent_threshold
+
+    p = WspParams(mode="slip")
+    v = 20.0
+    vent_at = vent_threshold(v, p)                              # 0.3 + 0.03 x 20 = 0.9 m/s
+    assert vent_at == pytest.approx(0.9)
+    onset = 0.31 * vent_at
+    assert early_vent(Wsp.FILL, onset, v, -3.0, p) == Wsp.VENT            # decelerating as no car does
+    assert early_vent(Wsp.FILL, onset, v, -1.0, p) == Wsp.FILL            # a car's deceleration: no
+    assert early_vent(Wsp.FILL, 0.29 * vent_at, v, -3.0, p) == Wsp.FILL   # slip below 0.3 x the threshold
+    assert early_vent(Wsp.HOLD, onset, v, -3.0, p) == Wsp.HOLD            # WSP already acts
+    assert early_vent(Wsp.FILL, onset, 0.5, -3.0, p) == Wsp.FILL          # below min_speed_mps: never
+    assert early_vent(Wsp.FILL, onset, v, -3.0, WspParams()) == Wsp.FILL  # the dump WSP: never
 
 
 def test_dump_wsp_has_no_ceiling():

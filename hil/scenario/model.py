@@ -287,9 +287,9 @@ class BecuSpec(_Strict):
     wheel_trust_slip_mps: Annotated[float, Field(ge=0, le=10)] | None = None   # speed estimator
     # leaving WSP, the decel PI resumes where it was frozen ("freeze") or from u = 0 ("handover")
     wsp_resume: Literal["freeze", "handover"] = "freeze"
-    # "dump": WSP vents to zero and refills to the demand; "slip": it vents only until the wheel recovers,
-    # holds, and refills no higher than a ceiling learnt from the pressure at the slide's onset
-    # (firmware_py.becu.slip_ceiling)
+    # "dump": WSP vents to zero and refills to the demand; "slip": it vents at a slide's onset and only until
+    # the wheel turns back, holds, and refills no higher than a ceiling learnt from the pressure at the
+    # slide's onset (firmware_py.becu.slip_ceiling, early_vent)
     wsp_mode: Literal["dump", "slip"] = "dump"
 
     @model_validator(mode="after")

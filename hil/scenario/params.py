@@ -103,8 +103,12 @@ def step_decel_mps2(scenario: Scenario) -> tuple[float, ...]:
     return tuple(steps) if steps is not None else BcuParams().step_decel_mps2
 
 
-SLIP_WSP_HOLD = 0.8       # slip-mode WSP: VENT -> HOLD below this fraction of the vent threshold (chosen)
-SLIP_WSP_REFILL = 0.5     # ... HOLD -> FILL below this fraction (chosen; the dump WSP's: 0.5 and 0.25)
+# slip-mode WSP: VENT -> HOLD below SLIP_WSP_HOLD of the vent threshold (the dump WSP's: 0.5): the vent stops
+# as the wheel turns back, the pressure is held; HOLD -> FILL below SLIP_WSP_REFILL, as the dump WSP: refilled
+# at 0.5, before the wheel was back, the slide never ended for the reference speed, whose spin-up rule then
+# took the still slipping wheel for the car's speed (railhil wsp-test, extremely low adhesion) (chosen)
+SLIP_WSP_HOLD = 0.8
+SLIP_WSP_REFILL = 0.25
 
 
 def becu_params(scenario: Scenario, car: int) -> BecuParams:
