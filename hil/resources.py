@@ -42,6 +42,19 @@ def campaigns_dir() -> Path:
     return data_root() / "campaigns"
 
 
+def read_toml(path: Path, error: type[Exception], where: str, missing: str = "no such file") -> dict:
+    """The table of the TOML file `path`, or `error` with one line: "<where>: <missing>" when there is no
+    such file, "<where>: cannot read: ..." or "<where>: not valid TOML: ..." otherwise."""
+    try:
+        return tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise error(f"{where}: {missing}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise error(f"{where}: cannot read: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise error(f"{where}: not valid TOML: {exc}") from None
+
+
 def programmes_dir() -> Path:
     """The test programmes (`railhil wsp-test`'s wsp_test.toml)."""
     return data_root() / "programmes"

@@ -60,7 +60,6 @@ import json
 import math
 import os
 import time
-import tomllib
 import zlib
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
@@ -72,7 +71,7 @@ from pathlib import Path
 import numpy as np
 
 from hil.errors import ScenarioError
-from hil.resources import campaigns_dir
+from hil.resources import campaigns_dir, read_toml
 from hil.scenario import Scenario, apply_set, load_scenario, parse_scenario
 
 __all__ = ["Campaign", "CampaignError", "CampaignResult", "Point", "PointResult", "check_positive", "draw",
@@ -153,16 +152,9 @@ def load_campaign(path: str | Path) -> Campaign:
     if not path.exists() and "/" not in str(path):
         shipped = campaigns_dir() / (path.name if path.suffix == ".toml" else f"{path.name}.toml")
         path = shipped if shipped.is_file() else path
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        names = ", ".join(sorted(p.stem for p in campaigns_dir().glob("*.toml")))
-        raise CampaignError(f"{path}: no such campaign file, and no shipped campaign of that name "
-                            f"(shipped: {names})") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CampaignError(f"{path}: cannot read: {exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise CampaignError(f"{path}: not valid TOML: {exc}") from None
+    names = ", ".join(sorted(p.stem for p in campaigns_dir().glob("*.toml")))
+    data = read_toml(path, CampaignError, str(path),
+                     f"no such campaign file, and no shipped campaign of that name (shipped: {names})")
     for key in data:
         if key not in TOP_KEYS:
             raise CampaignError(f"{path}: key '{key}' is not a campaign key{_suggest(key, TOP_KEYS)}")

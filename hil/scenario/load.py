@@ -19,7 +19,7 @@ from typing import Annotated
 from pydantic import BaseModel, ValidationError
 
 from hil.errors import RailhilError, ScenarioError
-from hil.resources import resolve_scenario
+from hil.resources import read_toml, resolve_scenario
 from hil.scenario import registry
 from hil.scenario.model import ScenarioBase, scenario_model
 
@@ -255,16 +255,7 @@ def load_scenario(path: str | Path, overrides: dict | None = None,
     --set KEY=VALUE` texts (dotted keys, TOML values) applied after them, in order.  Relative paths in
     the file (the DBC, a study's tables) are resolved beside it."""
     path = resolve_scenario(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: no such scenario file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"{path}: cannot read: {exc}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+    data = read_toml(path, ScenarioError, str(path), "no such scenario file")
     for key, value in (overrides or {}).items():
         data[key] = value
     set_keys = []

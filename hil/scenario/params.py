@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -20,6 +19,7 @@ from firmware_py.bcu import BcuParams
 from firmware_py.becu import BecuParams
 from firmware_py.pi import PIParams
 from hil.can.secoc import SecOcError, key_from_hex
+from hil.resources import read_toml
 from hil.scenario import registry
 from plant_sim.params import AdhesionParams, BrakeParams, PadParams, PlantParams, SensorParams, TrainParams
 from plant_sim.track import Track
@@ -170,14 +170,7 @@ def secoc_keys(scenario: Scenario) -> dict[str, bytes]:
 def read_key_file(path: Path, named_by: str) -> dict[str, bytes]:
     """The keys of a key file: TOML, `key = "<32 hex digits>"` and/or `[keys] MESSAGE = "..."`."""
     where = f"SecOC key file {path} (from {named_by})"
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise SecOcError(f"{where}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SecOcError(f"{where}: cannot read: {exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SecOcError(f"{where}: not valid TOML: {exc}") from None
+    data = read_toml(path, SecOcError, where)
     unknown = sorted(set(data) - {"key", "keys"})
     if unknown:
         raise SecOcError(f"{where}: unknown entry {unknown[0]!r}; expected key = \"<32 hex digits>\" and/or "

@@ -20,7 +20,6 @@ A bad file is a ProgrammeError naming the file and the key.
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
@@ -28,7 +27,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from hil.errors import ScenarioError
-from hil.resources import programmes_dir
+from hil.resources import programmes_dir, read_toml
 from hil.scenario.load import apply_set, load_scenario, parse_scenario
 from hil.scenario.model import ScenarioBase as Scenario
 from hil.typetest.metrics import MetricParams
@@ -154,14 +153,7 @@ def load_programme(path: str | Path | None = None) -> Programme:
     """The programme at `path` (default: the shipped programmes/wsp_test.toml), checked; its base scenario
     loaded.  Every run's scenario is validated by `runs`."""
     path = Path(path) if path is not None else default_programme()
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ProgrammeError(f"{path}: no such programme file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ProgrammeError(f"{path}: cannot read it: {exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ProgrammeError(f"{path}: not valid TOML: {exc}") from None
+    data = read_toml(path, ProgrammeError, str(path), "no such programme file")
     try:
         spec = ProgrammeSpec.model_validate(data)
     except ValidationError as exc:
