@@ -206,6 +206,14 @@ class SensorCheckParams:
     # span_max_s whatever the slip (a biased accelerometer inflates the estimated slip)
     slide_gate_mps: float = 0.1            # [m/s] (chosen: a third of the WSP's lowest vent threshold)
     span_max_s: float = 1.0                # [s] (chosen)
+    # ... except a span in which the axle decelerated faster than the car can (car_accel_max_mps2: a real
+    # slide's onset, which a biased accelerometer cannot fake): it is bridged until the wheel is back, at
+    # most slide_span_max_s.  Closed at span_max_s it held the slip's rise without its fall (the recovery's
+    # spans are skipped): on extremely low adhesion slides outlast 1 s, the filter took them for a bias
+    # (0.12 -> 0.67 -> 0.99 m/s² in two spans), AccelSensorFault inhibited WSP and a wheel locked for 105 s
+    # (railhil wsp-test, dump WSP, 120 km/h).  Over a span that long what a slide leaves, Δslip / span, is
+    # small (chosen)
+    slide_span_max_s: float = 30.0         # [s]
     # the axle-derived acceleration that replaces a failed accelerometer: d(r·ω)/dt through a first-order
     # filter, bounded to what the car itself can do (a sliding wheel decelerates far faster), so that a
     # slide still shows as slip against the reference speed (chosen: 0.25 g, seed 001's r⁰)
@@ -625,6 +633,7 @@ class Becu:
         self._span_s = 0.0            # ... over this time [s] ...
         self._span_tainted = False    # ... begun in a slide, and the wheel has spun up since: no evidence
         self._span_in_slide = False   # the span began while the wheel slid
+        self._span_slid = False       # the axle decelerated faster than the car can within the span
         self.vent_s = 0.0             # WSP: time out of FILL without a break [s]
         self.wsp_tripped = False      # WSP: the vent-time watchdog holds the cylinder in FILL
         self.wsp_watchdog_trips = 0   # times the watchdog refilled a cylinder (diagnostic)
@@ -762,11 +771,12 @@ class Becu:
         # a span begun mid-slide in which the wheel spins back up holds the slide's recovery, not its onset:
         # the wheel's speed change over it is not the car's (the slip's rise and fall do not cancel)
         self._span_tainted |= self._span_in_slide and self._axle_accel > self.p.ref.spin_up_accel_mps2
+        self._span_slid |= self._axle_accel < -sc.car_accel_max_mps2
         if check.stands or check.frozen_s > 0.0:
             return                                   # the wheel is not trusted yet: wait for the span's end
         sliding = (self.v_ref - car_v > sc.slide_gate_mps or self.wsp != Wsp.FILL or self.ref.sliding
                    or abs(self._axle_accel) > sc.car_accel_max_mps2)   # the wheel does what the car cannot
-        if sliding and self._span_s < sc.span_max_s:
+        if sliding and self._span_s < (sc.slide_span_max_s if self._span_slid else sc.span_max_s):
             return                                   # bridge the slide: update once the wheel is back
         span = self._span_s
         wheel_rate = (car_v - self._anchor_wheel) / span
@@ -774,7 +784,7 @@ class Becu:
         if not (sliding and (abs(wheel_rate) > sc.car_accel_max_mps2 or rising) or self._span_tainted):
             self.accel_check = accel_bias_check(ac, self._accel_sum / span, wheel_rate, span, sc)
         self._anchor_wheel, self._accel_sum, self._span_s = car_v, 0.0, 0.0
-        self._span_in_slide, self._span_tainted = sliding, False
+        self._span_in_slide, self._span_tainted, self._span_slid = sliding, False, False
         if self.accel_check.fault and not ac.fault:
             self.accel_fault_us = now_us
             self.v_ref = wheel_v                     # drop what the biased accelerometer integrated

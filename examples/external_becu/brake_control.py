@@ -110,9 +110,11 @@ class SensorParams:
     bias_limit_mps2: float = 0.7
     bias_hold_s: float = 0.5
     # the filter is updated over spans the wheel does not slide (slip below slide_gate_mps, WSP in FILL, the
-    # wheel's acceleration within what the car can do); a span closes after span_max_s whatever the slip
+    # wheel's acceleration within what the car can do); a span closes after span_max_s whatever the slip,
+    # one in which the axle decelerated faster than the car can (a slide's onset) after slide_span_max_s
     slide_gate_mps: float = 0.1
     span_max_s: float = 1.0
+    slide_span_max_s: float = 30.0
     axle_accel_tau_s: float = 0.1         # the wheel's acceleration, filtered (stands in for a failed
     #                                       accelerometer) ...
     car_accel_max_mps2: float = 2.5       # ... bounded to what the car can do (0.25 g)
@@ -435,6 +437,7 @@ class BrakeControl:
         self.span_in_slide = False    # it began in a slide,
         self.span_tainted = False     # ... and the wheel has spun up since: no evidence,
         self.span_s = 0.0             # and its length [s]
+        self.span_slid = False        # the axle decelerated faster than the car can within the span
 
     def _dt_s(self, now_us: int) -> float:
         dt = self.p.cycle_us * 1e-6 if self.last_us is None else (now_us - self.last_us) * 1e-6
@@ -518,11 +521,12 @@ class BrakeControl:
         self.span_s += span_s
         # begun mid-slide, the wheel spinning back up: the span holds the recovery, not the onset
         self.span_tainted |= self.span_in_slide and self.axle_accel > self.p.ref.spin_up_accel_mps2
+        self.span_slid |= self.axle_accel < -sc.car_accel_max_mps2
         if check.stands or check.frozen_s > 0.0:
             return                                   # the wheel is not trusted yet: wait for the span's end
         sliding = (self.ref.v_mps - car_v > sc.slide_gate_mps or self.wsp != Wsp.FILL or self.ref.sliding
                    or abs(self.axle_accel) > sc.car_accel_max_mps2)
-        if sliding and self.span_s < sc.span_max_s:
+        if sliding and self.span_s < (sc.slide_span_max_s if self.span_slid else sc.span_max_s):
             return                                   # bridge the slide
         span = self.span_s
         wheel_rate = (car_v - self.span_start) / span
@@ -530,7 +534,7 @@ class BrakeControl:
         if not (sliding and (abs(wheel_rate) > sc.car_accel_max_mps2 or rising) or self.span_tainted):
             self.accel_check = accel_bias_check(ac, self.span_accel / span, wheel_rate, span, sc)
         self.span_start, self.span_accel, self.span_s = car_v, 0.0, 0.0
-        self.span_in_slide, self.span_tainted = sliding, False
+        self.span_in_slide, self.span_tainted, self.span_slid = sliding, False, False
         if self.accel_check.fault and not ac.fault:
             self._set_v_ref(wheel_v)                 # drop what the biased accelerometer integrated
 
