@@ -224,3 +224,21 @@ def test_dump_wsp_has_no_ceiling():
     from firmware_py.becu import Becu, BecuParams
 
     assert BecuParams().wsp.mode == "dump" and Becu(BecuParams()).ceiling_Pa == math.inf
+
+
+def test_a_controller_that_raises_fails_its_run(tmp_path, monkeypatch, capsys):
+    """A BECU whose step() raises sends safe values and the run goes on; the programme must not take its
+    stop for a result of the strategy."""
+    from firmware_py.becu import Becu
+
+    def broken(self, now_us, rx):
+        raise TypeError("a bug")
+
+    monkeypatch.setattr(Becu, "step", broken)
+    prog = _write(tmp_path, GOOD.replace('condition = "wet"', 'condition = "dry"'))
+    out = tmp_path / "out"
+    assert main(["wsp-test", str(prog), "--jobs", "1", "-o", str(out), "-q"]) == 1
+    doc = json.loads((out / "results.json").read_text())
+    assert {r["status"] for r in doc["runs"]} == {"failed"}
+    assert "exceptions in its step() (last: TypeError: a bug)" in doc["runs"][0]["error"]
+    assert "## Failed runs" in capsys.readouterr().out

@@ -165,7 +165,8 @@ def _paths_figure(results: list[RunResult], condition: str, path: Path) -> Path:
     ax.set_xlabel("distance from the brake command [m]")
     ax.set_ylabel("train speed [km/h]")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7, ncol=2)
     fig.suptitle(f"WSP test, {condition}: speed over distance", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=90)

@@ -71,6 +71,11 @@ def run_job(spec: RunSpec, run_dir: str, params: MetricParams, demand: Demand | 
         report = run_scenario_lockstep(spec.scenario, Path(run_dir), interactive_report=False, plots=False)
         if report.outcome.reason == "interrupted":
             raise KeyboardInterrupt
+        broken = {n: st for n, st in report.outcome.node_stats.items() if st.get("step_errors")}
+        if broken:                       # a controller that raised sent safe values: no test result
+            name, st = next(iter(broken.items()))
+            raise RuntimeError(f"node {name}: {st['step_errors']} exceptions in its step() (last: "
+                               f"{st.get('last_error', '?')}); the run is no test of its strategy")
         cols = report.outcome.truth.columns()
         t_cmd = report.kpis.get("brake_start_s")
         if t_cmd is None:
