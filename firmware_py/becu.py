@@ -897,8 +897,9 @@ class Becu:
         if speed_fault:
             self.wsp = Wsp.FILL                      # WSP inhibited: a failed sensor never vents the brake
         else:
-            wanted = early_vent(wsp_transition(self.wsp, slip, self.v_ref, p.wsp), slip, self.v_ref,
-                                self._axle_accel, p.wsp)
+            wanted = wsp_transition(self.wsp, slip, self.v_ref, p.wsp)
+            if p.wsp.mode == "slip":
+                wanted = early_vent(wanted, slip, self.v_ref, self._axle_accel, p.wsp)
             self.vent_s, tripped = vent_watchdog(self.vent_s, self.wsp_tripped, wanted != Wsp.FILL,
                                                  wanted == Wsp.FILL, dt_s, p.wsp.max_vent_s, spinning_up)
             self.wsp_watchdog_trips += tripped and not self.wsp_tripped

@@ -133,15 +133,6 @@ def demand_from_dry(cols: Mapping[str, np.ndarray], t_cmd_s: float) -> Demand:
     return Demand(tau, decel, float(tau[b]), plateau, speeds[keep], decels[keep])
 
 
-def available_decel(track_theta: Callable[[np.ndarray], np.ndarray], mu_opt: Callable, resistance,
-                    x_lead_m: float, v_mps: float, offsets_m: np.ndarray) -> float:
-    """Peak adhesion × g averaged over the cars at x_lead − offsets, plus the running resistance [m/s²].
-    `mu_opt(theta, v)`: the plant's μ°(θ, v); `resistance(v)`: the train's resistance ÷ its mass [m/s²]."""
-    theta = track_theta(x_lead_m - offsets_m)
-    mu = mu_opt(theta, np.full(len(offsets_m), v_mps))
-    return float(G_MPS2 * np.mean(mu) + resistance(v_mps))
-
-
 def ideal_stop(v0_mps: float, x0_m: float, demand: Demand, available: Callable[[float, float], float],
                dt_s: float = IDEAL_DT_S) -> float:
     """S_ideal [m]: the rigid train from v0 at x0 decelerating at min(demand(τ), available(x, v)) until it
