@@ -189,6 +189,16 @@ def test_short_programme_end_to_end(tmp_path, capsys):
     for name in ("table.md", "table.csv", "report.html", "wsp_low.png", "wsp_reference.png"):
         assert (out / name).is_file(), name
     assert (out / "dump" / "low-40kmh" / "truth.csv").is_file()
+    # the same programme into the same folder reads the results; a changed threshold runs them again
+    assert main(["wsp-test", str(prog), "--jobs", "1", "-o", str(out), "-q"]) == 0
+    assert "(2 read from their folders, 0 run)" in capsys.readouterr().out
+    again = json.loads((out / "results.json").read_text())
+    assert [r["stopping_distance_m"] for r in again["runs"]] == [r["stopping_distance_m"] for r in doc["runs"]]
+    prog.write_text(prog.read_text() + "[metrics]\nslide_threshold_mps = 0.4\n")
+    assert main(["wsp-test", str(prog), "--jobs", "1", "-o", str(out), "-q"]) == 0
+    assert "(0 read from their folders, 2 run)" in capsys.readouterr().out
+    assert main(["wsp-test", str(prog), "--jobs", "1", "-o", str(out), "-q", "--fresh"]) == 0
+    assert "(0 read from their folders, 2 run)" in capsys.readouterr().out
 
 
 def test_slip_wsp_ceiling_is_learnt_at_the_slide_onset_rises_in_fill_and_is_released():

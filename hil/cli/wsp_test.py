@@ -46,7 +46,11 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dask-timeout", type=float, default=10.0, metavar="S",
                    help="seconds to wait for the Dask scheduler to answer (default 10)")
     p.add_argument("-o", "--out", type=Path, default=None, metavar="DIR",
-                   help="output folder (default runs/wsp-test-<name>-<date>)")
+                   help="output folder (default runs/wsp-test-<name>); a run whose folder there holds its "
+                        "result for the same scenario, DBC, railhil version, thresholds and demand is read, "
+                        "not run again")
+    p.add_argument("--fresh", action="store_true",
+                   help="run everything again, ignoring the results in the folder")
     p.add_argument("--no-plots", action="store_true", help="no figures (tables, results.json, report.html)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=wsp_test)
@@ -66,8 +70,7 @@ def wsp_test(args: argparse.Namespace) -> int:
         raise ProgrammeError(f"--dask-timeout {args.dask_timeout}: expected a positive number of seconds")
     prog = load_programme(args.programme)
     specs = runs(prog, args.strategy or None, args.speed or None, args.condition or None)
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    out = check_out_dir(args.out or Path("runs") / f"wsp-test-{prog.spec.name}-{stamp}")
+    out = check_out_dir(args.out or Path("runs") / f"wsp-test-{prog.spec.name}")
     print(f"wsp-test {prog.spec.name}: {len(specs)} runs ({len({s.strategy for s in specs})} strategies x "
           f"{len({s.speed_kmh for s in specs})} speeds x {len({s.condition for s in specs})} rail conditions "
           f"with the dry reference) into {out}", file=sys.stderr)
@@ -75,13 +78,17 @@ def wsp_test(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
         with executor_for(args.jobs, args.dask, args.dask_timeout) as executor:
-            results = run_programme(prog, specs, out, executor, progress=lambda _r: bar.update())
+            results = run_programme(prog, specs, out, executor, progress=lambda _r: bar.update(),
+                                    resume=not args.fresh)
     finally:
         bar.close()
     wall = time.perf_counter() - t0
     files = report.write(prog, results, out, wall, plots=not args.no_plots)
     print((out / "table.md").read_text(encoding="utf-8"), end="")
     failed = [r for r in results if r.status != "ok"]
-    print(f"{len(results)} runs in {wall:.0f} s wall ({len(results) / max(wall, 1e-9) * 60:.1f} runs per "
-          f"minute), {len(failed)} failed; files: {', '.join(str(f) for f in files)}")
+    cached = sum(r.cached for r in results)
+    ran = len(results) - cached
+    print(f"{len(results)} runs ({cached} read from their folders, {ran} run) in {wall:.0f} s wall "
+          f"({ran / max(wall, 1e-9) * 60:.1f} runs per minute), {len(failed)} failed; files: "
+          f"{', '.join(str(f) for f in files)}")
     return 1 if failed else 0

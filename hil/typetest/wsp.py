@@ -4,10 +4,17 @@ each speed, hil.typetest.metrics.Demand), then every condition, whose metrics ne
 
 Each run keeps its folder (trace, truth.csv, kpis.json, run.json) under OUT/STRATEGY/CONDITION-SPEEDkmh;
 its metrics are computed in the worker from the plant truth (hil.typetest.metrics) and come back small.
+A run that succeeded leaves its result in its folder (wsp.json), keyed by its scenario, the DBC, the
+railhil version, the metric thresholds and (a condition's run) its reference's demand: the same
+programme into the same folder runs only what changed or failed (`resume`), as a campaign does.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
+import os
 import time
 from collections.abc import Callable
 from concurrent.futures import Executor
@@ -21,6 +28,7 @@ from hil.typetest.metrics import Demand, MetricParams, demand_from_dry, run_metr
 from hil.typetest.programme import REFERENCE, Programme, RunSpec
 
 PATH_STEP_S = 0.1          # the speed-over-distance path kept per run for the figures [s]
+RESULT_FILE = "wsp.json"   # a run's result in its folder, for resuming
 
 
 @dataclass
@@ -32,6 +40,7 @@ class RunResult:
     demand: Demand | None = None         # a reference run's: the demand of its strategy at its speed
     path: tuple[list[float], list[float]] = ((), ())   # (lead car position from the command [m], speed)
     wall_s: float = 0.0
+    cached: bool = False                 # read from its folder's wsp.json, not run again
 
 
 def available_for(scenario: Scenario) -> Callable[[float, float], float]:
@@ -98,25 +107,89 @@ def _failed(job: tuple, exc: BaseException) -> RunResult:
     return RunResult(job[0], "failed", error=f"{type(exc).__name__}: {' '.join(str(exc).split())}")
 
 
-def run_programme(prog: Programme, specs: list[RunSpec], out_dir: Path, executor: Executor | None = None,
-                  progress: Callable[[RunResult], None] | None = None) -> list[RunResult]:
-    """Every run of `specs` (references first), results in the order of `specs`."""
+def _demand_json(d: Demand | None) -> dict | None:
+    if d is None:
+        return None
+    return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in dataclasses.asdict(d).items()}
+
+
+def _demand_of(data: dict | None) -> Demand | None:
+    if data is None:
+        return None
+    return Demand(**{k: (np.asarray(v, dtype=float) if isinstance(v, list) else v) for k, v in data.items()})
+
+
+def run_key(spec: RunSpec, params: MetricParams, demand: Demand | None) -> str:
+    """What a run's result depends on: its scenario with the DBC and railhil's version (the campaign's
+    point key), the metric thresholds and the demand it is judged against."""
+    from hil.campaign.sweep import point_key
+
+    extra = json.dumps({"metrics": dataclasses.asdict(params), "demand": _demand_json(demand)},
+                       sort_keys=True)
+    return hashlib.sha256((point_key(spec.scenario) + extra).encode()).hexdigest()
+
+
+def _cached(spec: RunSpec, run_dir: Path, key: str) -> RunResult | None:
+    try:
+        data = json.loads((run_dir / RESULT_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if data.get("key") != key or data.get("status") != "ok":
+        return None
+    return RunResult(spec, "ok", metrics=data["metrics"], demand=_demand_of(data.get("demand")),
+                     path=tuple(data.get("path", ((), ()))), wall_s=data.get("wall_s", 0.0), cached=True)
+
+
+def _store(r: RunResult, run_dir: Path, key: str) -> None:
+    if r.status != "ok" or not run_dir.is_dir():
+        return
+    tmp = run_dir / f".{RESULT_FILE}.tmp"
+    tmp.write_text(json.dumps({"key": key, "status": r.status, "metrics": r.metrics,
+                               "demand": _demand_json(r.demand), "path": list(r.path), "wall_s": r.wall_s},
+                              default=str) + "\n", encoding="utf-8")
+    os.replace(tmp, run_dir / RESULT_FILE)
+
+
+def _run_all(specs: list[RunSpec], demands: list[Demand | None], out_dir: Path, params: MetricParams,
+             executor: Executor | None, progress, resume: bool) -> list[RunResult]:
+    """`specs` with their demands: the cached ones read, the others run (and stored), in order."""
     from hil.campaign.jobs import executor_map
 
+    keys = [run_key(s, params, d) for s, d in zip(specs, demands, strict=True)]
+    results: list[RunResult | None] = [None] * len(specs)
+    todo = []
+    for i, (s, key) in enumerate(zip(specs, keys, strict=True)):
+        hit = _cached(s, out_dir / s.folder, key) if resume else None
+        if hit is not None:
+            results[i] = hit
+            if progress is not None:
+                progress(hit)
+        else:
+            todo.append(i)
+    jobs = [(specs[i], str(out_dir / specs[i].folder), params, demands[i]) for i in todo]
+    ran = executor_map(run_job, jobs, executor, progress, _failed)
+    for i, r in zip(todo, ran, strict=True):
+        _store(r, out_dir / specs[i].folder, keys[i])
+        results[i] = r
+    return results
+
+
+def run_programme(prog: Programme, specs: list[RunSpec], out_dir: Path, executor: Executor | None = None,
+                  progress: Callable[[RunResult], None] | None = None,
+                  resume: bool = True) -> list[RunResult]:
+    """Every run of `specs` (references first), results in the order of `specs`; with `resume`, a run whose
+    folder holds its result for the same key (`run_key`) is read, not run."""
     params = prog.metric_params
     refs = [s for s in specs if s.condition == REFERENCE]
     done: dict[int, RunResult] = {}
-    ref_results = executor_map(run_job, [(s, str(out_dir / s.folder), params, None) for s in refs], executor,
-                               progress, _failed)
     demands = {}
-    for s, r in zip(refs, ref_results, strict=True):
+    for s, r in zip(refs, _run_all(refs, [None] * len(refs), out_dir, params, executor, progress, resume),
+                    strict=True):
         done[id(s)] = r
         demands[(s.strategy, s.speed_kmh)] = r.demand
     rest = [s for s in specs if s.condition != REFERENCE]
-    rest_results = executor_map(run_job, [(s, str(out_dir / s.folder), params,
-                                           demands.get((s.strategy, s.speed_kmh))) for s in rest],
-                                executor, progress, _failed)
-    for s, r in zip(rest, rest_results, strict=True):
+    wanted = [demands.get((s.strategy, s.speed_kmh)) for s in rest]
+    for s, r in zip(rest, _run_all(rest, wanted, out_dir, params, executor, progress, resume), strict=True):
         if r.status == "ok" and demands.get((s.strategy, s.speed_kmh)) is None:
             r.metrics = {**r.metrics, "note": "its dry reference failed: no ideal stop"}
         done[id(s)] = r
