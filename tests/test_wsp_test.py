@@ -193,7 +193,8 @@ def test_short_programme_end_to_end(tmp_path, capsys):
     assert main(["wsp-test", str(prog), "--jobs", "1", "-o", str(out), "-q"]) == 0
     assert "(2 read from their folders, 0 run)" in capsys.readouterr().out
     again = json.loads((out / "results.json").read_text())
-    assert [r["stopping_distance_m"] for r in again["runs"]] == [r["stopping_distance_m"] for r in doc["runs"]]
+    distances = [r["stopping_distance_m"] for r in doc["runs"]]
+    assert [r["stopping_distance_m"] for r in again["runs"]] == distances
     prog.write_text(prog.read_text() + "[metrics]\nslide_threshold_mps = 0.4\n")
     assert main(["wsp-test", str(prog), "--jobs", "1", "-o", str(out), "-q"]) == 0
     assert "(0 read from their folders, 2 run)" in capsys.readouterr().out

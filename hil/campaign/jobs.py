@@ -79,6 +79,30 @@ def executor_map(fn: Callable[..., R], jobs: Sequence[tuple], executor: Executor
     return [results[i] for i in range(len(jobs))]
 
 
+def add_executor_options(p: argparse.ArgumentParser, what: str, jobs: int, dask_note: str = "") -> None:
+    """-j/--jobs or --dask, and --dask-timeout: where `what` (points, cells, runs) run
+    (hil.campaign.sweep.executor_for); `jobs` the default worker count; `dask_note` added to --dask's help."""
+    where = p.add_mutually_exclusive_group()
+    default = "the number of CPUs; 1 = in this process" if jobs > 1 else "1, in this process"
+    where.add_argument("-j", "--jobs", type=int, default=jobs, metavar="N",
+                       help=f"local worker processes running {what} in parallel (default: {default})")
+    where.add_argument("--dask", metavar="ADDRESS", default=None,
+                       help=f"run the {what} on the Dask distributed cluster whose scheduler is at ADDRESS, "
+                            f"e.g. tcp://host:8786 (needs the dask extra{dask_note})")
+    p.add_argument("--dask-timeout", type=float, default=10.0, metavar="S",
+                   help="seconds to wait for the Dask scheduler to answer (default 10)")
+
+
+def check_executor_options(args: argparse.Namespace, error: type[RailhilError]) -> None:
+    """--jobs at least 1 and --dask-timeout positive: else one line naming the option (`error` for the
+    timeout, the campaign's error for --jobs, as hil.campaign.sweep.check_positive)."""
+    from hil.campaign.sweep import check_positive
+
+    check_positive("--jobs", args.jobs)
+    if args.dask_timeout <= 0:
+        raise error(f"--dask-timeout {args.dask_timeout}: expected a positive number of seconds")
+
+
 def add_run_options(p: argparse.ArgumentParser, out: str, what: str, jobs: int = 2) -> None:
     """--jobs, --out and -q, as every reproduction has them."""
     p.add_argument("--jobs", type=int, default=jobs,

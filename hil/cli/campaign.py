@@ -19,6 +19,8 @@ HELP = "parameter sweeps of a scenario (grid and seeded random), in parallel or 
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
+    from hil.campaign.jobs import add_executor_options
+
     p = sub.add_parser(
         "campaign",
         help=HELP,
@@ -35,16 +37,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("campaign", type=Path, help="campaign TOML file (e.g. campaigns/mass_sweep.toml) or a "
                                                "shipped campaign's name (mass_sweep)")
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("-j", "--jobs", type=int, default=1, metavar="N",
-                       help="local worker processes running points in parallel (default 1: in this "
-                            "process)")
-    where.add_argument("--dask", metavar="ADDRESS", default=None,
-                       help="run the points on the Dask distributed cluster whose scheduler is at "
-                            "ADDRESS, e.g. tcp://host:8786 (needs the dask extra; on several hosts the "
-                            "output folder must be on a filesystem the workers share)")
-    p.add_argument("--dask-timeout", type=float, default=10.0, metavar="S",
-                   help="seconds to wait for the Dask scheduler to answer (default 10)")
+    add_executor_options(p, "points", 1, "; on several hosts the output folder must be on a filesystem the "
+                                         "workers share")
     p.add_argument("-o", "--out", type=Path, default=None, metavar="DIR",
                    help="campaign folder: results, plots, point run folders and their cache (default "
                         "runs/campaign-<name>; the same folder again resumes)")
@@ -73,8 +67,9 @@ def _list(points, out: Path) -> int:
 def campaign(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from hil.campaign.jobs import check_executor_options
     from hil.campaign.sweep import (
-        check_positive,
+        CampaignError,
         executor_for,
         expand,
         load_campaign,
@@ -84,11 +79,7 @@ def campaign(args: argparse.Namespace) -> int:
         write_table,
     )
 
-    check_positive("--jobs", args.jobs)
-    if args.dask_timeout <= 0:
-        from hil.campaign.sweep import CampaignError
-
-        raise CampaignError(f"--dask-timeout {args.dask_timeout}: expected a positive number of seconds")
+    check_executor_options(args, CampaignError)
     spec = load_campaign(args.campaign)
     points = expand(spec)
     out = args.out or Path("runs") / f"campaign-{spec.name}"

@@ -33,6 +33,7 @@ class FaultsArgError(RailhilError, ValueError):
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
+    from hil.campaign.jobs import add_executor_options
     from hil.safety.threat_matrix import THREATS
 
     p = sub.add_parser(
@@ -68,15 +69,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                         "scenario sends and receives)")
     m.add_argument("--threat", action="append", default=[], metavar="KIND",
                    help=f"only this threat; repeatable (default: all nine: {', '.join(THREATS)})")
-    where = m.add_mutually_exclusive_group()
-    where.add_argument("-j", "--jobs", type=int, default=os.cpu_count() or 1, metavar="N",
-                       help="local worker processes running cells in parallel (default: the number of "
-                            "CPUs; 1 = in this process)")
-    where.add_argument("--dask", metavar="ADDRESS", default=None,
-                       help="run the cells on the Dask distributed cluster whose scheduler is at ADDRESS, "
-                            "e.g. tcp://host:8786 (needs the dask extra)")
-    m.add_argument("--dask-timeout", type=float, default=10.0, metavar="S",
-                   help="seconds to wait for the Dask scheduler to answer (default 10)")
+    add_executor_options(m, "cells", os.cpu_count() or 1)
     m.add_argument("-o", "--out", type=Path, default=None, metavar="DIR",
                    help="folder for matrix.md and matrix.json (default runs/<scenario>-faults-<date>, "
                         "runs/faults-matrix-all-<date> with --all)")
@@ -101,15 +94,14 @@ def _scenarios(args: argparse.Namespace) -> list[tuple[str, object]]:
 def matrix(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hil.campaign.sweep import check_positive, executor_for
+    from hil.campaign.jobs import check_executor_options
+    from hil.campaign.sweep import executor_for
     from hil.can.codec import loaded_dbc
     from hil.report.kpis import check_out_dir
     from hil.safety import matrix_report
     from hil.safety.threat_matrix import THREATS, plan, run_matrices, safety_messages
 
-    check_positive("--jobs", args.jobs)
-    if args.dask_timeout <= 0:
-        raise FaultsArgError(f"--dask-timeout {args.dask_timeout}: expected a positive number of seconds")
+    check_executor_options(args, FaultsArgError)
     bad = [t for t in args.threat if t not in THREATS]
     if bad:
         raise FaultsArgError(f"--threat {bad[0]!r}: expected one of {', '.join(THREATS)}")

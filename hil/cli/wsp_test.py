@@ -18,6 +18,8 @@ from pathlib import Path
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
+    from hil.campaign.jobs import add_executor_options
+
     p = sub.add_parser(
         "wsp-test",
         help="WSP type test (EN 15595 style): strategies side by side on low, extremely low and suddenly "
@@ -38,13 +40,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="only this rail condition; repeatable (the dry reference always runs)")
     p.add_argument("--speed", action="append", default=[], type=float, metavar="KMH",
                    help="only this initial speed [km/h], one of the programme's; repeatable")
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("-j", "--jobs", type=int, default=os.cpu_count() or 1, metavar="N",
-                       help="local worker processes (default: the number of CPUs; 1 = in this process)")
-    where.add_argument("--dask", metavar="ADDRESS", default=None,
-                       help="run on the Dask cluster whose scheduler is at ADDRESS, e.g. tcp://host:8786")
-    p.add_argument("--dask-timeout", type=float, default=10.0, metavar="S",
-                   help="seconds to wait for the Dask scheduler to answer (default 10)")
+    add_executor_options(p, "runs", os.cpu_count() or 1)
     p.add_argument("-o", "--out", type=Path, default=None, metavar="DIR",
                    help="output folder (default runs/wsp-test-<name>); a run whose folder there holds its "
                         "result for the same scenario, DBC, railhil version, thresholds and demand is read, "
@@ -59,15 +55,14 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def wsp_test(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from hil.campaign.sweep import check_positive, executor_for
+    from hil.campaign.jobs import check_executor_options
+    from hil.campaign.sweep import executor_for
     from hil.report.kpis import check_out_dir
     from hil.typetest import report
     from hil.typetest.programme import ProgrammeError, load_programme, runs
     from hil.typetest.wsp import run_programme
 
-    check_positive("--jobs", args.jobs)
-    if args.dask_timeout <= 0:
-        raise ProgrammeError(f"--dask-timeout {args.dask_timeout}: expected a positive number of seconds")
+    check_executor_options(args, ProgrammeError)
     prog = load_programme(args.programme)
     specs = runs(prog, args.strategy or None, args.speed or None, args.condition or None)
     out = check_out_dir(args.out or Path("runs") / f"wsp-test-{prog.spec.name}")

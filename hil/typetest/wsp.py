@@ -58,13 +58,12 @@ def available_for(scenario: Scenario) -> Callable[[float, float], float]:
     offsets = np.arange(n) * cc.car_pitch_m
     total_mass = sum(cc.mass_kg)
     ap, g = pp.adhesion, pp.train.g_mps2
+    c0, c1, c2 = n * cc.c0_N, n * cc.c1_Ns_per_m, sum(cc.c2_Ns2_per_m2)   # the train's Davis coefficients
 
     def available(x_lead_m: float, v_mps: float) -> float:
-        theta = track.theta_at(x_lead_m - offsets)
-        mu = mu_opt(theta, np.full(n, max(v_mps, 0.0)), ap)
-        resist = sum(davis_resistance_scalar(max(v_mps, 0.0), cc.c0_N, cc.c1_Ns_per_m, c2)
-                     for c2 in cc.c2_Ns2_per_m2) / total_mass
-        return float(g * np.mean(mu) + resist)
+        v = max(v_mps, 0.0)
+        mu = mu_opt(track.theta_at(x_lead_m - offsets), np.full(n, v), ap)
+        return float(g * np.mean(mu) + davis_resistance_scalar(v, c0, c1, c2) / total_mass)
 
     return available
 
