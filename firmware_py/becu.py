@@ -924,6 +924,12 @@ class Becu:
                 p_set = self.apply_phi(p_set, phi)
         if p_set > self.ceiling_Pa:                                   # slip-mode WSP: refill to the ceiling
             p_set = self.ceiling_Pa
+        if self._wsp_sent != Wsp.FILL and not overridden:
+            # WSP hands the cylinder back: the loop restarts with an empty integrator (the EP valve holds
+            # at zero opening). Kept frozen, it held what it wound up during the refills before: the
+            # cylinder overshot by up to 0.17 bar after each refill and the brake's hysteresis
+            # (seed 001 eq. (10a)) kept the torque, 5 % above the demand (railhil wsp-test)
+            self.pressure_pi.reset()
         valve = self.pressure_pi.update(p_set - pressure, dt_s, freeze=overridden)
         if overridden:
             valve = 0.0                                               # the dump valve acts, EP valve holds

@@ -23,20 +23,20 @@ from pathlib import Path
 import pytest
 
 #: sha256 of trace.blf of `railhil run scenarios/default.toml --lockstep`
-GOLDEN_TRACE_SHA256 = "bade785bcac97a1b07896561d0e16e314e1e6c73270afb8da8c1d9a2aa3318a2"
+GOLDEN_TRACE_SHA256 = "9577f7455f0024a015deaf682dedad5d192c55394a9b02ca4ae2378cf5084231"
 
 #: KPIs of that run as kpis.json holds them (results.py rounds them when it writes them)
 GOLDEN_KPIS = {
     "end_reason": "standstill",
     "frames_in_flight": 6,
-    "frames_recorded": 49029,
-    "frames_sent": 49035,
-    "max_slip_speed_mps": [1.2831, 1.2432, 1.1957, 1.1281, 1.1053, 1.0731],
-    "mean_abs_decel_error_mps2": 0.093,
-    "simulated_s": 29.18,
-    "stopping_distance_m": 356.281,
-    "time_to_stop_s": 27.68,
-    "wsp_activations": [8, 9, 9, 10, 10, 11],
+    "frames_recorded": 49392,
+    "frames_sent": 49398,
+    "max_slip_speed_mps": [1.2831, 1.2432, 1.1927, 1.1483, 1.2918, 1.0717],
+    "mean_abs_decel_error_mps2": 0.1002,
+    "simulated_s": 29.4,
+    "stopping_distance_m": 357.563,
+    "time_to_stop_s": 27.9,
+    "wsp_activations": [8, 8, 9, 9, 10, 11],
 }
 KPI_TOLERANCE = 1e-9      # the run is deterministic: equal up to float formatting
 

@@ -253,3 +253,33 @@ def test_a_controller_that_raises_fails_its_run(tmp_path, monkeypatch, capsys):
     assert {r["status"] for r in doc["runs"]} == {"failed"}
     assert "exceptions in its step() (last: TypeError: a bug)" in doc["runs"][0]["error"]
     assert "## Failed runs" in capsys.readouterr().out
+
+
+def test_pressure_loop_restarts_when_wsp_hands_the_cylinder_back():
+    """A BECU on a cylinder filled by its own valve commands (the plant's valve rates, one cycle of
+    latency): a slide vents it, the wheel comes back, the refill must settle on the set-point. With the
+    integrator that earlier refills wound up kept through the vent, the cylinder overshot (0.17 bar here)
+    and the brake's hysteresis kept the torque."""
+    from firmware_py.becu import Becu, BecuParams, Wsp, valve_pressure_rate
+
+    p = BecuParams()
+    becu = Becu(p)
+    v, pressure, valve, wsp, top_after, states = 25.0, 0.0, 0.0, Wsp.FILL, 0.0, []
+    for k in range(400):
+        t_s = k * 0.01
+        wheel = v - (3.0 if 2.0 <= t_s < 2.3 else 0.0)              # a 0.3 s slide at 2 s
+        if k == 190:
+            becu.pressure_pi.i = 0.4                                # what earlier refills left wound up
+        out = becu.step(k * 10_000, {"AxleSpeed": wheel / p.wheel_radius_m, "CylPressure": pressure,
+                                     "AccelLong": -1.0, "TargetDecel": 1.0, "Mode": 1,
+                                     "EmergencyActive": 0})
+        pressure = max(0.0, min(p.p_max_Pa, pressure + 0.01 * valve_pressure_rate(
+            valve, wsp, pressure, p.p_max_Pa, p.valve_rates_Pa_per_s)))   # last cycle's commands act
+        valve, wsp = out["ValveCmd"], Wsp(out["WspValve"])
+        states.append(wsp)
+        v -= 0.01
+        if t_s > 2.5:
+            top_after = max(top_after, pressure - out["CylPressureSet"])
+    assert Wsp.VENT in states                                        # the slide vented the cylinder
+    assert states[-1] == Wsp.FILL
+    assert top_after < 5e3                                           # refilled without overshoot [Pa]

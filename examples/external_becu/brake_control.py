@@ -27,7 +27,8 @@ Chain, each cycle (10 ms):
    the speed, HOLD below half of that, FILL below a quarter; off below 1 m/s; a cylinder kept out of FILL
    for 5 s is refilled until the wheel recovers;
 7. PI control of the EP valve opening (ValveCmd, −1..+1) on the pressure error, with conditional
-   anti-windup; frozen, and the valve closed, while WSP holds or vents.
+   anti-windup; frozen, and the valve closed, while WSP holds or vents; restarted from an empty
+   integrator when WSP hands the cylinder back.
 
 This is railhil's BECU (firmware_py/becu.py) in its "pressure" control, step for step: the numbers are
 those of that ECU and of the plant of the train it joins (railhil's defaults for the default scenario:
@@ -621,6 +622,8 @@ class BrakeControl:
                    and (rx.phi_age_us is None or rx.phi_age_us <= p.phi_timeout_us))
         if phi_ok and engaged and emergency < 0.5 and not lost:
             p_set = apply_phi(p_set, phi, p)
+        if self.sent[1] != Wsp.FILL and not overridden:
+            self.integrator = 0.0                    # WSP hands back: the PI restarts (no overshoot)
         valve, saturated = self._valve(p_set - pressure, dt_s, freeze=overridden)
         if overridden:
             valve = 0.0                                   # the dump valve acts, the EP valve holds
