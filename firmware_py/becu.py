@@ -89,14 +89,15 @@ class WspParams:
     # slip near the adhesion peak (`slip_ceiling`, `early_vent`): refill only up to a pressure ceiling,
     # ceiling_fraction of the pressure at which the wheel began to slide (the adhesion the rail gave,
     # estimated), raised in FILL by ceiling_rise_Pa_per_s and dropped after ceiling_release_s in FILL
-    # without a new slide (the rail has improved: on low adhesion the wheel slides again within ~1.3 s);
+    # without a new slide (the rail has improved; on uniform low adhesion a slide mostly follows the
+    # release: a longer release gains there and loses after a sudden change, docs/wsp-test.md);
     # vent early, once the slip passes early_vent_fraction of the vent threshold while the axle
     # decelerates faster than early_vent_decel_mps2, which no car does (a slide's onset: venting then
     # keeps the slide shallow)
     mode: str = "dump"
     ceiling_fraction: float = 0.9          # (chosen)
-    ceiling_rise_Pa_per_s: float = 20e3    # 0.2 bar/s (chosen)
-    ceiling_release_s: float = 1.5         # [s] (chosen: railhil wsp-test, sudden change of adhesion)
+    ceiling_rise_Pa_per_s: float = 50e3    # 0.5 bar/s (chosen: railhil wsp-test)
+    ceiling_release_s: float = 0.45        # [s] (chosen: railhil wsp-test, sudden change of adhesion)
     early_vent_fraction: float = 0.3       # (chosen)
     early_vent_decel_mps2: float = 2.5     # (chosen: SensorCheckParams.car_accel_max_mps2)
 
