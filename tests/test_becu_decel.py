@@ -100,6 +100,8 @@ def _scenario(**sections):
     (dict(becu={"wsp_vent_slip_mps": 0.1}), "give both"),
     (dict(becu={"wsp_vent_slip_mps": 0.1, "wsp_refill_slip_mps": 0.2}), "above wsp_vent_slip_mps"),
     (dict(sensors={"accel_noise_std_mps2": -1.0}), "sensors.accel_noise_std_mps2"),
+    (dict(becu={"wsp_ceiling_release_s": 0.4}), "needs wsp_mode = 'slip'"),
+    (dict(becu={"wsp_mode": "slip", "wsp_ceiling_fraction": 1.2}), "becu.wsp_ceiling_fraction"),
 ])
 def test_bad_keys_give_one_line_errors(sections, match):
     with pytest.raises(ScenarioError, match=match) as exc:
@@ -110,6 +112,14 @@ def test_bad_keys_give_one_line_errors(sections, match):
 def test_default_scenario_builds_the_foundations_becu():
     sc = load_scenario(ROOT / "scenarios" / "default.toml")
     assert becu_params(sc, 1) == BecuParams()
+
+
+def test_slip_wsp_ceiling_keys_reach_the_becu():
+    bp = becu_params(_scenario(becu={"wsp_mode": "slip", "wsp_ceiling_fraction": 0.85,
+                                     "wsp_ceiling_rise_bar_per_s": 0.4, "wsp_ceiling_release_s": 0.6}), 1)
+    assert (bp.wsp.mode, bp.wsp.ceiling_fraction, bp.wsp.ceiling_release_s) == ("slip", 0.85, 0.6)
+    assert bp.wsp.ceiling_rise_Pa_per_s == pytest.approx(40e3)
+    assert becu_params(_scenario(becu={"wsp_mode": "slip"}), 1).wsp.ceiling_release_s == 0.45   # defaults
 
 
 def test_rg_scenario_builds_the_governor_from_the_plant():

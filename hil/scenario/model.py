@@ -291,9 +291,20 @@ class BecuSpec(_Strict):
     # the wheel turns back, holds, and refills no higher than a ceiling learnt from the pressure at the
     # slide's onset (firmware_py.becu.slip_ceiling, early_vent)
     wsp_mode: Literal["dump", "slip"] = "dump"
+    # the slip mode's pressure ceiling (firmware_py.becu.WspParams; None: its defaults): the fraction of the
+    # pressure at the slide's onset it starts at, its rise in FILL [bar/s], and the time in FILL without a
+    # new slide after which it is dropped [s]
+    wsp_ceiling_fraction: Annotated[float, Field(gt=0, le=1)] | None = None
+    wsp_ceiling_rise_bar_per_s: Annotated[float, Field(ge=0, le=100)] | None = None
+    wsp_ceiling_release_s: Annotated[float, Field(gt=0, le=60)] | None = None
 
     @model_validator(mode="after")
     def _consistent(self) -> BecuSpec:
+        ceiling = [k for k in ("wsp_ceiling_fraction", "wsp_ceiling_rise_bar_per_s", "wsp_ceiling_release_s")
+                   if getattr(self, k) is not None]
+        if ceiling and self.wsp_mode != "slip":
+            raise ValueError(f"{ceiling[0]} sets the slip-controlling WSP's ceiling: it needs "
+                             f"wsp_mode = 'slip' (got {self.wsp_mode!r})")
         if (self.wsp_vent_slip_mps is None) != (self.wsp_refill_slip_mps is None):
             raise ValueError("give both wsp_vent_slip_mps and wsp_refill_slip_mps, or neither")
         if self.wsp_vent_slip_mps is not None and self.wsp_refill_slip_mps > self.wsp_vent_slip_mps:

@@ -131,8 +131,13 @@ def becu_params(scenario: Scenario, car: int) -> BecuParams:
         if b.wheel_trust_slip_mps is not None:
             kw["wheel_trust_slip_mps"] = b.wheel_trust_slip_mps
     if b.wsp_mode == "slip":
+        ceiling = {name: value for name, value in (
+            ("ceiling_fraction", b.wsp_ceiling_fraction),
+            ("ceiling_rise_Pa_per_s", None if b.wsp_ceiling_rise_bar_per_s is None
+             else b.wsp_ceiling_rise_bar_per_s * 1e5),
+            ("ceiling_release_s", b.wsp_ceiling_release_s)) if value is not None}
         kw["wsp"] = dataclasses.replace(kw.get("wsp", d.wsp), mode="slip", hold_fraction=SLIP_WSP_HOLD,
-                                        refill_fraction=SLIP_WSP_REFILL)
+                                        refill_fraction=SLIP_WSP_REFILL, **ceiling)
     registry.call(scenario, "scenario", "becu_params", car, kw)
     return BecuParams(**kw) if kw else d
 
