@@ -19,11 +19,14 @@ $(STAMP): pyproject.toml constraints.txt
 run: $(STAMP)
 	$(VENV)/bin/railhil run scenarios/default.toml --realtime --fallback-lockstep
 
-## make test: the test suite (excludes tests marked slow): the lockstep and unit tests on TEST_JOBS
-## pytest-xdist workers (default: one per core), then the real-time tests alone, one at a time, so that
-## their node processes do not compete with other tests for the CPUs
+## make test: ruff (as make lint: a lint error fails the build), then the test suite (excludes tests marked
+## slow): the lockstep and unit tests on TEST_JOBS pytest-xdist workers (default: one per core), then the
+## real-time tests alone, one at a time, so that their node processes do not compete with other tests for
+## the CPUs
 TEST_JOBS ?= auto
+LINT_PATHS = firmware_py plant_sim hil tests bench dbc examples
 test: $(STAMP)
+	$(VENV)/bin/ruff check $(LINT_PATHS)
 	$(PY) -m pytest -q -rs -n $(TEST_JOBS) -m "not slow and not realtime"
 	$(PY) -m pytest -q -rs -m "realtime and not slow"
 
@@ -63,7 +66,7 @@ docs: $(STAMP)
 	$(VENV)/bin/mkdocs build --strict
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check firmware_py plant_sim hil tests bench dbc examples
+	$(VENV)/bin/ruff check $(LINT_PATHS)
 
 ## make vcan: create vcan0 where the kernel has SocketCAN (needs root)
 vcan:
