@@ -12,6 +12,7 @@ A scenario may be named instead of given by path: `railhil run default` is the s
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,13 +43,15 @@ def campaigns_dir() -> Path:
     return data_root() / "campaigns"
 
 
-def read_toml(path: Path, error: type[Exception], where: str, missing: str = "no such file") -> dict:
+def read_toml(path: Path, error: type[Exception], where: str,
+              missing: str | Callable[[], str] = "no such file") -> dict:
     """The table of the TOML file `path`, or `error` with one line: "<where>: <missing>" when there is no
-    such file, "<where>: cannot read: ..." or "<where>: not valid TOML: ..." otherwise."""
+    such file (`missing` may be a function, called only then), "<where>: cannot read: ..." or
+    "<where>: not valid TOML: ..." otherwise."""
     try:
         return tomllib.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise error(f"{where}: {missing}") from None
+        raise error(f"{where}: {missing() if callable(missing) else missing}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise error(f"{where}: cannot read: {exc}") from None
     except tomllib.TOMLDecodeError as exc:

@@ -152,9 +152,9 @@ def load_campaign(path: str | Path) -> Campaign:
     if not path.exists() and "/" not in str(path):
         shipped = campaigns_dir() / (path.name if path.suffix == ".toml" else f"{path.name}.toml")
         path = shipped if shipped.is_file() else path
-    names = ", ".join(sorted(p.stem for p in campaigns_dir().glob("*.toml")))
-    data = read_toml(path, CampaignError, str(path),
-                     f"no such campaign file, and no shipped campaign of that name (shipped: {names})")
+    data = read_toml(path, CampaignError, str(path), lambda: (
+        "no such campaign file, and no shipped campaign of that name (shipped: "
+        f"{', '.join(sorted(p.stem for p in campaigns_dir().glob('*.toml')))})"))
     for key in data:
         if key not in TOP_KEYS:
             raise CampaignError(f"{path}: key '{key}' is not a campaign key{_suggest(key, TOP_KEYS)}")

@@ -131,11 +131,13 @@ def becu_params(scenario: Scenario, car: int) -> BecuParams:
         if b.wheel_trust_slip_mps is not None:
             kw["wheel_trust_slip_mps"] = b.wheel_trust_slip_mps
     if b.wsp_mode == "slip":
-        ceiling = {name: value for name, value in (
-            ("ceiling_fraction", b.wsp_ceiling_fraction),
-            ("ceiling_rise_Pa_per_s", None if b.wsp_ceiling_rise_bar_per_s is None
-             else b.wsp_ceiling_rise_bar_per_s * 1e5),
-            ("ceiling_release_s", b.wsp_ceiling_release_s)) if value is not None}
+        ceiling = {}                                                  # the ceiling's keys, if given
+        if b.wsp_ceiling_fraction is not None:
+            ceiling["ceiling_fraction"] = b.wsp_ceiling_fraction
+        if b.wsp_ceiling_rise_bar_per_s is not None:
+            ceiling["ceiling_rise_Pa_per_s"] = b.wsp_ceiling_rise_bar_per_s * 1e5
+        if b.wsp_ceiling_release_s is not None:
+            ceiling["ceiling_release_s"] = b.wsp_ceiling_release_s
         kw["wsp"] = dataclasses.replace(kw.get("wsp", d.wsp), mode="slip", hold_fraction=SLIP_WSP_HOLD,
                                         refill_fraction=SLIP_WSP_REFILL, **ceiling)
     registry.call(scenario, "scenario", "becu_params", car, kw)
