@@ -56,7 +56,14 @@ from typing import NamedTuple
 
 from firmware_py.cycle import CycleTimer
 from firmware_py.decel_feedback import FbState
-from firmware_py.governor import GovernorDecision, GovernorParams, GovernorState, govern, play
+from firmware_py.governor import (
+    GovernorDecision,
+    GovernorParams,
+    GovernorSchedule,
+    GovernorState,
+    govern,
+    play,
+)
 from firmware_py.limits import clip, finite_or
 from firmware_py.pi import PI, PIParams
 
@@ -569,7 +576,8 @@ class BecuParams:
     # g = 9.81 m/s²); output bounded to 0 ≤ u ≤ p̄, eq. (5b)
     decel_pi: PIParams = field(default_factory=lambda: PIParams(
         kp=5e5 / 9.81, ki=40e5 / 9.81, out_min=0.0, out_max=450e3))
-    governor: GovernorParams | None = None   # reference governor of seed 001 eq. (9), decel mode only
+    # reference governor of seed 001 eq. (9), decel mode only; a GovernorSchedule picks its model by SpeedEst
+    governor: GovernorParams | GovernorSchedule | None = None
     # decel mode, leaving WSP: "freeze" resumes the PI where WSP froze it (the project's convention);
     # "handover" restarts it bumplessly from the vented set-point u = 0
     wsp_resume: str = "freeze"
@@ -687,6 +695,8 @@ class Becu:
         r = r0
         governed = False
         gp = p.governor
+        if isinstance(gp, GovernorSchedule):
+            gp = gp.at(self.v_ref)
         if gp is not None:
             # cylinder observer: the lag of eq. (4) run on the set-point this BECU sent, corrected towards
             # the measured pressure; the torque estimate is the play model (10a) on the observed pressure

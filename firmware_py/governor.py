@@ -61,6 +61,7 @@ There is no offline set computation: R(x) of eq. (14) is evaluated online by pre
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -117,6 +118,33 @@ class GovernorParams:
     def decel_max_mps2(self) -> float:
         """Largest constant reference admissible in steady state: κ τ̄ (1 − margin) / M [m/s²]."""
         return self.kappa * self.torque_limit_Nm / self.mass_kg
+
+
+@dataclass(frozen=True)
+class GovernorSchedule:
+    """The governor's model scheduled on the car's speed (gain scheduling): where the adhesion curve moves
+    with the speed (seed 000 eq. (1)-(2): the peak slip speed σ°(v)·v and the peak μ°(v) both change with v),
+    one GovernorParams per speed band, each built for the whole band (its F̄ the smaller and its slope
+    bounds the wider of the band's edges).  The proof of the module docstring holds within a band; the
+    switch between bands is not covered by it (the bands are narrow, and F̄ changes little across one)."""
+
+    speeds_mps: tuple[float, ...]           # lower edge of each band, increasing, the first 0 [m/s]
+    params: tuple[GovernorParams, ...]      # the model of each band
+
+    def __post_init__(self) -> None:
+        if len(self.speeds_mps) != len(self.params) or not self.params:
+            raise ValueError("GovernorSchedule: one GovernorParams per speed band, at least one")
+        edges = self.speeds_mps
+        if edges[0] != 0.0 or any(b <= a for a, b in zip(edges, edges[1:], strict=False)):
+            raise ValueError(f"GovernorSchedule: band edges must start at 0 and increase, got "
+                             f"{self.speeds_mps[:3]}...")
+
+    def at(self, v_mps: float) -> GovernorParams:
+        """The model of the band holding v (below 0 or not finite: the lowest band; above the last edge:
+        the last band)."""
+        if not v_mps > 0.0:
+            return self.params[0]
+        return self.params[bisect.bisect_right(self.speeds_mps, v_mps) - 1]
 
 
 @dataclass(frozen=True)

@@ -92,7 +92,7 @@ def _scenario(**sections):
 
 @pytest.mark.parametrize("sections, match", [
     (dict(wheel_slip={"governor": True}), "governor = true needs becu.control = 'decel'"),
-    (dict(becu={"control": "decel"}, wheel_slip={"governor": True}), "plant.adhesion = 'slip_speed'"),
+    (dict(becu={"control": "decel"}, wheel_slip={"governor": True, "band_mps": 0.0}), "wheel_slip.band_mps"),
     (dict(becu={"control": "decel"}, wheel_slip={"governor": True, "slip_max_mps": 0.2},
           plant={"adhesion": "slip_speed"}), "below the adhesion peak"),
     (dict(bcu={"step_decel_mps2": [0.0, 1.0]}), "needs 8 values"),

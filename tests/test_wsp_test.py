@@ -153,6 +153,8 @@ GOOD = ('[reference]\nrail = [{ from_m = -500.0, condition = "dry" }]\n'
     (GOOD.replace('"wet"', '"soapy"'), "conditions.low.rail.0.condition"),
     (GOOD + 'set = { "becu.no_such_key" = 1 }\n', "becu.no_such_key"),
     (GOOD + "[", "not valid TOML"),
+    (GOOD + 'demand_from = "nope"\n', "strategies.dump.demand_from = 'nope': must name another strategy"),
+    (GOOD + 'demand_from = "dump"\n', "strategies.dump.demand_from = 'dump': must name another strategy"),
 ])
 def test_bad_programme_is_one_line_naming_the_key(tmp_path, text, expected):
     with pytest.raises(ProgrammeError, match="prog.toml") as info:
@@ -200,6 +202,35 @@ def test_short_programme_end_to_end(tmp_path, capsys):
     assert "(0 read from their folders, 2 run)" in capsys.readouterr().out
     assert main(["wsp-test", str(prog), "--jobs", "1", "-o", str(out), "-q", "--fresh"]) == 0
     assert "(0 read from their folders, 2 run)" in capsys.readouterr().out
+
+
+GOVERNOR = ('[strategies.governor]\ndemand_from = "dump"\nset = { "becu.control" = "decel", '
+            '"wheel_slip.governor" = true, "wheel_slip.margin" = 0.02 }\n')
+
+
+def test_a_strategy_judged_against_another_brings_its_dry_references(tmp_path):
+    prog = load_programme(_write(tmp_path, GOOD + GOVERNOR))
+    specs = runs(prog, strategies=["governor"])
+    assert [(s.strategy, s.condition) for s in specs] == [("dump", "reference"), ("governor", "reference"),
+                                                          ("governor", "low")]
+    assert prog.demand_source("governor") == "dump" and prog.demand_source("dump") == "dump"
+
+
+def test_governor_judged_against_the_dump_strategys_demand(tmp_path, capsys):
+    """The governor designed for extra-wet rail brakes below the demand on dry rail too: judged against the
+    dump strategy's dry run its dry stop is extended (against its own it would be ~0); on wet rail it
+    keeps every wheel below the slide threshold, the WSP never venting."""
+    out = tmp_path / "out"
+    prog = _write(tmp_path, GOOD + GOVERNOR)
+    assert main(["wsp-test", str(prog), "--strategy", "governor", "--jobs", "2", "-o", str(out), "-q"]) == 0
+    doc = json.loads((out / "results.json").read_text())
+    by = {(r["strategy"], r["condition"]): r for r in doc["runs"]}
+    assert set(by) == {("dump", "reference"), ("governor", "reference"), ("governor", "low")}
+    assert abs(by["dump", "reference"]["extension_pct"]) < 0.5
+    assert by["governor", "reference"]["extension_pct"] > 50.0
+    low = by["governor", "low"]
+    assert low["status"] == "ok" and low["wsp_activations"] == 0 and low["slide_integral_m"] == 0.0
+    assert low["extension_pct"] > 20.0 and low["longest_not_rotating_s"] == 0.0
 
 
 def test_slip_wsp_ceiling_is_learnt_at_the_slide_onset_rises_in_fill_and_is_released():

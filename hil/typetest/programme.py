@@ -77,6 +77,10 @@ class Condition(_Strict):
 class Strategy(_Strict):
     description: str = ""
     set: dict[str, object] = Field(default_factory=dict)
+    # judged against another strategy's dry demand: for a strategy that limits its own braking (a governor
+    # designed for the least adherent rail brakes below the demand on dry rail too, so its own dry run is
+    # not the demand it was asked to meet)
+    demand_from: str | None = None
 
 
 class Metrics(_Strict):
@@ -106,6 +110,13 @@ class ProgrammeSpec(_Strict):
             raise ValueError(f"a condition may not be named {REFERENCE!r} (the dry run's name)")
         if len(set(self.speeds_kmh)) != len(self.speeds_kmh):
             raise ValueError(f"speeds_kmh has a speed twice: {self.speeds_kmh}")
+        for name, st in self.strategies.items():
+            src = self.strategies.get(st.demand_from) if st.demand_from is not None else None
+            if st.demand_from is not None and (src is None or st.demand_from == name
+                                               or src.demand_from is not None):
+                own = ", ".join(n for n, o in self.strategies.items() if o.demand_from is None)
+                raise ValueError(f"strategies.{name}.demand_from = {st.demand_from!r}: must name another "
+                                 f"strategy of the programme that takes its own demand (one of {own})")
         return self
 
 
@@ -118,6 +129,10 @@ class Programme:
     @property
     def metric_params(self) -> MetricParams:
         return MetricParams(**self.spec.metrics.model_dump())
+
+    def demand_source(self, strategy: str) -> str:
+        """The strategy whose dry run gives `strategy` its demand (itself, or its `demand_from`)."""
+        return self.spec.strategies[strategy].demand_from or strategy
 
 
 @dataclass(frozen=True)
@@ -193,7 +208,8 @@ def _scenario(prog: Programme, strategy: str, condition: str, speed_kmh: float) 
 def runs(prog: Programme, strategies: list[str] | None = None, speeds: list[float] | None = None,
          conditions: list[str] | None = None) -> list[RunSpec]:
     """Every run: per strategy and speed the dry reference, then each condition.  `strategies`, `speeds`
-    and `conditions` select (each must be in the programme)."""
+    and `conditions` select (each must be in the programme); a chosen strategy judged against another's
+    demand (`demand_from`) brings that strategy's dry references along."""
     spec = prog.spec
     chosen = _select("strategy", strategies, list(spec.strategies), prog.path)
     kinds = _select("condition", conditions, list(spec.conditions), prog.path)
@@ -204,6 +220,9 @@ def runs(prog: Programme, strategies: list[str] | None = None, speeds: list[floa
                                  f"{', '.join(f'{s:g}' for s in spec.speeds_kmh)}")
     at = [s for s in spec.speeds_kmh if not speeds or s in speeds]
     out = []
+    sources = [prog.demand_source(s) for s in chosen]
+    for strategy in dict.fromkeys(s for s in sources if s not in chosen):
+        out += [RunSpec(strategy, REFERENCE, v, _scenario(prog, strategy, REFERENCE, v)) for v in at]
     for strategy in chosen:
         for speed in at:
             for condition in [REFERENCE, *kinds]:

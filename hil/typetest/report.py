@@ -206,7 +206,8 @@ def write(prog: Programme, results: list[RunResult], out_dir: Path, wall_s: floa
     for c in conditions:
         cond = spec.reference if c == REFERENCE else spec.conditions[c]
         header, rows = condition_table(results, c)
-        text = cond.description + (" — each strategy's own dry run: its ideal stop is itself, so its "
+        text = cond.description + (" — each strategy's own dry run: its ideal stop is itself (or, for a "
+                                   "strategy with demand_from, the named strategy's dry run), so its "
                                    "extension is the definition's error" if c == REFERENCE else "")
         md += [f"## {c}", "", text, "", "| " + " | ".join(header) + " |",
                "|" + "|".join("---" for _ in header) + "|"]

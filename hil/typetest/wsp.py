@@ -70,7 +70,7 @@ def available_for(scenario: Scenario) -> Callable[[float, float], float]:
 
 def run_job(spec: RunSpec, run_dir: str, params: MetricParams, demand: Demand | None) -> RunResult:
     """One run in lockstep into `run_dir` and its metrics (the worker's job; never raises).  A reference run
-    (demand None) derives its strategy's demand from itself."""
+    without a demand derives its strategy's demand from itself."""
     from hil.runtime.run import prepare_worker, run_scenario_lockstep
 
     prepare_worker(spec.scenario)
@@ -88,7 +88,7 @@ def run_job(spec: RunSpec, run_dir: str, params: MetricParams, demand: Demand | 
         t_cmd = report.kpis.get("brake_start_s")
         if t_cmd is None:
             raise ValueError("the run has no brake command (kpis.json brake_start_s)")
-        own = demand_from_dry(cols, t_cmd) if spec.condition == REFERENCE else None
+        own = demand_from_dry(cols, t_cmd) if spec.condition == REFERENCE and demand is None else None
         metrics = run_metrics(cols, t_cmd, params, own or demand, available_for(spec.scenario))
         t = cols["t_s"]
         i0 = int(np.searchsorted(t, t_cmd - 1e-9))
@@ -176,20 +176,23 @@ def _run_all(specs: list[RunSpec], demands: list[Demand | None], out_dir: Path, 
 def run_programme(prog: Programme, specs: list[RunSpec], out_dir: Path, executor: Executor | None = None,
                   progress: Callable[[RunResult], None] | None = None,
                   resume: bool = True) -> list[RunResult]:
-    """Every run of `specs` (references first), results in the order of `specs`; with `resume`, a run whose
-    folder holds its result for the same key (`run_key`) is read, not run."""
+    """Every run of `specs` (the references that give a demand first), results in the order of `specs`; with
+    `resume`, a run whose folder holds its result for the same key (`run_key`) is read, not run."""
     params = prog.metric_params
-    refs = [s for s in specs if s.condition == REFERENCE]
+    refs = [s for s in specs if s.condition == REFERENCE and prog.demand_source(s.strategy) == s.strategy]
     done: dict[int, RunResult] = {}
     demands = {}
     for s, r in zip(refs, _run_all(refs, [None] * len(refs), out_dir, params, executor, progress, resume),
                     strict=True):
         done[id(s)] = r
         demands[(s.strategy, s.speed_kmh)] = r.demand
-    rest = [s for s in specs if s.condition != REFERENCE]
-    wanted = [demands.get((s.strategy, s.speed_kmh)) for s in rest]
-    for s, r in zip(rest, _run_all(rest, wanted, out_dir, params, executor, progress, resume), strict=True):
-        if r.status == "ok" and demands.get((s.strategy, s.speed_kmh)) is None:
-            r.metrics = {**r.metrics, "note": "its dry reference failed: no ideal stop"}
+    rest = [s for s in specs if id(s) not in done]
+    wanted = [demands.get((prog.demand_source(s.strategy), s.speed_kmh)) for s in rest]
+    for s, d, r in zip(rest, wanted, _run_all(rest, wanted, out_dir, params, executor, progress, resume),
+                       strict=True):
+        if r.status == "ok" and d is None:
+            r.metrics = {**r.metrics, "note": (
+                f"the dry reference of {prog.demand_source(s.strategy)} failed: judged against its own"
+                if s.condition == REFERENCE else "its dry reference failed: no ideal stop")}
         done[id(s)] = r
     return [done[id(s)] for s in specs]

@@ -6,25 +6,39 @@ governor's parameters it sets in each BECU.
     slip_max_mps = 0.1       # s̄ of eq. (8)
     margin = 0.005           # torque margin, fraction of τ̄
     paper_figure = "fig8"    # print the paper's figures next to ours: "fig8" or "fig9"
+    # with [plant] adhesion = "track" (seed 000's curves, which move with the speed):
+    design_condition = "extra_wet"   # the least adherent rail the governor is designed for
+    slip_fraction = 0.5      # s̄(v) = this x the peak slip speed of that rail at v
+    band_mps = 0.5           # the governor's model is scheduled on SpeedEst in bands this wide
 
 The section makes the run report the study's KPIs (kpis.py) and figure (plots.py) for any BECU control
-law; the governor itself needs `[becu] control = "decel"` (eq. (16)) and the slip-speed adhesion curve
-(`[plant] adhesion = "slip_speed"`), from which its slip inclusion is built.
+law; the governor itself needs `[becu] control = "decel"` (eq. (16)).  Its slip inclusion is built from
+the plant's adhesion curve family: seed 001's slip-speed curve (`[plant] adhesion = "slip_speed"`, s̄ =
+slip_max_mps), or seed 000's rail curves (`"track"`), where the peak's slip speed σ°(v)·v and height μ°(v)
+move with the speed (eq. (2) seed 000), so s̄ and the cone are scheduled on the car's speed estimate
+(firmware_py.governor.GovernorSchedule).
 """
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import Field
 
 from firmware_py.becu import BecuParams
-from firmware_py.governor import GovernorParams, governor_params
+from firmware_py.governor import GovernorParams, GovernorSchedule, governor_params
 from firmware_py.pi import PIParams
 from hil.scenario.base import Strict
 from hil.scenario.params import plant_params
-from plant_sim.adhesion import mu_slip_speed_scalar, mu_slip_speed_slope_scalar
-from plant_sim.params import PlantParams
+from plant_sim.adhesion import V_EPS_MPS, mu_slip_speed_scalar, mu_slip_speed_slope_scalar, mu_theta_scalar
+from plant_sim.params import RAIL_CONDITIONS, RAIL_PEAKS, AdhesionParams, PlantParams
+
+# the cone's slope bounds on seed 000's curves: f' sampled at this many slip speeds over [0, s̄] (the lower
+# bound; the upper is infinite, the curves rising as √σ from σ = 0, so the fastest friction lag a̲ = 0)
+SLOPE_SAMPLES = 32
+# the schedule covers the initial speed with this margin [m/s] (a train pushed by a gradient runs faster)
+SCHEDULE_MARGIN_MPS = 5.0
 
 if TYPE_CHECKING:
     from hil.scenario.model import ScenarioBase as Scenario
@@ -43,6 +57,16 @@ class WheelSlipSpec(Strict):
     steady_state_window_s: Annotated[float, Field(
         gt=0, le=600, description="steady state = the last this many seconds of the braking window (at "
                                   "most its second half) [s]")] = 10.0
+    design_condition: Literal["extra_dry", "dry", "wet", "extra_wet"] = Field(
+        "extra_wet", description="with plant.adhesion = 'track': the least adherent rail condition the "
+                                 "governor is designed for; its cone covers that rail's curve and every "
+                                 "more adherent one of seed 000's")
+    slip_fraction: Annotated[float, Field(
+        gt=0, lt=1, description="with plant.adhesion = 'track': s̄(v) = this fraction of the design rail's "
+                                "peak slip speed σ°(v)·v (eq. (2) seed 000)")] = 0.5
+    band_mps: Annotated[float, Field(
+        gt=0, le=10, description="with plant.adhesion = 'track': width of the speed bands the governor's "
+                                 "model is scheduled in [m/s]")] = 0.5
 
 
 def check(scenario: Scenario) -> None:
@@ -50,10 +74,8 @@ def check(scenario: Scenario) -> None:
     if ws.governor and scenario.becu.control != "decel":
         raise ValueError("wheel_slip.governor = true needs becu.control = 'decel' (the governor limits the "
                          "reference of the deceleration PI, eq. (16))")
-    if ws.governor and scenario.plant.adhesion != "slip_speed":
-        raise ValueError("wheel_slip.governor = true needs plant.adhesion = 'slip_speed' (the governor's "
-                         "slip inclusion is built from that curve family)")
-    if ws.governor and ws.slip_max_mps >= scenario.plant.slip_peak_mps:
+    speed_curve = scenario.plant.adhesion == "slip_speed"
+    if ws.governor and speed_curve and ws.slip_max_mps >= scenario.plant.slip_peak_mps:
         raise ValueError(f"wheel_slip.slip_max_mps {ws.slip_max_mps} must lie below the adhesion peak "
                          f"plant.slip_peak_mps {scenario.plant.slip_peak_mps} (stable-slip region)")
 
@@ -73,6 +95,60 @@ LEGACY_KEYS = {
 }
 
 
+def _brake_and_cycle(pp: PlantParams, pi: PIParams, margin: float) -> dict:
+    bp = pp.brake
+    return dict(dt_s=BecuParams().cycle_us * 1e-6, wheel_radius_m=pp.train.wheel_radius_m,
+                inertia_kgm2=pp.train.wheel_inertia_kgm2, tp_s=bp.tp_s,
+                alpha_squeeze=bp.alpha_squeeze_Nm_per_Pa, beta_squeeze=bp.beta_squeeze_Nm,
+                alpha_release=bp.alpha_release_Nm_per_Pa, beta_release=bp.beta_release_Nm, pi=pi,
+                margin_frac=margin)
+
+
+def design_slip_mps(condition: str, fraction: float, v_mps: float, ap: AdhesionParams) -> float:
+    """s̄(v) = fraction · σ°(θ, v) · max(v, V_EPS) [m/s]: a fraction of the design rail's peak slip speed at
+    v, σ° = σ̄°/k2(v) (eq. (2) seed 000; the slip ratio's regularisation of plant_sim.adhesion)."""
+    k2 = 1.0 + ap.pi2_s_per_m * v_mps
+    return fraction * RAIL_PEAKS[condition][0] / k2 * max(v_mps, V_EPS_MPS)
+
+
+def _cone(condition: str, fraction: float, v_mps: float, ap: AdhesionParams) -> tuple[float, float]:
+    """(μ at s̄, the smallest dμ/ds over [0, s̄] [1/(m/s)]) over the design rail and every more adherent
+    rail of seed 000 at speed v: the lower edge of the cone of seed 001 Fig. 5."""
+    s_bar = design_slip_mps(condition, fraction, v_mps, ap)
+    scale = max(v_mps, V_EPS_MPS)                      # σ = s / max(v, V_EPS), seed 000 §2.1
+    family = [RAIL_CONDITIONS[name] for name, (_, mu_pk) in RAIL_PEAKS.items()
+              if mu_pk >= RAIL_PEAKS[condition][1]]
+    mu_at = min(mu_theta_scalar(th, s_bar / scale, v_mps, ap) for th in family)
+    ds = s_bar * 1e-4
+    slope = math.inf
+    for th in family:
+        for j in range(1, SLOPE_SAMPLES + 1):
+            s = s_bar * j / SLOPE_SAMPLES
+            d = (mu_theta_scalar(th, s / scale, v_mps, ap) - mu_theta_scalar(th, (s - ds) / scale, v_mps, ap))
+            slope = min(slope, d / ds)
+    return mu_at, slope
+
+
+def becu_governor_schedule(scenario: Scenario, pp: PlantParams, car: int, pi: PIParams) -> GovernorSchedule:
+    """The governor's model of car `car` on seed 000's rail curves, one per speed band of
+    wheel_slip.band_mps up to the initial speed (+ SCHEDULE_MARGIN_MPS): F̄ = μ(s̄) N at the band's edge where
+    it is smaller (k1(v) lowers the curve as v rises), the slope bounds [smallest f' over [0, s̄] at either
+    edge, ∞]."""
+    ws = scenario.wheel_slip
+    ap = pp.adhesion
+    normal = pp.train.masses_kg[car - 1] * pp.train.g_mps2             # N = M g, eq. (1a) seed 001
+    common = _brake_and_cycle(pp, pi, ws.margin)
+    top = scenario.train.initial_speed_kmh / 3.6 + SCHEDULE_MARGIN_MPS
+    edges = [i * ws.band_mps for i in range(int(math.ceil(top / ws.band_mps)) + 1)]
+    cones = [_cone(ws.design_condition, ws.slip_fraction, v, ap) for v in edges]
+    params = []
+    for (mu_lo, slope_lo), (mu_hi, slope_hi) in zip(cones, cones[1:], strict=False):
+        params.append(governor_params(
+            mass_kg=pp.train.masses_kg[car - 1], friction_max_N=min(mu_lo, mu_hi) * normal,
+            slope_lo_N_per_mps=min(slope_lo, slope_hi) * normal, slope_hi_N_per_mps=math.inf, **common))
+    return GovernorSchedule(tuple(edges[:-1]), tuple(params))
+
+
 def becu_governor_params(scenario: Scenario, pp: PlantParams, car: int, pi: PIParams) -> GovernorParams:
     """The governor's model of car `car` (1-based) from the scenario's plant: F̄ = μ(s̄) N and the friction
     slope bounds f' ∈ [μ'(s̄) N, μ'(0) N] of seed 001's concave μ(s) below its peak (the cone of Fig. 5),
@@ -81,19 +157,15 @@ def becu_governor_params(scenario: Scenario, pp: PlantParams, car: int, pi: PIPa
     mass = pp.train.masses_kg[car - 1]
     normal = mass * pp.train.g_mps2                                    # N = M g, eq. (1a) seed 001
     mu_pk, s_pk = pp.adhesion.slip_speed_peak
-    bp = pp.brake
     return governor_params(
-        dt_s=BecuParams().cycle_us * 1e-6, mass_kg=mass, wheel_radius_m=pp.train.wheel_radius_m,
-        inertia_kgm2=pp.train.wheel_inertia_kgm2,
-        friction_max_N=mu_slip_speed_scalar(ws.slip_max_mps, mu_pk, s_pk) * normal,
+        mass_kg=mass, friction_max_N=mu_slip_speed_scalar(ws.slip_max_mps, mu_pk, s_pk) * normal,
         slope_lo_N_per_mps=mu_slip_speed_slope_scalar(ws.slip_max_mps, mu_pk, s_pk) * normal,
-        slope_hi_N_per_mps=mu_slip_speed_slope_scalar(0.0, mu_pk, s_pk) * normal, tp_s=bp.tp_s,
-        alpha_squeeze=bp.alpha_squeeze_Nm_per_Pa, beta_squeeze=bp.beta_squeeze_Nm,
-        alpha_release=bp.alpha_release_Nm_per_Pa, beta_release=bp.beta_release_Nm, pi=pi,
-        margin_frac=ws.margin)
+        slope_hi_N_per_mps=mu_slip_speed_slope_scalar(0.0, mu_pk, s_pk) * normal,
+        **_brake_and_cycle(pp, pi, ws.margin))
 
 
 def becu_params(scenario: Scenario, car: int, kw: dict) -> None:
     """The governor in each BECU (hil.scenario.params.becu_params): built on the BECU's deceleration PI."""
     if scenario.wheel_slip.governor:
-        kw["governor"] = becu_governor_params(scenario, plant_params(scenario), car, kw["decel_pi"])
+        build = becu_governor_params if scenario.plant.adhesion == "slip_speed" else becu_governor_schedule
+        kw["governor"] = build(scenario, plant_params(scenario), car, kw["decel_pi"])
