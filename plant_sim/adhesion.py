@@ -48,13 +48,16 @@ def slip_ratio_scalar(s_mps: float, v_mps: float) -> float:
 
 
 @register_jitable
-def mu_slip_speed_scalar(s_mps: float, mu_peak: float, s_peak_mps: float) -> float:
+def mu_slip_speed_scalar(s_mps: float, mu_peak: float, s_peak_mps: float, mu_slide: float = 0.0) -> float:
     """μ(s) = 2 μ̂ x / (1 + x²), x = s/ŝ [-]: seed 001's adhesion as a function of the slip speed s ≥ 0
     (§II-A, eq. (3) f(s) = μ(s) N). Peak μ̂ at s = ŝ; μ(0) = 0; increasing below ŝ and decreasing above
     (the unstable-slip region); concave on [0, √3 ŝ], so the chord slope μ(s)/s falls with s there and
-    the cone of seed 001 Fig. 5 over [0, s̄] is bounded by the slopes μ'(0) = 2 μ̂/ŝ and μ(s̄)/s̄."""
+    the cone of seed 001 Fig. 5 over [0, s̄] is bounded by the slopes μ'(0) = 2 μ̂/ŝ and μ(s̄)/s̄.
+    Beyond the peak (x > 1) μ never falls below `mu_slide`, the friction of a sliding wheel (0: the curve
+    as seed 001 has it, μ → 0 as the wheel locks)."""
     x = s_mps / s_peak_mps
-    return 2.0 * mu_peak * x / (1.0 + x * x)
+    mu = 2.0 * mu_peak * x / (1.0 + x * x)
+    return mu_slide if x > 1.0 and mu < mu_slide else mu
 
 
 def mu_slip_speed_slope_scalar(s_mps: float, mu_peak: float, s_peak_mps: float) -> float:
@@ -74,7 +77,8 @@ def mu_scalar(theta: Theta, sigma: float, v_mps: float, p: AdhesionParams) -> fl
         return mu_constant_scalar(sigma, p.constant_mu)   # flat μ (test hook)
     if p.slip_speed_peak is not None:
         mu_pk, s_pk = p.slip_speed_peak
-        return mu_slip_speed_scalar(sigma * (V_EPS_MPS if V_EPS_MPS > v_mps else v_mps), mu_pk, s_pk)
+        return mu_slip_speed_scalar(sigma * (V_EPS_MPS if V_EPS_MPS > v_mps else v_mps), mu_pk, s_pk,
+                                    p.slip_speed_slide_ratio * mu_pk)
     return mu_theta_scalar(theta, sigma, v_mps, p)
 
 

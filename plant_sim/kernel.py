@@ -170,9 +170,9 @@ INV_M, GAIN, INV_M_DT, NORMAL, C2 = range(5)
 N_CAR = 5
 # the scalars: step, the models in use and their constants; BUDGET is the distance [m] the cars may still
 # move before one meets a track knot (the step decrements it; ≤ 0: look the track up again)
-DT, INV_DT, LAG, LAG_PHI, P_MAX, PAD, INV_PAD_NOMINAL, INV_R, ADHESION, CONST_MU, MU_PEAK, S_PEAK, C1, \
-    R_OVER_J, PITCH, BUDGET = range(16)
-N_SCALAR = 16
+DT, INV_DT, LAG, LAG_PHI, P_MAX, PAD, INV_PAD_NOMINAL, INV_R, ADHESION, CONST_MU, MU_PEAK, S_PEAK, MU_SLIDE, \
+    C1, R_OVER_J, PITCH, BUDGET = range(17)
+N_SCALAR = 17
 ADHESION_THETA, ADHESION_SLIP_SPEED, ADHESION_CONSTANT = 0.0, 1.0, 2.0   # the curve of `adhesion.mu_scalar`
 
 @register_jitable
@@ -182,7 +182,8 @@ def _mu(t1, t2, t3, sigma, v, k, ap):
     if mode == ADHESION_CONSTANT:
         return mu_constant_scalar(sigma, k[CONST_MU])
     if mode == ADHESION_SLIP_SPEED:
-        return mu_slip_speed_scalar(sigma * (V_EPS_MPS if V_EPS_MPS > v else v), k[MU_PEAK], k[S_PEAK])
+        return mu_slip_speed_scalar(sigma * (V_EPS_MPS if V_EPS_MPS > v else v), k[MU_PEAK], k[S_PEAK],
+                                    k[MU_SLIDE])
     return mu_theta_scalar((t1, t2, t3), sigma, v, ap)
 
 

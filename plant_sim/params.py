@@ -91,6 +91,11 @@ class AdhesionParams:
     # the peak and concave for s < √3 ŝ (adhesion.mu_slip_speed_scalar). Seed 001 §IV: f_max = 0.2 M g,
     # i.e. μ̂ = 0.2; ŝ = 0.155 m/s is the parameter set of issue #4. None = seed 000's curve.
     slip_speed_peak: tuple[float, float] | None = None
+    # With slip_speed_peak: beyond the peak μ(s) never falls below this fraction of μ̂, the friction of a
+    # sliding wheel [-]. 0 = seed 001's curve, which leaves a locked wheel at 58 m/s μ = 0.001 (μ̂ = 0.2): no
+    # torque to spin it back up for minutes. Seed 000's rail curves leave a locked wheel 0.2 of the peak
+    # (LOCKED_RATIO, chosen above for the same reason).
+    slip_speed_slide_ratio: float = 0.0
 
     def __post_init__(self) -> None:
         _require(self.pi1_s_per_m >= 0.0 and self.pi2_s_per_m >= 0.0, "AdhesionParams",
@@ -105,6 +110,8 @@ class AdhesionParams:
             _require(self.constant_mu is None, "AdhesionParams",
                      "give at most one of constant_mu and slip_speed_peak")
             object.__setattr__(self, "slip_speed_peak", (mu_pk, s_pk))
+        _require(0.0 <= self.slip_speed_slide_ratio < 1.0, "AdhesionParams",
+                 f"slip_speed_slide_ratio must be in [0, 1), got {self.slip_speed_slide_ratio!r}")
 
 
 @dataclass(frozen=True)

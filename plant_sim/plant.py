@@ -136,6 +136,7 @@ class Plant:
         elif ap.slip_speed_peak is not None:
             ks[k.ADHESION] = k.ADHESION_SLIP_SPEED
             ks[k.MU_PEAK], ks[k.S_PEAK] = ap.slip_speed_peak
+            ks[k.MU_SLIDE] = ap.slip_speed_slide_ratio * ap.slip_speed_peak[0]
         else:
             ks[k.ADHESION] = k.ADHESION_THETA
         ks[k.C1], ks[k.R_OVER_J], ks[k.PITCH] = cc.c1_Ns_per_m, cc.r_over_J, cc.car_pitch_m

@@ -230,6 +230,8 @@ class PlantSpec(_Strict):
     adhesion: Literal["track", "slip_speed"] = "track"
     mu_peak: Annotated[float, Field(gt=0, lt=2)] = 0.2              # μ̂: f_max = μ̂ M g (seed 001 §IV-A)
     slip_peak_mps: Annotated[float, Field(gt=0, lt=10)] = 0.155     # ŝ: slip speed of the peak [m/s]
+    # beyond the peak μ(s) never below slide_ratio × μ̂: a sliding wheel's friction (0 = seed 001's curve)
+    slide_ratio: Annotated[float, Field(ge=0, lt=1)] = 0.0
     # "valve": EP valve driven by ValveCmd; "lag": cylinder follows CylPressureSet with Tp (eq. 4)
     pressure_model: Literal["valve", "lag"] = "valve"
     tp_s: Annotated[float, Field(gt=0, le=5)] = 0.05                # Tp [s], seed 001 §IV

@@ -76,7 +76,8 @@ def plant_params(scenario: Scenario) -> PlantParams:
                  if ps.hysteresis_Pa is None else ps.hysteresis_Pa)
         brake_kw.update(alpha_squeeze_Nm_per_Pa=gain, beta_squeeze_Nm=-gain * preload,   # eq. (6), seed 001
                         alpha_release_Nm_per_Pa=gain, beta_release_Nm=-gain * preload + gain * width)
-    adhesion = (AdhesionParams(slip_speed_peak=(ps.mu_peak, ps.slip_peak_mps)) if ps.adhesion == "slip_speed"
+    adhesion = (AdhesionParams(slip_speed_peak=(ps.mu_peak, ps.slip_peak_mps),
+                               slip_speed_slide_ratio=ps.slide_ratio) if ps.adhesion == "slip_speed"
                 else AdhesionParams())
     sensor_kw = {k: v for k, v in ss.model_dump().items() if v is not None}
     pp = PlantParams(train=TrainParams(**train_kw), brake=BrakeParams(**brake_kw), adhesion=adhesion,

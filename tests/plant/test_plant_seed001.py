@@ -100,6 +100,39 @@ def test_slip_speed_curve_through_the_plants_adhesion_functions():
     assert mu_slip_speed_scalar(0.1, 0.2, 0.155) == pytest.approx(0.18222, abs=1e-5)
 
 
+def test_a_sliding_wheels_friction_floor_only_acts_beyond_the_peak():
+    """slip_speed_slide_ratio ρ: μ(s) never below ρ μ̂ beyond the peak; the rising branch (μ(0) = 0, the
+    governor's cone below s̄) and the peak are untouched; in the plant a locked wheel spins back up."""
+    s = np.linspace(0.0, 60.0, 60_001)
+    plain = np.array([mu_slip_speed_scalar(x, 0.2, 0.155) for x in s])
+    floored = np.array([mu_slip_speed_scalar(x, 0.2, 0.155, 0.04) for x in s])
+    rising = s <= 0.155
+    assert np.array_equal(plain[rising], floored[rising]) and floored[0] == 0.0
+    assert floored.max() == pytest.approx(0.2, rel=1e-9)
+    assert np.all(floored[~rising] >= 0.04) and np.all(floored == np.where(rising, plain,
+                                                                               np.maximum(plain, 0.04)))
+    assert plain[-1] < 0.002 and floored[-1] == 0.04                  # a locked wheel at 60 m/s
+    floor = AdhesionParams(slip_speed_peak=(0.2, 0.155), slip_speed_slide_ratio=0.2)
+    assert mu(np.zeros((1, 3)), np.array([1.0]), np.array([58.0]), floor)[0] == pytest.approx(0.04)
+    with pytest.raises(PlantConfigError, match="slip_speed_slide_ratio"):
+        AdhesionParams(slip_speed_peak=(0.2, 0.155), slip_speed_slide_ratio=1.0)
+    # the compiled step: a wheel locked at 30 m/s with the brake off spins up (its friction, not zero)
+    times = []
+    for ap in (AP, floor):
+        plant = Plant(PlantParams(train=TP, brake=BP, adhesion=ap), TRACK, v0_mps=30.0)
+        plant.step(np.zeros(1), np.zeros(1, np.int64), np.array([450e3]))
+        n = 0
+        while plant.snapshot().s[0] < 29.0 and n < 5000:            # lock it: full pressure
+            plant.step(np.zeros(1), np.zeros(1, np.int64), np.array([450e3]))
+            n += 1
+        k = 0
+        while plant.snapshot().s[0] > 1.0 and k < 30_000:          # release: back within 1 m/s?
+            plant.step(np.zeros(1), np.zeros(1, np.int64), np.array([0.0]))
+            k += 1
+        times.append(k)
+    assert times[0] == 30_000 and times[1] < 10_000                  # 1 ms steps: never in 30 s / < 10 s
+
+
 @pytest.mark.parametrize("bad", [(0.0, 0.155), (0.2, 0.0), (2.5, 0.1), (0.2, -1.0)])
 def test_slip_speed_curve_rejects_bad_peaks(bad):
     with pytest.raises(PlantConfigError, match="slip_speed_peak"):
