@@ -578,6 +578,9 @@ class BecuParams:
         kp=5e5 / 9.81, ki=40e5 / 9.81, out_min=0.0, out_max=450e3))
     # reference governor of seed 001 eq. (9), decel mode only; a GovernorSchedule picks its model by SpeedEst
     governor: GovernorParams | GovernorSchedule | None = None
+    # the car's running resistance as the governor knows it, Davis (c0 [N], c1 [N s/m], c2 [N s²/m²]), eq.
+    # (4) seed 003: the measured deceleration's force less R(SpeedEst) is the friction; None: R = 0 (seed 001)
+    running_resistance: tuple[float, float, float] | None = None
     # decel mode, leaving WSP: "freeze" resumes the PI where WSP froze it (the project's convention);
     # "handover" restarts it bumplessly from the vented set-point u = 0
     wsp_resume: str = "freeze"
@@ -704,7 +707,10 @@ class Becu:
             p_hat = self.u_sent + (self.p_hat - self.u_sent) * gp.phi
             self.p_hat = p_hat + p.pressure_observer_gain * (pressure - p_hat)
             self.torque_est = play(self.torque_est, self.p_hat, gp)
-            x = GovernorState(self.decel_pi.i, self.p_hat, self.torque_est, gp.mass_kg * decel)
+            c = p.running_resistance
+            v = max(self.v_ref, 0.0) if math.isfinite(self.v_ref) else 0.0
+            res = c[0] + v * (c[1] + c[2] * v) if c is not None else 0.0        # eq. (4), seed 003
+            x = GovernorState(self.decel_pi.i, self.p_hat, self.torque_est, gp.mass_kg * decel - res, res)
             self.decision = govern(x, r0, gp, self.r_gov)
             r = self.r_gov = self.decision.r_mps2
             governed = self.decision.active

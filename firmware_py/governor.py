@@ -6,7 +6,8 @@ bounds (eq. 5), brake hysteresis (eq. 10a) and the uncertain slip dynamics (eqs.
 slip speed s ≤ s̄ (eq. 8) for all future time with r held constant (eq. 9b, 14).
 
 Model (the one the BECU runs; one control step Δ, index k; decelerations positive when braking):
-    e_k   = r − F_k / M                                   error of eq. (16), F = friction force [N]
+    e_k   = r − (F_k + R) / M                             error of eq. (16), F = friction force [N],
+                                                          R = running resistance, held (0 in seed 001)
     u_k   = PI(e_k)  (firmware_py.pi.pi_step, clip to [0, p̄])            eq. (16), (5b)
     p_k+1 = u_k + (p_k − u_k) φ,  φ = exp(−Δ/Tp)                          eq. (4) with Tp, §IV; (5a)
     τ_k+1 = play(τ_k, p_k+1)                                              eq. (10a)
@@ -37,8 +38,9 @@ Safety argument (what is proved):
       adversary -- a sequence of the inclusion's vertices, chosen per step -- (optionally cross-checked
       with a held at either vertex, GovernorParams.vertices) and accepts r only if the predicted
       trajectory keeps τ ≤ τ̄ (1 − margin) over the horizon and ends settled at a steady state that is
-      itself admissible (M r ≤ κ τ̄ (1 − margin), the steady-state torque of a constant r being M r / κ
-      whatever the curve). That this pointwise worst case is also the closed-loop worst case is NOT
+      itself admissible (M r − R ≤ κ τ̄ (1 − margin), the steady-state torque of a constant r being
+      (M r − R) / κ whatever the curve; R the running resistance, GovernorState.resistance_N). That this
+      pointwise worst case is also the closed-loop worst case is NOT
       proved (the feedback through τ and F is negative, so the loop is not a monotone system and a
       pointwise bound is not a trajectory bound); it is tested by tests/test_governor.py over sampled
       states and adversarial sequences switching a every step (random, alternating, blocks, interior
@@ -154,7 +156,16 @@ class GovernorState:
     integrator_Pa: float        # the deceleration PI's integrator i [Pa]
     pressure_Pa: float          # cylinder pressure p [Pa]
     torque_Nm: float            # brake torque τ [N m] (the play model run on the measured pressure)
-    friction_N: float           # friction force F = M · deceleration [N]
+    friction_N: float           # friction force F = M · deceleration − R [N]
+    # R: the car's running resistance at its speed (Davis, eq. (4) seed 003), held over the horizon [N]; seed
+    # 001's eq. (1a) has none (0): M v̇ = −F − R, so the PI's error is r − (F + R)/M
+    resistance_N: float = 0.0
+
+    def reference_top_mps2(self, gp: GovernorParams) -> float:
+        """Largest constant reference whose steady state is admissible with room for the settling tolerance:
+        (κ τ̄ (1 − margin) / (1 + settle_frac) + R) / M [m/s²] (the friction it needs, M r − R, within the
+        ceiling)."""
+        return gp.decel_max_mps2 / (1.0 + gp.settle_frac) + self.resistance_N / gp.mass_kg
 
 
 @dataclass(frozen=True)
@@ -186,12 +197,12 @@ def predict_peak_torque(x: GovernorState, r: float, gp: GovernorParams, vertex: 
     """
     pi, dt, m, kappa, phi = gp.pi, gp.dt_s, gp.mass_kg, gp.kappa, gp.phi
     a_lo, a_hi = gp.a_lo, gp.a_hi
-    i, p, tau, f = x.integrator_Pa, x.pressure_Pa, x.torque_Nm, x.friction_N
+    i, p, tau, f, res = x.integrator_Pa, x.pressure_Pa, x.torque_Nm, x.friction_N, x.resistance_N
     peak = tau
-    f_target = m * r
+    f_target = max(m * r - res, 0.0)        # r below R/M: the brake released, the resistance alone
     tol_f, tol_p = gp.settle_frac * gp.friction_max_N, gp.settle_frac * pi.out_max
     for k in range(gp.horizon_steps):
-        e = r - f / m                                                  # error of eq. (16)
+        e = r - (f + res) / m                                          # error of eq. (16), v̇ = (F + R)/M
         u, i, _ = pi_step(pi, i, e, dt)                                # eq. (16), u ∈ [0, p̄] (5b)
         p = u + (p - u) * phi                                          # eq. (4), exact ZOH step
         tau = play(tau, p, gp)                                         # eq. (10a)
@@ -213,13 +224,13 @@ def predict_peak_torque(x: GovernorState, r: float, gp: GovernorParams, vertex: 
 def admissible(x: GovernorState, r: float, gp: GovernorParams) -> tuple[bool, float]:
     """(r ∈ R(x), the smallest torque headroom τ̄(1 − margin) − peak over the predictions) (eq. 14).
 
-    The steady state of a constant r (torque M r / κ, any curve) must itself be admissible with room for
-    the settling tolerance; then the adversary and both constant vertices must keep τ ≤ τ̄ (1 − margin)
+    The steady state of a constant r (torque (M r − R) / κ, any curve) must itself be admissible with room
+    for the settling tolerance; then the adversary and both constant vertices must keep τ ≤ τ̄ (1 − margin)
     and settle within the horizon.
     """
     limit = gp.torque_limit_Nm
-    if r > gp.decel_max_mps2 / (1.0 + gp.settle_frac):
-        return False, limit - gp.mass_kg * r / gp.kappa
+    if r > x.reference_top_mps2(gp):
+        return False, limit - (gp.mass_kg * r - x.resistance_N) / gp.kappa
     worst = math.inf
     for vertex in gp.vertices:
         peak, settled = predict_peak_torque(x, r, gp, vertex, stop_above=limit)
@@ -246,7 +257,7 @@ def govern(x: GovernorState, r0: float, gp: GovernorParams, r_prev: float | None
     evals = 1
     if ok:
         return GovernorDecision(r0, False, head + back, evals)
-    top = min(r0, gp.decel_max_mps2 / (1.0 + gp.settle_frac))
+    top = min(r0, x.reference_top_mps2(gp))
     base = r_prev if (r_prev is not None and 0.0 <= r_prev < top) else None
     ok_b = False
     if base is not None:

@@ -114,6 +114,21 @@ def test_previous_reference_is_kept_when_still_admissible():
     assert again.r_mps2 >= first.r_mps2 - GP.resolution_mps2 and again.evaluations <= first.evaluations
 
 
+def test_running_resistance_raises_the_limit_by_r_over_m_and_a_small_request_releases_the_brake():
+    """With a running resistance R held over the horizon the friction a constant r needs is M r − R: the
+    steady-state limit rises by R/M, the predicted torque settles at (M r − R)/κ, and a request below R/M
+    is admissible with the brake released (its steady state: no friction at all)."""
+    res = 0.03 * M * G
+    x = GovernorState(0.0, 0.0, 0.0, 0.0, resistance_N=res)
+    d = govern(x, 0.25 * G, GP)
+    best = GP.decel_max_mps2 / (1.0 + GP.settle_frac) + res / M
+    assert d.active and best - 0.003 <= d.r_mps2 <= best
+    assert d.r_mps2 > govern(GovernorState(0.0, 0.0, 0.0, 0.0), 0.25 * G, GP).r_mps2 + 0.9 * res / M
+    peak, settled = predict_peak_torque(x, 0.15 * G, GP)
+    assert settled and peak == pytest.approx((M * 0.15 * G - res) / GP.kappa, rel=0.02)
+    assert admissible(x, 0.02 * G, GP)[0] and govern(x, 0.02 * G, GP).r_mps2 == 0.02 * G
+
+
 @pytest.mark.parametrize("vertex", ["adversary", "slow", "fast"])
 def test_prediction_settles_to_the_steady_state(vertex):
     peak, settled = predict_peak_torque(GovernorState(0.0, 0.0, 0.0, 0.0), 0.15 * G, GP, vertex)

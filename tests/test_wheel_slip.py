@@ -203,8 +203,8 @@ def test_rail_curve_governor_keeps_the_slip_below_its_scheduled_limit_on_its_des
     """60 km/h on extra-wet rail, the rail it is designed for: no car's slip above s̄(v) at any 10 ms
     sample, the WSP behind it never vents, and it brakes at no less than 70 % of the rail's peak; the
     torque margin 0.02 (the programme's) covers what seed 001's model of one wheelset leaves out in a train
-    (the couplers' push, the running resistance in the measured deceleration): at 0.005 the leading car
-    reaches 1.003 s̄(v)."""
+    and the BECU does not take off the measured deceleration (the couplers' push): at 0.005 the first two
+    cars reach 1.023 and 1.003 s̄(v)."""
     sc = _rail_governor(60.0, margin=0.02)
     report = run_scenario_lockstep(sc, tmp_path, interactive_report=False, plots=False)
     k = report.kpis["wheel_slip"]

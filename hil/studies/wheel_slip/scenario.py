@@ -32,6 +32,7 @@ from firmware_py.pi import PIParams
 from hil.scenario.base import Strict
 from hil.scenario.params import plant_params
 from plant_sim.adhesion import V_EPS_MPS, mu_slip_speed_scalar, mu_slip_speed_slope_scalar, mu_theta_scalar
+from plant_sim.dynamics import car_constants
 from plant_sim.params import RAIL_CONDITIONS, RAIL_PEAKS, AdhesionParams, PlantParams
 
 # the cone's slope bounds on seed 000's curves: f' sampled at this many slip speeds over [0, s̄] (the lower
@@ -167,5 +168,9 @@ def becu_governor_params(scenario: Scenario, pp: PlantParams, car: int, pi: PIPa
 def becu_params(scenario: Scenario, car: int, kw: dict) -> None:
     """The governor in each BECU (hil.scenario.params.becu_params): built on the BECU's deceleration PI."""
     if scenario.wheel_slip.governor:
+        pp = plant_params(scenario)
         build = becu_governor_params if scenario.plant.adhesion == "slip_speed" else becu_governor_schedule
-        kw["governor"] = build(scenario, plant_params(scenario), car, kw["decel_pi"])
+        kw["governor"] = build(scenario, pp, car, kw["decel_pi"])
+        if scenario.train.running_resistance:        # the car's Davis coefficients, as the plant's
+            cc = car_constants(pp.train)
+            kw["running_resistance"] = (cc.c0_N, cc.c1_Ns_per_m, cc.c2_Ns2_per_m2[car - 1])
