@@ -94,6 +94,7 @@ def test_cache_key_follows_scenario_and_dbc_content(tmp_path):
     dbc.write_text(dbc.read_text() + "\nCM_ \"edited\";\n")          # same path, other bytes: runs again
     assert point_key(p.scenario) != p.key
     assert point_key(p.scenario, version="0.0.0") != point_key(p.scenario)
+    assert point_key(p.scenario, code="another source") != point_key(p.scenario)
 
 
 @pytest.mark.parametrize("body, needles", [

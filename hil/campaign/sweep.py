@@ -55,10 +55,12 @@ from __future__ import annotations
 
 import csv
 import difflib
+import functools
 import hashlib
 import json
 import math
 import os
+import sys
 import time
 import zlib
 from collections.abc import Callable, Iterable, Iterator
@@ -240,12 +242,30 @@ def railhil_version() -> str:
         return "unknown"
 
 
-def point_key(scenario: Scenario, dbc_digest: str | None = None, version: str | None = None) -> str:
+@functools.cache
+def code_digest() -> str:
+    """SHA-256 (hex) of the Python source that makes a run (firmware_py, plant_sim, hil: every .py file's
+    path and bytes), so that a changed controller or plant invalidates a stored result even where the
+    package version stayed the same (a working copy between releases)."""
+    import firmware_py
+    import plant_sim
+
+    h = hashlib.sha256()
+    for pkg in (firmware_py, plant_sim, sys.modules["hil"]):
+        root = Path(pkg.__file__).resolve().parent
+        for f in sorted(root.rglob("*.py")):
+            h.update(f.relative_to(root.parent).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def point_key(scenario: Scenario, dbc_digest: str | None = None, version: str | None = None,
+              code: str | None = None) -> str:
     """SHA-256 (hex) of the scenario as canonical JSON, the DBC path replaced by the DBC's content hash,
-    and the railhil version."""
+    the railhil version and the digest of its source (`code_digest`)."""
     data = scenario.model_dump(mode="json")
     data["dbc"] = dbc_digest or _dbc_digest(scenario)
     data["railhil_version"] = version or railhil_version()
+    data["code"] = code or code_digest()
     text = json.dumps(data, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
