@@ -82,7 +82,7 @@ def governor_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple
     s_max = per_car(cols, "slip_speed_max_mps", n)[i1]
     out["max_slip_every_step_mps"] = [round(float(s), 5) for s in s_max]
     if scheduled:
-        share = np.max(per_car(cols, "slip_speed_mps", n)[idx] / _scheduled_limit(scenario, v[idx]), axis=0)
+        share = np.max(per_car(cols, "slip_speed_mps", n)[idx] / scheduled_limit(scenario, v[idx]), axis=0)
         out["slip_limit_share_max"] = [round(float(s), 4) for s in share]
         out["slip_within_limit"] = [bool(s <= 1.0) for s in share]
     else:
@@ -125,7 +125,7 @@ def governor_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple
     return out
 
 
-def _scheduled_limit(scenario: Scenario, v: np.ndarray) -> np.ndarray:
+def scheduled_limit(scenario: Scenario, v: np.ndarray) -> np.ndarray:
     """s̄(v) [m/s] of the governor on seed 000's rail curves, per sample and car."""
     from hil.scenario.params import plant_params
     from hil.studies.wheel_slip.scenario import design_slip_mps

@@ -8,7 +8,7 @@ import numpy as np
 
 from hil.report.kpis import RunView, per_car
 from hil.report.plots import pyplot, wsp_intervals
-from hil.studies.wheel_slip.kpis import G_MPS2
+from hil.studies.wheel_slip.kpis import G_MPS2, scheduled_limit
 
 
 def run_plots(run: RunView) -> list[Path]:
@@ -39,8 +39,12 @@ def run_plots(run: RunView) -> list[Path]:
     if ws.governor and "r" in sig and sig["r"][0].size:
         ax_d.step(sig["r"][0], sig["r"][1] / G_MPS2, where="post", color="tab:red", lw=1.0,
                   label="r (governed, car 1)")
-    ax_s.axhline(ws.slip_max_mps, color="tab:red", ls=":", lw=1.0,
-                 label=f"s̄ = {ws.slip_max_mps} m/s")
+    if scenario.plant.adhesion == "track":       # s̄ moves with the speed on seed 000's rail curves
+        ax_s.plot(t, scheduled_limit(scenario, cols["v_mps_1"]), color="tab:red", ls=":", lw=1.0,
+                  label=f"s̄(v) ({ws.design_condition}, car 1's speed)")
+    else:
+        ax_s.axhline(ws.slip_max_mps, color="tab:red", ls=":", lw=1.0,
+                     label=f"s̄ = {ws.slip_max_mps} m/s")
     wsp = per_car(cols, "wsp_valve", n) != 0
     for ax in axes:
         for a, b in wsp_intervals(t, np.any(wsp, axis=1)):
