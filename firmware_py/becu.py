@@ -63,6 +63,7 @@ from firmware_py.governor import (
     GovernorState,
     govern,
     play,
+    warm_up,
 )
 from firmware_py.limits import clip, finite_or
 from firmware_py.pi import PI, PIParams
@@ -649,6 +650,8 @@ class Becu:
         self.vent_s = 0.0             # WSP: time out of FILL without a break [s]
         self.wsp_tripped = False      # WSP: the vent-time watchdog holds the cylinder in FILL
         self.wsp_watchdog_trips = 0   # times the watchdog refilled a cylinder (diagnostic)
+        if self.p.governor is not None:
+            warm_up()                 # the governor's compiled prediction ready before the first cycle
         self.ceiling_Pa = math.inf    # slip-mode WSP: refill no higher than this [Pa] (slip_ceiling)
         self.fill_s = 0.0             # ... time in FILL since the last slide [s]
         # pressure transducer (issue #19)
