@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import math
 
+from numba.extending import register_jitable
 
+
+@register_jitable
 def clip(x: float, lo: float, hi: float) -> float:
     return lo if x < lo else hi if x > hi else x
 

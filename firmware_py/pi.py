@@ -42,7 +42,7 @@ def pi_step_scalar(kp: float, ki: float, out_min: float, out_max: float, i: floa
     prediction (firmware_py.governor)."""
     i_next = i if freeze else i + ki * error * dt_s
     unclipped = feedforward + kp * error + i_next
-    out = out_min if unclipped < out_min else out_max if unclipped > out_max else unclipped   # clip
+    out = clip(unclipped, out_min, out_max)
     # conditional anti-windup: keep the old integrator when it would push further into the limit
     winding_up = (unclipped > out_max and error > 0.0) or (unclipped < out_min and error < 0.0)
     return out, (i if winding_up else i_next), unclipped != out

@@ -131,7 +131,7 @@ def scheduled_limit(scenario: Scenario, v: np.ndarray) -> np.ndarray:
     from hil.studies.wheel_slip.scenario import design_slip_mps
 
     ws, ap = scenario.wheel_slip, plant_params(scenario).adhesion
-    return np.vectorize(lambda x: design_slip_mps(ws.design_condition, ws.slip_fraction, x, ap))(v)
+    return design_slip_mps(ws.design_condition, ws.slip_fraction, np.asarray(v, dtype=float), ap)
 
 
 def summary_lines(k: dict) -> list[str]:

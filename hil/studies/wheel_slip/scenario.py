@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Annotated, Literal
 
+import numpy as np
 from pydantic import Field
 
 from firmware_py.becu import BecuParams
@@ -105,17 +106,18 @@ def _brake_and_cycle(pp: PlantParams, pi: PIParams, margin: float) -> dict:
                 margin_frac=margin)
 
 
-def design_slip_mps(condition: str, fraction: float, v_mps: float, ap: AdhesionParams) -> float:
+def design_slip_mps(condition: str, fraction: float, v_mps, ap: AdhesionParams):
     """s̄(v) = fraction · σ°(θ, v) · max(v, V_EPS) [m/s]: a fraction of the design rail's peak slip speed at
-    v, σ° = σ̄°/k2(v) (eq. (2) seed 000; the slip ratio's regularisation of plant_sim.adhesion)."""
+    v, σ° = σ̄°/k2(v) (eq. (2) seed 000; the slip ratio's regularisation of plant_sim.adhesion).  v a
+    number or a numpy array."""
     k2 = 1.0 + ap.pi2_s_per_m * v_mps
-    return fraction * RAIL_PEAKS[condition][0] / k2 * max(v_mps, V_EPS_MPS)
+    return fraction * RAIL_PEAKS[condition][0] / k2 * np.maximum(v_mps, V_EPS_MPS)
 
 
 def _cone(condition: str, fraction: float, v_mps: float, ap: AdhesionParams) -> tuple[float, float]:
     """(μ at s̄, the smallest dμ/ds over [0, s̄] [1/(m/s)]) over the design rail and every more adherent
     rail of seed 000 at speed v: the lower edge of the cone of seed 001 Fig. 5."""
-    s_bar = design_slip_mps(condition, fraction, v_mps, ap)
+    s_bar = float(design_slip_mps(condition, fraction, v_mps, ap))
     scale = max(v_mps, V_EPS_MPS)                      # σ = s / max(v, V_EPS), seed 000 §2.1
     family = [RAIL_CONDITIONS[name] for name, (_, mu_pk) in RAIL_PEAKS.items()
               if mu_pk >= RAIL_PEAKS[condition][1]]
