@@ -903,11 +903,14 @@ class Becu:
         if self.speed_check.fault:                   # no wheel: the accelerometer alone, bias-corrected
             self.v_ref = max(self.v_ref + (accel - self.accel_check.bias_mps2) * dt_s, 0.0)
         else:                                        # the accelerometer less g·sin θ and its bias
-            seed_001 = p.wheel_trust_slip_mps <= 0.0     # seed 001's reference: the raw accelerometer,
-            car_accel = (accel_used - self.accel_check.bias_mps2     # lifted to the axle every cycle
+            # seed 001's reference: the raw accelerometer, lifted to the axle on each fresh reading only (a
+            # stale one is the wheel's past speed: lifted to it every cycle, the estimate stood still through
+            # a gap in the sensor frames, and WSP vented a rolling wheel when they came back, issue #19)
+            seed_001 = p.wheel_trust_slip_mps <= 0.0
+            car_accel = (accel_used - self.accel_check.bias_mps2
                          if not self.accel_check.fault and not seed_001 else accel_used)
             suspect = self.speed_check.stands or self.speed_check.frozen_s > 0.0
-            self.ref = reference_speed(self.ref, wheel_v, car_accel, dt_s, (fresh or seed_001) and ok1,
+            self.ref = reference_speed(self.ref, wheel_v, car_accel, dt_s, fresh and ok1,
                                        self.wsp == Wsp.FILL, pressure <= p.ref.torque_free_Pa,
                                        p.wheel_trust_slip_mps, p.ref, creep, suspect, spinning_up)
         if fresh and ok1 and ok3:

@@ -26,6 +26,7 @@ from firmware_py.bcu import Bcu, BcuParams, disagreement
 from firmware_py.becu import Becu, BecuParams, RefSpeed, RefSpeedParams, SensorCheckParams, reference_speed
 from hil.can.codec import loaded_dbc
 from hil.report.kpis import read_run_trace
+from hil.runtime.node import RxTable
 from hil.scenario import load_scenario, parse_scenario
 
 DEFAULT = ROOT / "scenarios" / "default.toml"
@@ -169,6 +170,29 @@ def test_the_accelerometer_reference_of_seed_001_runs_is_lifted_only():
     to a wheel that reads above it, never pulled down by one below."""
     est, _ = drive(np.array([10.0, 9.0, 9.0, 12.0, 11.0]), np.zeros(5), gate=0.0)
     assert est.tolist() == [10.0, 10.0, 10.0, 12.0, 12.0]
+
+
+def test_the_accelerometer_reference_runs_through_a_gap_in_the_sensor_frames():
+    """gate 0 (the rg_* scenarios): the bus is blocked for 2 s while the car decelerates at 1.76 m/s², so
+    no sensor frame arrives.  The estimate runs on the last acceleration, not lifted to the last (stale)
+    wheel reading every cycle: when the frames come back it is within 0.05 m/s of the car and WSP does
+    not vent the rolling wheel (lifted to the stale reading, it stood 3.5 m/s above the car and WSP vented
+    for the watchdog's 5 s: rg_low_adhesion's babbling cell of the threat matrix, issue #19)."""
+    becu = Becu(BecuParams(wheel_trust_slip_mps=0.0))
+    rx = RxTable(Becu.INPUTS)
+    names = [(n, n) for n in Becu.INPUTS]
+    a, v0, wsp = -1.76, 58.0, []
+    for k in range(400):
+        t_us, v = k * 10_000, v0 + a * k * DT
+        if not 100 <= k < 300:                                 # frames stop at 1 s and return at 3 s
+            rx.update(names, {"AxleSpeed": (v - 0.02) / 0.46, "CylPressure": 248e3 + 10.0 * (k % 2),
+                              "AccelLong": a, "TargetDecel": 1.76, "BCU_DEMAND.Mode": 1,
+                              "EmergencyActive": 0}, t_us)
+        out = becu.step(t_us, rx)
+        if k == 299:
+            assert abs(becu.v_ref - v) < 0.05, (becu.v_ref, v)
+        wsp.append(out["WspValve"])
+    assert max(wsp[300:]) == 0
 
 
 def test_the_becu_reference_speed_rides_through_the_realtime_slide():
