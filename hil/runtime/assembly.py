@@ -79,7 +79,8 @@ def build_foundation_node(name: str, scenario: Scenario, db: Database, codec: Co
     n = scenario.train.cars
     if name == "PLANT":
         plant = build_plant(scenario)
-        ctrl = PlantController(plant, n, db, dbc_name, balises=scenario.track.balises)
+        ctrl = PlantController(plant, n, db, dbc_name, balises=scenario.track.balises,
+                               failsafe_hold_s=scenario.plant.failsafe_hold_s)
         rx_msgs = [f"BECU{i}_PRESS_CMD" for i in range(1, n + 1)]
         tx_msgs = [f"PLANT_CAR{i}_SENSORS" for i in range(1, n + 1)] + (["PLANT_BTM"] if ctrl.btm else [])
         period, offset, inputs, outputs = plant.params.dt_us, PLANT_OFFSET_US, ctrl.inputs, ctrl.outputs

@@ -11,6 +11,7 @@ import numpy as np
 from cantools.database.can import Database
 
 from hil.errors import BindingError
+from plant_sim.brake import WSP_FILL, WSP_HOLD
 from plant_sim.plant import Plant, TruthSnapshot
 from plant_sim.sensors import quantise
 
@@ -111,6 +112,11 @@ def _message(db: Database, name: str, dbc_name: str):
 
 
 FAILSAFE_CYCLES = 3        # pressure-command cycles without a usable frame before the fail-safe applies
+# how long the actuators hold a car's cylinder where its last command left it before they fill it [s]: the
+# WSP safety timer's five seconds (firmware_py.becu.WspParams.max_vent_s, patent CA 2025196), the longest an
+# electronic fault may keep a cylinder below the demand before the brake applies regardless.  Scenario key
+# [plant] failsafe_hold_s; 0 fills at once
+FAILSAFE_HOLD_S = 5.0
 
 
 class BaliseReader:
@@ -150,13 +156,17 @@ class PlantController:
     """step(now_us, rx): sense (when the sensor frames are due), record truth, then integrate one step.
 
     The brake actuators of each car follow its BECU's last usable pressure command (frames the E2E
-    or SecOC check rejects never arrive here).  Loss of command is braking, as on a railway: when a
-    car that has been commanded gets no usable command for FAILSAFE_CYCLES command cycles, its
-    actuators apply the brake on their own — EP valve fully open to the reservoir, dump valve
-    closed, set-point p̄ — until commands come back (`failsafe_us` counts the time per car)."""
+    or SecOC check rejects never arrive here).  Loss of command is braking, as on a railway, within a
+    bound: when a car that has been commanded gets no usable command for FAILSAFE_CYCLES command cycles,
+    its actuators first hold the cylinder where the last command left it (EP valve closed, dump valve in
+    HOLD) for `failsafe_hold_s`, then apply the brake on their own — EP valve fully open to the
+    reservoir, dump valve closed, set-point p̄ — until commands come back.  The hold keeps a car whose
+    commands are lost for a moment (a blocked bus, a corrupted stream) off a locked wheel on low adhesion,
+    where a fill without WSP locks it within 1.5 s; a BECU that stays silent still brakes after the hold
+    (`failsafe_us`: time in the fail-safe per car, `failsafe_fill_us`: of which filling)."""
 
     def __init__(self, plant: Plant, n_cars: int, db: Database, dbc_name: str = "the DBC",
-                 balises: Sequence[float] = ()) -> None:
+                 balises: Sequence[float] = (), failsafe_hold_s: float = FAILSAFE_HOLD_S) -> None:
         self.plant = plant
         self.n = n_cars
         self.valve_keys = [f"BECU{i}_PRESS_CMD.ValveCmd" for i in range(1, n_cars + 1)]
@@ -175,7 +185,9 @@ class PlantController:
         self.sensor_period_us = int(cycle_ms) * 1000
         command_ms = _message(db, "BECU1_PRESS_CMD", dbc_name).cycle_time or 10
         self.failsafe_after_us = FAILSAFE_CYCLES * int(command_ms) * 1000
-        self.failsafe_us = np.zeros(n_cars, dtype=np.int64)   # time spent in fail-safe braking, per car
+        self.fill_after_us = self.failsafe_after_us + round(failsafe_hold_s * 1e6)   # held until then
+        self.failsafe_us = np.zeros(n_cars, dtype=np.int64)        # time in the fail-safe, per car [µs]
+        self.failsafe_fill_us = np.zeros(n_cars, dtype=np.int64)   # ... of which filling [µs]
         self._p_max = plant.params.brake.p_max_Pa
         self._last_us = None
         self.next_sense_us = 0
@@ -235,7 +247,7 @@ class PlantController:
             self._pset[:] = [ps if isfinite(ps) else 0.0 for ps in (latest[key] for key in self.set_keys)]
 
     def _failsafe(self, now_us: int, rx) -> None:
-        """Cars whose command went stale apply the brake (class docstring)."""
+        """Cars whose command went stale hold their cylinder, then apply the brake (class docstring)."""
         dt = 0 if self._last_us is None else now_us - self._last_us
         self._last_us = now_us
         if now_us <= self._quiet_until_us and rx is self._quiet_rx and rx.version == self._quiet_version:
@@ -246,10 +258,15 @@ class PlantController:
             if age is not None:               # stale once age > failsafe_after_us
                 quiet_until_us = min(quiet_until_us, now_us - age + self.failsafe_after_us)
             if age is not None and age > self.failsafe_after_us:
-                self._valve[k] = 1.0
-                self._wsp[k] = 0
-                if self.lag:
-                    self._pset[k] = self._p_max
+                if age > self.fill_after_us:     # held as long as allowed: the brake applies
+                    self._valve[k] = 1.0
+                    self._wsp[k] = WSP_FILL
+                    if self.lag:
+                        self._pset[k] = self._p_max
+                    self.failsafe_fill_us[k] += dt
+                else:                            # held where the last command left it
+                    self._valve[k] = 0.0
+                    self._wsp[k] = WSP_HOLD
                 self.failsafe_us[k] += dt
                 self._rx_version = -1          # recompute from rx as soon as commands return
         self._quiet_until_us, self._quiet_rx, self._quiet_version = quiet_until_us, rx, rx.version

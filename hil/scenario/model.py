@@ -232,6 +232,9 @@ class PlantSpec(_Strict):
     slip_peak_mps: Annotated[float, Field(gt=0, lt=10)] = 0.155     # ŝ: slip speed of the peak [m/s]
     # beyond the peak μ(s) never below slide_ratio × μ̂: a sliding wheel's friction (0 = seed 001's curve)
     slide_ratio: Annotated[float, Field(ge=0, lt=1)] = 0.0
+    # a car's actuators without a usable pressure command hold its cylinder this long, then fill it [s]
+    # (hil.runtime.plant_node.FAILSAFE_HOLD_S: the WSP safety timer's 5 s); 0 fills at once
+    failsafe_hold_s: Annotated[float, Field(ge=0, le=60)] = 5.0
     # "valve": EP valve driven by ValveCmd; "lag": cylinder follows CylPressureSet with Tp (eq. 4)
     pressure_model: Literal["valve", "lag"] = "valve"
     tp_s: Annotated[float, Field(gt=0, le=5)] = 0.05                # Tp [s], seed 001 §IV

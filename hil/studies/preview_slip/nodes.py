@@ -22,7 +22,7 @@ from firmware_py.slipctl import SlipBecu
 from hil.can.codec import Codec
 from hil.errors import ScenarioError
 from hil.runtime.node import Binding, Node
-from hil.runtime.plant_node import TRUTH_PERIOD_US, PlantController
+from hil.runtime.plant_node import FAILSAFE_HOLD_S, TRUTH_PERIOD_US, PlantController
 from hil.scenario import Scenario
 from hil.scenario.params import plant_params
 from hil.studies.preview_slip.scenario import (
@@ -108,8 +108,9 @@ class FullPlantController(PlantController):
     the train state (car 1's speed, acceleration, position) and each car's slip ratio, adhesion used and
     oracle σ̄° (PLANT_TRAIN, PLANT_CARi_ADH) for the slip controllers of full mode."""
 
-    def __init__(self, plant: Plant, n_cars: int, db: Database, dbc_name: str = "the DBC") -> None:
-        super().__init__(plant, n_cars, db, dbc_name)
+    def __init__(self, plant: Plant, n_cars: int, db: Database, dbc_name: str = "the DBC",
+                 failsafe_hold_s: float = FAILSAFE_HOLD_S) -> None:
+        super().__init__(plant, n_cars, db, dbc_name, failsafe_hold_s=failsafe_hold_s)
         self.outputs = tuple(self.outputs) + ("PLANT_TRAIN.Speed", "PLANT_TRAIN.Accel",
                                               "PLANT_TRAIN.HeadPos") + tuple(
             f"PLANT_CAR{i}_ADH.{s}" for i in range(1, n_cars + 1)
@@ -146,7 +147,7 @@ def build_full_node(name: str, scenario: Scenario, db: Database, codec: Codec, d
                           seed=scenario.seed)
         except PlantConfigError as exc:
             raise ScenarioError(f"full mode plant: {exc}") from None
-        ctrl = FullPlantController(plant, n, db, dbc_name)
+        ctrl = FullPlantController(plant, n, db, dbc_name, scenario.plant.failsafe_hold_s)
         rx_msgs = [f"BECU{i}_PRESS_CMD" for i in range(1, n + 1)]
         tx_msgs = ([f"PLANT_CAR{i}_SENSORS" for i in range(1, n + 1)] + ["PLANT_TRAIN"]
                    + [f"PLANT_CAR{i}_ADH" for i in range(1, n + 1)])
