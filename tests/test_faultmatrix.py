@@ -223,6 +223,20 @@ def test_cli_runs_cells_on_worker_processes_and_writes_markdown_and_json(capsys,
     assert (tmp_path / "out" / "matrix.md").read_text().startswith("# Threat matrix: stop_30kmh")
 
 
+def test_cli_window_sets_how_long_every_fault_acts(capsys, tmp_path):
+    """--window 0.5: BCU_DEMAND (10 ms) deleted for 0.5 s is 50 frames (200 in the default 2 s)."""
+    code, out, err = railhil(capsys, "faults", "matrix", "stop_30kmh", "--message", "BCU_DEMAND",
+                             "--threat", "deletion", "--window", "0.5", "--jobs", "1", "-q",
+                             "-o", tmp_path / "out")
+    assert code == 0, err
+    assert "over 0.5 s from 2 s after braking" in out
+    data = json.loads((tmp_path / "out" / "matrix.json").read_text())
+    assert data["window"]["length_s"] == 0.5
+    start, end = data["scenarios"][0]["fault_free"]["window_s"]
+    assert end - start == pytest.approx(0.5)
+    assert [(c["threat"], c["injected"], c["detected"]) for c in data["cells"]] == [("deletion", 50, True)]
+
+
 @pytest.mark.parametrize("args, needles", [
     ([], ["expected a SCENARIO", "--all"]),
     (["stop_30kmh", "--all"], ["--all and a SCENARIO"]),
@@ -230,6 +244,8 @@ def test_cli_runs_cells_on_worker_processes_and_writes_markdown_and_json(capsys,
     (["stop_30kmh", "--threat", "babble"], ["--threat 'babble'", "babbling"]),
     (["stop_30kmh", "--message", "BCU_DEMAN"], ["--message 'BCU_DEMAN'", "BCU_DEMAND"]),
     (["stop_30kmh", "--jobs", "0"], ["--jobs 0"]),
+    (["stop_30kmh", "--window", "0"], ["--window 0", "above 0"]),
+    (["stop_30kmh", "--window", "nan"], ["--window nan"]),
     (["no_such_scenario"], ["no_such_scenario"]),
     (["stop_30kmh", "--dask", "tcp://127.0.0.1:9", "--dask-timeout", "1"], ["--dask tcp://127.0.0.1:9"]),
 ])

@@ -26,6 +26,7 @@ from hil.errors import RailhilError
 ALL_SCENARIOS = ("default", "stop_30kmh", "precise_stop", "decel_feedback", "rg_low_adhesion",
                  "acd_anticollision", "consensus_case1")
 PRINT_ALL_CELLS = 150     # print every cell when there are at most this many, else the failed ones
+MAX_WINDOW_S = 60.0       # the longest --window [s]
 
 
 class FaultsArgError(RailhilError, ValueError):
@@ -34,7 +35,7 @@ class FaultsArgError(RailhilError, ValueError):
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     from hil.campaign.jobs import add_executor_options
-    from hil.safety.threat_matrix import THREATS
+    from hil.safety.threat_matrix import THREATS, WINDOW_S, WINDOW_START_S
 
     p = sub.add_parser(
         "faults",
@@ -69,6 +70,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                         "scenario sends and receives)")
     m.add_argument("--threat", action="append", default=[], metavar="KIND",
                    help=f"only this threat; repeatable (default: all nine: {', '.join(THREATS)})")
+    m.add_argument("--window", type=float, default=WINDOW_S, metavar="S",
+                   help=f"how long every fault acts [s], from {WINDOW_START_S:g} s after braking is "
+                        f"established (default {WINDOW_S:g}; longer shows what a loss outlasting a "
+                        f"fail-safe hold does; at most {MAX_WINDOW_S:g})")
     add_executor_options(m, "cells", os.cpu_count() or 1)
     m.add_argument("-o", "--out", type=Path, default=None, metavar="DIR",
                    help="folder for matrix.md and matrix.json (default runs/<scenario>-faults-<date>, "
@@ -113,8 +118,11 @@ def matrix(args: argparse.Namespace) -> int:
         if bad:
             raise FaultsArgError(f"--message {bad[0]!r}: not a protected frame this scenario sends and "
                                  f"receives; those are {', '.join(available) or 'none'}")
+    if not 0.0 < args.window <= MAX_WINDOW_S:       # also NaN
+        raise FaultsArgError(f"--window {args.window:g}: expected a duration in seconds, above 0 and at "
+                             f"most {MAX_WINDOW_S:g}")
     threats = args.threat or list(THREATS)
-    planned = plan(scenarios, threats, args.message or None)
+    planned = plan(scenarios, threats, args.message or None, args.window)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     default = f"faults-matrix-all-{stamp}" if args.all else f"{scenarios[0][1].name}-faults-{stamp}"
     out = check_out_dir(args.out or Path("runs") / default)

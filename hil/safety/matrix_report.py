@@ -118,6 +118,11 @@ def _cell_row(c: Cell, family: str) -> list[str]:
             "YES" if c.unsafe else "no"]
 
 
+def _window_s(matrices: list[ScenarioMatrix]) -> float:
+    """How long every fault acted (the same in every scenario of one matrix)."""
+    return matrices[0].window_s if matrices else WINDOW_S
+
+
 def _head(matrices: list[ScenarioMatrix]) -> list[str]:
     t = totals(_cells(matrices))
     rows = [_row(mx) for mx in matrices]
@@ -126,9 +131,10 @@ def _head(matrices: list[ScenarioMatrix]) -> list[str]:
     names = ", ".join(mx.name for mx in matrices)
     return [f"# Threat matrix: {names}", "",
             f"Every EN 50159 threat on every protected frame, a babbling node and each sender bus-off, "
-            f"over {WINDOW_S:g} s from {WINDOW_START_S:g} s after braking is established; definitions and "
-            f"criteria in hil/safety/threat_matrix.py. Bounds: 100 % of cells detected by every receiver "
-            f"within {DETECT_CYCLES} cycles, 0 unsafe, 0 brake releases, 0 target moves, 0 errors.", "",
+            f"over {_window_s(matrices):g} s from {WINDOW_START_S:g} s after braking is established; "
+            f"definitions and criteria in hil/safety/threat_matrix.py. Bounds: 100 % of cells detected by "
+            f"every receiver within {DETECT_CYCLES} cycles, 0 unsafe, 0 brake releases, 0 target moves, "
+            f"0 errors.", "",
             *_table(HEAD_COLUMNS, rows),
             "", verdict(matrices)]
 
@@ -162,7 +168,7 @@ def as_json(matrices: list[ScenarioMatrix]) -> dict:
                 "window_s": [round(w, 6) for w in b.window]},
         })
     return {"bounds": {**BOUNDS, "detect_cycles": DETECT_CYCLES},
-            "window": {"start_after_brake_s": WINDOW_START_S, "length_s": WINDOW_S},
+            "window": {"start_after_brake_s": WINDOW_START_S, "length_s": _window_s(matrices)},
             "verdict": {"passed": t.passed, "line": verdict(matrices), **vars(t)},
             "scenarios": scenarios, "cells": as_rows(_cells(matrices))}
 

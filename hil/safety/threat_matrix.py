@@ -16,7 +16,8 @@ receives (`protected_frames`: derived from the DBC and the node bindings).  The 
 
 A scenario without a protected frame has no cell; the table says so and why (`no_cells_reason`).
 
-Window.  Every fault acts over [t_brake + WINDOW_START_S, + WINDOW_S) with probability 1, where
+Window.  Every fault acts over [t_brake + WINDOW_START_S, + WINDOW_S) with probability 1 (`window_s`
+of `plan` and `run_baseline`, the CLI's --window, makes it longer or shorter), where
 t_brake is the time braking is established in the fault-free run: its first BCU_DEMAND frame with
 TargetDecel > 0 (the BCU's demand, whether the driver, precise stopping or the ACD asked for it; the
 desk's first brake command where the scenario has no BCU_DEMAND).  Delay and repetition shift by
@@ -344,9 +345,10 @@ def _pressures(cols: dict, cars: int) -> np.ndarray:
     return np.column_stack([cols[f"p_Pa_{i}"] for i in range(1, cars + 1)])
 
 
-def run_baseline(scenario: Scenario) -> Baseline:
-    """The fault-free run: its measures, t_brake, the window and the pressures in it; a scenario whose
-    family needs a stop and that does not stop runs again with its horizon HORIZON_FACTOR times longer."""
+def run_baseline(scenario: Scenario, window_s: float = WINDOW_S) -> Baseline:
+    """The fault-free run: its measures, t_brake, the window (`window_s` long) and the pressures in it; a
+    scenario whose family needs a stop and that does not stop runs again with its horizon HORIZON_FACTOR
+    times longer."""
     from hil.runtime.lockstep import run_lockstep
 
     t0 = time.perf_counter()
@@ -364,7 +366,7 @@ def run_baseline(scenario: Scenario) -> Baseline:
             break
         scenario = parse_scenario({**scenario.model_dump(),
                                    "max_duration_s": scenario.max_duration_s * HORIZON_FACTOR}, scenario.name)
-    window = (t_brake + WINDOW_START_S, t_brake + WINDOW_START_S + WINDOW_S)
+    window = (t_brake + WINDOW_START_S, t_brake + WINDOW_START_S + window_s)
     t = cols["t_s"]
     inside = (t >= window[0] - 0.05) & (t < window[1] + 0.05)
     return Baseline(scenario.name, family, scenario.max_duration_s, t_brake, window, m0, t[inside],
@@ -547,10 +549,10 @@ def _round(x: float | None, nd: int = 4) -> float | None:
 
 
 # ------------------------------------------------------------------------------------- the campaign
-def baseline_job(scenario_json: str) -> Baseline | str:
+def baseline_job(scenario_json: str, window_s: float = WINDOW_S) -> Baseline | str:
     """A worker's job: the fault-free run, or its error as one line (never raises)."""
     try:
-        return run_baseline(Scenario.model_validate_json(scenario_json))
+        return run_baseline(Scenario.model_validate_json(scenario_json), window_s)
     except Exception as exc:
         return f"{type(exc).__name__}: {' '.join(str(exc).split())}"
 
@@ -582,18 +584,21 @@ class ScenarioMatrix:
     baseline: Baseline | None = None
     cells: list[Cell] = field(default_factory=list)
     reason: str = ""                     # no cells (no protected frame), or the fault-free run's error
+    window_s: float = WINDOW_S           # how long every fault of it acts [s]
 
 
 def plan(scenarios: Sequence[tuple[str, Scenario]], threats: Iterable[str] = THREATS,
-         messages: Iterable[str] | None = None) -> list[ScenarioMatrix]:
-    """The cells of every scenario (`(source, scenario)` pairs), nothing run yet."""
+         messages: Iterable[str] | None = None, window_s: float = WINDOW_S) -> list[ScenarioMatrix]:
+    """The cells of every scenario (`(source, scenario)` pairs), each fault acting `window_s`, nothing
+    run yet."""
     out = []
     for source, scenario in scenarios:
         db, _ = loaded_dbc(scenario.dbc)
         frames = protected_frames(scenario, db)
         specs = cells_of(scenario, db, threats, messages, frames)
         reason = "" if frames else no_cells_reason(scenario, db)
-        out.append(ScenarioMatrix(scenario.name, source, family_of(scenario), specs, frames, reason=reason))
+        out.append(ScenarioMatrix(scenario.name, source, family_of(scenario), specs, frames, reason=reason,
+                                  window_s=window_s))
     return out
 
 
@@ -607,7 +612,7 @@ def run_matrices(scenarios: Sequence[tuple[str, Scenario]], executor: Executor |
 
     matrices = planned if planned is not None else plan(scenarios, threats, messages)
     by_name = {s.name: s for _, s in scenarios}
-    jobs = [(by_name[mx.name].model_dump_json(),) for mx in matrices]
+    jobs = [(by_name[mx.name].model_dump_json(), mx.window_s) for mx in matrices]
     count = {"fault-free": 0, "cells": 0}
 
     def tick(phase: str, total: int) -> Callable[[object], None]:
