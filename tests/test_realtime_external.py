@@ -22,6 +22,7 @@ from test_realtime import excused_unless_realtime_held, kill_all, wait_for_frame
 pytestmark = pytest.mark.realtime
 
 EXAMPLE = ROOT / "examples" / "external_becu" / "becu.py"
+HOLD_S = 0.5      # [plant] failsafe_hold_s of the kill test: the actuators hold, then fill, within its 4 s
 
 
 def own_bus() -> list[str]:
@@ -97,13 +98,15 @@ def test_an_external_becu_written_without_railhil_brakes_car_3(tmp_path, realtim
 def test_a_killed_external_becu_is_reported_silent_and_its_car_brakes_fail_safe(tmp_path):
     """kill -9 of the external BECU3 1.6 s into the run (braking established): the BCU reports car 3
     silent within 3 of BECU3_STATUS's 50 ms cycles (and its own 100 ms status cycle), and the plant's
-    actuator of car 3 applies the brake on its own (fail-safe: the cylinder fills towards the reservoir)."""
+    actuator of car 3 acts on its own (fail-safe, with `[plant] failsafe_hold_s` = 0.5 s here): it holds
+    the cylinder, then applies the brake (the cylinder fills towards the reservoir)."""
     for attempt in range(ATTEMPTS):
         out = tmp_path / f"run{attempt}"
         bus = own_bus()
         becu = start_external_becu(bus)
         try:
-            run = run_with_external(out, bus, "--set", "max_duration_s=4.0")
+            run = run_with_external(out, bus, "--set", "max_duration_s=4.0",
+                                    "--set", f"plant.failsafe_hold_s={HOLD_S}")
             _, line = wait_for_start(run)
             assert wait_for_frames(line, 500, until_s=0.3 + 1.6) >= 500
             os.kill(becu.pid, signal.SIGKILL)
@@ -126,5 +129,7 @@ def test_a_killed_external_becu_is_reported_silent_and_its_car_brakes_fail_safe(
     cols = np.genfromtxt(out / "truth.csv", delimiter=",", names=True)
     t, p3 = cols["t_s"], cols["p_Pa_3"]
     before = np.median(p3[(t > last - 0.3) & (t < last)])
-    after = p3[t > last + 0.5]
-    assert after.size and np.median(after) > before + 40e3, (before, after[::10])   # filled on its own
+    held = p3[(t > last + 0.15) & (t < last + HOLD_S - 0.05)]     # stale after 30 ms, filled after the hold
+    assert held.size and np.ptp(held) < 1e3, held[::5]                                # held ...
+    after = p3[t > last + HOLD_S + 0.5]
+    assert after.size and np.median(after) > np.median(held) + 40e3, (before, after[::10])   # then filled
