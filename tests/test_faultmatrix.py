@@ -269,6 +269,7 @@ def test_cli_runs_cells_on_a_dask_local_cluster(capsys, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(4800)   # 571 cells on two workers: 715-1,662 s on the 2-core VM (CI stops at 90 min)
 def test_every_cell_of_every_scenario_family_is_detected_and_safe(capsys, tmp_path):
     """`railhil faults matrix --all --jobs 2`: issue #19's acceptance."""
     code, out, err = railhil(capsys, "faults", "matrix", "--all", "--jobs", "2", "-q", "-o", tmp_path)
