@@ -13,7 +13,9 @@ the cycle. Each cycle's release lateness (now − deadline) is recorded (`CycleT
 CATCH_UP_CYCLES periods behind skips to its next slot and counts the cycles skipped.
 
 Receiving. A host does not wake for each frame: frames wait in the socket (its receive buffer enlarged)
-until the host wakes for its next deadline, then each is decoded once and handed to the hosted nodes
+until the host wakes for its next deadline, then they are taken (hil.can.frame_io: on udp_multicast
+without a select or a can.Message per frame, python-can's wire format either way; frames are sent the
+same way), and each is decoded once and handed to the hosted nodes
 that receive it (`Delivery`, as the lockstep bus does), stamped with its reception time — the kernel's
 timestamp that python-can gives the message, where that is a plausible time of this run, else the time
 it was taken from the socket.
@@ -40,6 +42,7 @@ import can
 import numpy as np
 
 from hil.can.codec import FrameError
+from hil.can.frame_io import FrameIO
 
 CATCH_UP_CYCLES = 5            # a node at most this many periods late catches up instead of skipping
 PLANT_CATCH_UP_US = 50_000     # the plant further behind than this rebases its schedule (slips) [µs]
@@ -254,6 +257,9 @@ class Host:
         self.nodes, self.releases, self.bus = nodes, releases, bus
         self.t0_ns, self.speed, self.margin_ns = t0_ns, speed, margin_ns
         self.epoch_t0 = time.time() + (t0_ns - time.monotonic_ns()) / 1e9   # t0 on the wall clock [s]
+        self._scale = 1e6 * speed                  # bus seconds to µs of simulated time
+        self.io = FrameIO(bus)
+        self._now_us: int | None = None            # now, once per drain
         self.plant = next((k for k, n in enumerate(nodes) if n.name == "PLANT"), None)
         batched = frozenset({"PLANT"}) if self.plant is not None and plant_wake == "frames" else frozenset()
         self.delivery = Delivery(nodes, codec, batched)
@@ -281,23 +287,21 @@ class Host:
 
     def _drain(self) -> None:
         """Every frame the socket holds, delivered with its reception time."""
-        recv, deliver = self.bus.recv, self.delivery.receive
-        now_us = None
-        epoch_t0, scale = self.epoch_t0, 1e6 * self.speed
-        while True:
-            msg = recv(0.0)
-            if msg is None:
-                return
-            if msg.is_error_frame or msg.is_remote_frame:
-                continue
-            if now_us is None:
-                now_us = self.now_us()
-            t_us = int((msg.timestamp - epoch_t0) * scale)
-            if not (now_us - TIMESTAMP_TRUST_US < t_us <= now_us + 1000):   # not this run's clock
-                t_us = now_us
-                self.timestamps_untrusted += 1
-            self.frames_received += 1
-            deliver(msg.arbitration_id, bytes(msg.data), t_us)
+        self._now_us = None
+        self.io.take(self._on_frame)
+
+    def _on_frame(self, timestamp: float, frame_id: int, _extended: bool, data: bytes, msg) -> None:
+        if msg is not None and (msg.is_error_frame or msg.is_remote_frame):
+            return
+        now_us = self._now_us
+        if now_us is None:
+            now_us = self._now_us = self.now_us()
+        t_us = int((timestamp - self.epoch_t0) * self._scale)
+        if not (now_us - TIMESTAMP_TRUST_US < t_us <= now_us + 1000):   # not this run's clock
+            t_us = now_us
+            self.timestamps_untrusted += 1
+        self.frames_received += 1
+        self.delivery.receive(frame_id, data, t_us)
 
     def _wait(self, deadline_ns: int) -> int:
         """Collect garbage if there is time, sleep until the frames can be taken before the deadline, take
@@ -325,12 +329,10 @@ class Host:
         self._drain()                  # what arrived meanwhile: usually nothing (one empty poll)
         return t
 
-    def _send(self, node, frames, bus_send=None) -> None:
-        send = bus_send or self.bus.send
-        sent = self.delivery.sent
+    def _send(self, node, frames) -> None:
+        send, sent = self.io.send, self.delivery.sent
         for fc, data in frames:
-            send(can.Message(arbitration_id=fc.frame_id, is_extended_id=fc.is_extended_id, data=data,
-                             check=False))
+            send(fc.frame_id, fc.is_extended_id, data)
             sent(node, fc.frame_id, data, self.now_us())
 
     # -- the loop ----------------------------------------------------------------------------------

@@ -48,6 +48,7 @@ from pathlib import Path
 
 import can
 
+from hil.can.frame_io import FrameIO
 from hil.errors import BusError, NodeDied, RailhilError, ScenarioError
 from hil.runtime.gctune import LOOP_THRESHOLDS
 from hil.runtime.host import orphaned
@@ -281,7 +282,9 @@ def _host_process(host: str, names: tuple[str, ...], scenario_json: str, dbc_pat
 
 def _recorder_process(trace_path: str, cfg: dict, go, stop, results) -> None:
     """Every frame of the bus into the trace (python-can's writer for the suffix), taken from the socket
-    every RECORDER_BATCH_S (its receive buffer enlarged), so that the recorder does not wake for each."""
+    every RECORDER_BATCH_S (its receive buffer enlarged), so that the recorder does not wake for each;
+    plain data frames taken without a can.Message (hil.can.frame_io) go to the BLF writer's write_frame,
+    which writes the bytes python-can's writer would."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     bus = None
     try:
@@ -293,15 +296,23 @@ def _recorder_process(trace_path: str, cfg: dict, go, stop, results) -> None:
         frames = 0
         lost_runner = False
         next_check = time.monotonic() + PARENT_CHECK_S
-        recv = bus.recv
+        io = FrameIO(bus)
+        write_frame = getattr(writer, "write_frame", None)     # the BLF writer's, without a Message
+
+        def record(timestamp: float, frame_id: int, extended: bool, data: bytes, msg) -> None:
+            if msg is None and write_frame is not None:
+                write_frame(timestamp, frame_id, extended, data)
+            else:
+                writer.on_message_received(msg if msg is not None else can.Message(
+                    timestamp=timestamp, arbitration_id=frame_id, is_extended_id=extended, data=data,
+                    check=False))
+
         try:
             while True:
                 stopping = stop.wait(RECORDER_BATCH_S)
                 if stopping:
                     time.sleep(0.2)              # let in-flight frames of the last cycle arrive
-                while (msg := recv(0.0)) is not None:
-                    writer.on_message_received(msg)
-                    frames += 1
+                frames += io.take(record)
                 if stopping:
                     break
                 if time.monotonic() > next_check:
