@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 from cantools.database.can import Database
@@ -123,17 +123,17 @@ def _values_to_try(db: Database, message: str, signal: str) -> list[float]:
     return [float(lo), float(lo + 0.37 * (hi - lo)), float(hi)]
 
 
-def _replay(build, recording: Recording, key: str | None, value: float) -> list[dict[str, float]]:
+def _replay(build, recording: Recording, key: str | None, value: float) -> Iterator[dict[str, float]]:
+    """The outputs of a fresh controller fed the recording, cycle by cycle, with `key` forced to `value`
+    (None: as recorded)."""
     ctrl = build()
-    outs = []
     for now_us, snap in recording.rx_cycles:
         rx = _snapshot(snap)
         if key is not None:
             rx._values[key] = value
             rx._times[key] = now_us
         rx.version = getattr(rx, "version", 0) + 1
-        outs.append(dict(ctrl.step(now_us, rx)))
-    return outs
+        yield dict(ctrl.step(now_us, rx))
 
 
 def _differs(a: float, b: float) -> bool:
@@ -147,7 +147,8 @@ def _differs(a: float, b: float) -> bool:
 
 def influence(scenario, db: Database, recordings: dict[str, Recording], bindings: dict,
               nodes: Iterable[str] | None = None) -> dict[str, dict[str, set[str]]]:
-    """Per node, per input key fed from a frame: the output keys that perturbing it changes."""
+    """Per node, per input key fed from a frame: the output keys it sends on the bus that perturbing the
+    input changes."""
     from hil.runtime.assembly import build_node
 
     codec = Codec(db)
@@ -156,20 +157,31 @@ def influence(scenario, db: Database, recordings: dict[str, Recording], bindings
         rec = recordings[name]
         def build(name=name):
             return build_node(name, scenario, db, codec).controller
-        nominal = _replay(build, rec, None, 0.0)
+        nominal = list(_replay(build, rec, None, 0.0))
         if any(_differs(a.get(k), b.get(k)) for a, b in zip(nominal, rec.outputs, strict=True) for k in b):
             raise RuntimeError(f"node {name}: a replay of its recorded inputs does not give back its "
                                "recorded outputs (its controller keeps state outside step()); it cannot be "
                                "analysed")
-        rx_map, _ = bindings[name]
+        rx_map, tx = bindings[name]
+        # only the outputs that go out on the bus reach the plant or another node: the others are not
+        # compared, and a replay stops once every one of them has changed (nothing more can be learnt)
+        sent = {key for _, fields in tx for _, key in fields}
         per: dict[str, set[str]] = {}
         for fid, pairs in rx_map.items():
             msg = db.get_message_by_frame_id(fid)
             for signal, key in pairs:
                 changed: set[str] = set()
                 for value in _values_to_try(db, msg.name, signal):
+                    still = [k for k in sent if k not in changed]
                     for a, b in zip(_replay(build, rec, key, value), nominal, strict=True):
-                        changed |= {k for k in b if _differs(a.get(k), b[k])}
+                        hit = [k for k in still if a.get(k) != b.get(k) and _differs(a.get(k), b.get(k))]
+                        if hit:
+                            changed.update(hit)
+                            still = [k for k in still if k not in changed]
+                            if not still:
+                                break
+                    if not still:
+                        break
                 per[key] = changed
         result[name] = per
     return result
