@@ -22,17 +22,18 @@ run: $(STAMP)
 ## make test: ruff (as make lint: a lint error fails the build), then the test suite (excludes tests marked
 ## slow): the lockstep and unit tests on TEST_JOBS pytest-xdist workers (default: one per core), then the
 ## real-time tests alone, one at a time, so that their node processes do not compete with other tests for
-## the CPUs
+## the CPUs. Under 15 minutes on a 2-core machine: what takes longer is marked slow
+## (worksteal: an idle worker takes queued tests from the busy one, so that no long test ends the run alone)
 TEST_JOBS ?= auto
 LINT_PATHS = firmware_py plant_sim hil tests bench dbc examples
 test: $(STAMP)
 	$(VENV)/bin/ruff check $(LINT_PATHS)
-	$(PY) -m pytest -q -rs -n $(TEST_JOBS) -m "not slow and not realtime"
+	$(PY) -m pytest -q -rs -n $(TEST_JOBS) --dist worksteal -m "not slow and not realtime"
 	$(PY) -m pytest -q -rs -m "realtime and not slow"
 
 ## make test-slow: the long suites too
 test-slow: $(STAMP)
-	$(PY) -m pytest -q -rs -n $(TEST_JOBS) -m "not realtime"
+	$(PY) -m pytest -q -rs -n $(TEST_JOBS) --dist worksteal -m "not realtime"
 	$(PY) -m pytest -q -rs -m realtime
 
 ## make fuzz: 10^6 fuzzed frames through decode + SecOC + E2E, twice: the protocol layers alone and the

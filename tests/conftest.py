@@ -37,8 +37,8 @@ def realtime_held(out) -> bool:
 
 @pytest.fixture(scope="session")
 def realtime_run(tmp_path_factory):
-    """The default scenario in real time, every node simulated (out folder, stdout); run again (once) if
-    it did not hold real time."""
+    """The default scenario in real time, every node simulated, hosted as configured by default (grouped):
+    (out folder, stdout, stderr); run again (once) if it did not hold real time."""
     for _ in range(ATTEMPTS):
         out = tmp_path_factory.mktemp("default-realtime")
         proc = subprocess.run([sys.executable, "-m", "hil", "run", str(DEFAULT), "--realtime", "--out",
@@ -46,7 +46,7 @@ def realtime_run(tmp_path_factory):
         assert proc.returncode == 0, proc.stderr
         if realtime_held(out):
             break
-    return out, proc.stdout
+    return out, proc.stdout, proc.stderr
 
 
 def railhil(capsys, *args) -> tuple[int, str, str]:

@@ -61,6 +61,7 @@ def run_with_external(tmp_path, bus: list[str], *extra: str) -> subprocess.Popen
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
 
 
+@pytest.mark.slow         # a whole real-time run of the default scenario beside realtime_run's: over a minute
 def test_an_external_becu_written_without_railhil_brakes_car_3(tmp_path, realtime_run):
     """The default scenario with that program as BECU3: the train stops within 2 % of the all-simulated
     real-time run, BECU3's frames get PASS timing verdicts and the receivers take them (no E2E or SecOC

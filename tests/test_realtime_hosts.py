@@ -52,6 +52,7 @@ def two_hosts():
         ip("netns", "del", b)
 
 
+@pytest.mark.slow         # a whole real-time run of the default scenario beside realtime_run's: over a minute
 def test_plant_and_ecus_on_two_hosts_give_the_same_verdicts(tmp_path, two_hosts, realtime_run):
     a, b = two_hosts
     bus = ["-i", "udp_multicast", "-c", "239.255.199.7", "--bus-kwargs", "port=43199"]
