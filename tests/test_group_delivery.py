@@ -71,3 +71,18 @@ def test_the_plant_woken_on_its_frames_gets_each_command_before_the_step_its_rec
     assert len(plant.got) == 2
     group.replay(plant, 13_000, offset_us=1_000)
     assert [g[2] for g in plant.got] == [3_200, 4_000, 12_300]
+
+
+
+def test_a_host_whose_bus_drops_its_own_frames_keeps_no_echo_memory():
+    """echoes=False (the host's FrameIO drops its own frames at the socket): nothing to recognise, so a
+    frame from another sender with the bytes of one sent here is delivered, not taken for an echo."""
+    codec = Codec(load_dbc())
+    demand = codec.by_name("BCU_DEMAND")
+    data = demand.encode({"TargetDecel": 0.8})
+    bcu, becu1 = FakeNode("BCU", set()), FakeNode("BECU1", {demand.frame_id})
+    group = Delivery([bcu, becu1], codec, echoes=False)
+    group.sent(bcu, demand.frame_id, data, 100)
+    assert not group._echo and [g[2] for g in becu1.got] == [100]
+    group.receive(demand.frame_id, data, 150)
+    assert [g[2] for g in becu1.got] == [100, 150] and group.received == 1

@@ -73,14 +73,16 @@ def orphaned() -> bool:
 class Delivery:
     """The frames a host receives, each decoded once and handed to the hosted nodes that take it.  Its
     own nodes' frames are handed over as they are sent (`sent`), since not every bus returns a socket's own
-    frames (SocketCAN does not, udp_multicast on one host does); one that does comes back, is recognised
-    among the last ECHO_DEPTH frames sent with its id, and is not delivered twice.  A node in `batched`
+    frames (SocketCAN does not; udp_multicast on one host does, unless the host's FrameIO drops them); one
+    that does comes back, is recognised among the last ECHO_DEPTH frames sent with its id, and is not
+    delivered twice.  A node in `batched`
     gets its frames later, in time order, from `replay` (the plant woken on its frames).  The nodes'
     counts are what one process per node would count: a frame the DBC does not define is unknown to every
     node, a malformed one bad for each node that takes its id."""
 
-    def __init__(self, nodes: list, codec, batched: frozenset = frozenset()) -> None:
+    def __init__(self, nodes: list, codec, batched: frozenset = frozenset(), echoes: bool = True) -> None:
         self.nodes = nodes
+        self.echoes = echoes             # the bus returns this host's own frames (False: it drops them)
         self.codec = codec
         self.subscribers: dict[int, list] = {}
         for node in nodes:
@@ -93,16 +95,17 @@ class Delivery:
 
     def sent(self, node, frame_id: int, data: bytes, t_us: int) -> None:
         """A hosted node sent this frame: the other hosted nodes get it now."""
-        recent = self._echo.setdefault(frame_id, [])
-        recent.append(data)
-        if len(recent) > ECHO_DEPTH:
-            del recent[0]
+        if self.echoes:
+            recent = self._echo.setdefault(frame_id, [])
+            recent.append(data)
+            if len(recent) > ECHO_DEPTH:
+                del recent[0]
         if frame_id in self.subscribers:
             self._deliver(frame_id, data, t_us, node)
 
     def receive(self, frame_id: int, data: bytes, t_us: int) -> None:
         """A frame from the bus."""
-        recent = self._echo.get(frame_id)
+        recent = self._echo.get(frame_id) if self.echoes else None
         if recent and data in recent:                # the bus returned a frame sent from here
             recent.remove(data)
             return
@@ -258,11 +261,11 @@ class Host:
         self.t0_ns, self.speed, self.margin_ns = t0_ns, speed, margin_ns
         self.epoch_t0 = time.time() + (t0_ns - time.monotonic_ns()) / 1e9   # t0 on the wall clock [s]
         self._scale = 1e6 * speed                  # bus seconds to µs of simulated time
-        self.io = FrameIO(bus)
+        self.io = FrameIO(bus, drop_own=True)     # udp_multicast on Linux: its own frames do not come back
         self._now_us: int | None = None            # now, once per drain
         self.plant = next((k for k, n in enumerate(nodes) if n.name == "PLANT"), None)
         batched = frozenset({"PLANT"}) if self.plant is not None and plant_wake == "frames" else frozenset()
-        self.delivery = Delivery(nodes, codec, batched)
+        self.delivery = Delivery(nodes, codec, batched, echoes=not self.io.own_dropped)
         self.batched = bool(batched)
         # a node is judged in its cycles; the plant woken on its frames in its wakes (MAX_BATCH_US apart:
         # its 1 ms steps are computed at each, on time by construction, and its frames leave at them)
@@ -342,6 +345,7 @@ class Host:
             self._loop(stop)
         finally:
             gc.enable()
+            self.io.close()
 
     def _plant_wake_ns(self, node, slot_ns: int) -> int:
         """When to wake the plant whose next step is `slot_ns` [ns, its own clock]: at that step, or, woken
