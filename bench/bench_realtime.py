@@ -210,7 +210,7 @@ def _rows(m: dict, hosting: str) -> list[tuple[str, str]]:
     if m.get("host_cpu_s"):
         by = m["host_cpu_s"]
         hosts = ", ".join(f"{h} {c:.1f}" for h, c in sorted(by.items(), key=lambda kv: -kv[1]))
-        rows.append(("  CPU s by process (the rest: the runner's startup and report, the probes)",
+        rows.append(("  CPU s by process (the rest: the runner's start-up, waits and report)",
                      f"{hosts}; rest {m['cpu_s'] - sum(by.values()):.1f}"))
     return rows
 

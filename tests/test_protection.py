@@ -78,11 +78,12 @@ def test_the_studies_residual_is_exactly_the_known_one(family):
 
 
 def test_a_brake_demand_without_protection_fails_the_check():
-    """The same DBC, but BCU_DEMAND without its E2E and SecOC attributes: the analysis names its target."""
+    """The same DBC, but BCU_DEMAND without its E2E and SecOC attributes: the analysis names its target (on
+    stop_30kmh, the default train's shortest run)."""
     text = DEFAULT_DBC.read_text()
     stripped = re.sub(r'^BA_ "(E2EProfile|E2EDataID|SecOCDataID)" BO_ 40 \d+;\n', "", text, flags=re.M)
     assert stripped.count("\n") == text.count("\n") - 3
     db = cantools.database.load_string(stripped, database_format="dbc")
-    bare = unprotected(analyse(load_scenario(SCENARIOS / "default.toml"), db))
+    bare = unprotected(analyse(load_scenario(SCENARIOS / "stop_30kmh.toml"), db))
     assert ("BCU_DEMAND", "TargetDecel") in _names(bare)
     assert {x.message for x in bare} == {"BCU_DEMAND"}

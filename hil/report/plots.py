@@ -104,7 +104,9 @@ def plot_lateness(rt: dict, path: Path) -> Path:
     ax.set_title(f"real-time lateness per node ({verdict}; 10 ms nodes p99 {rt.get('p99_10ms_us')} µs)")
     ax.legend(fontsize=7, ncol=3)
     ax.grid(True, axis="y", alpha=0.3)
-    fig.tight_layout()
+    # fixed margins for the rotated bin labels: tight_layout draws the figure once more to measure them
+    # (about a fifth of this plot's CPU time in a real-time run's report)
+    fig.subplots_adjust(left=0.07, right=0.99, top=0.93, bottom=0.22)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path

@@ -592,6 +592,9 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     truth: TruthLog = payloads["PLANT"]["truth"]
     nodes = [n for n in simulated if n in payloads]
     probes = {n: payloads[n] for n in procs if n.startswith("PROBE") and n in payloads}
+    for name, probe in probes.items():          # each process's CPU seconds side by side in run.json
+        if "cpu_s" in probe:
+            host_info.setdefault(name, {"cpu_s": probe["cpu_s"]})
     realtime = {
         "hosting": rt.hosting, "plant_process": rt.plant_process, "plant_wake": rt.plant_wake,
         "hosts": {h: list(m) for h, m in plan.items()},
