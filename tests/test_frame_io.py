@@ -42,6 +42,18 @@ def take_until(io: FrameIO, n: int) -> list[tuple]:
     return got
 
 
+def sent_and_read_back(io: FrameIO, bus: can.BusABC, frames: list[tuple]) -> list[tuple]:
+    """`frames` (id, extended, data) sent through `io`, as python-can's `bus` reads them back."""
+    for arbitration_id, extended, data in frames:
+        io.send(arbitration_id, extended, data)
+    received = []
+    while len(received) < len(frames):
+        msg = bus.recv(WAIT_S)
+        assert msg is not None, f"python-can's bus got {len(received)} of {len(frames)} frames"
+        received.append((msg.arbitration_id, msg.is_extended_id, bytes(msg.data)))
+    return received
+
+
 @pytest.mark.parametrize("extended", [False, True])
 def test_a_data_frame_is_packed_as_python_can_packs_its_message(extended):
     for length in range(9):
@@ -65,14 +77,7 @@ def test_frames_go_both_ways_between_frame_io_and_python_cans_own_bus(pair):
     assert stamps == sorted(stamps) and abs(stamps[-1] - __import__("time").time()) < 60
 
     # the other way: FrameIO sends, python-can's bus reads the same frames
-    for arbitration_id, extended, data in sent:
-        io.send(arbitration_id, extended, data)
-    received = []
-    while len(received) < len(sent):
-        msg = a.recv(WAIT_S)
-        assert msg is not None, f"python-can's bus got {len(received)} of {len(sent)} frames"
-        received.append((msg.arbitration_id, msg.is_extended_id, bytes(msg.data)))
-    assert received == sent
+    assert sent_and_read_back(io, a, sent) == sent
 
 
 def test_remote_error_and_fd_frames_come_as_python_cans_messages(pair):
@@ -124,14 +129,7 @@ def test_a_host_does_not_take_back_its_own_frames_and_every_other_socket_gets_th
         pytest.skip("no socket filter (SO_ATTACH_FILTER) on this OS: the host recognises its echoes instead")
     try:
         sent = [(0x200 + k, k % 2 == 0, bytes(range(k % 9))) for k in range(12)]
-        for arbitration_id, extended, data in sent:
-            io.send(arbitration_id, extended, data)
-        received = []
-        while len(received) < len(sent):
-            msg = a.recv(WAIT_S)
-            assert msg is not None, f"python-can's bus got {len(received)} of {len(sent)} frames"
-            received.append((msg.arbitration_id, msg.is_extended_id, bytes(msg.data)))
-        assert received == sent
+        assert sent_and_read_back(io, a, sent) == sent
         a.send(can.Message(arbitration_id=0x55, is_extended_id=False, data=b"\x07"))
         got = take_until(io, 1)          # the own frames were sent first: had they come back, they came first
         assert [f[1:4] for f in got] == [(0x55, False, b"\x07")]
