@@ -75,10 +75,9 @@ class Delivery:
     own nodes' frames are handed over as they are sent (`sent`), since not every bus returns a socket's own
     frames (SocketCAN does not; udp_multicast on one host does, unless the host's FrameIO drops them); one
     that does comes back, is recognised among the last ECHO_DEPTH frames sent with its id, and is not
-    delivered twice.  A node in `batched`
-    gets its frames later, in time order, from `replay` (the plant woken on its frames).  The nodes'
-    counts are what one process per node would count: a frame the DBC does not define is unknown to every
-    node, a malformed one bad for each node that takes its id."""
+    delivered twice.  A node in `batched` gets its frames later, in time order, from `replay` (the plant
+    woken on its frames).  The nodes' counts are what one process per node would count: a frame the DBC
+    does not define is unknown to every node, a malformed one bad for each node that takes its id."""
 
     def __init__(self, nodes: list, codec, batched: frozenset = frozenset(), echoes: bool = True) -> None:
         self.nodes = nodes
