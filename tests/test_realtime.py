@@ -420,8 +420,8 @@ def test_the_run_ends_at_the_last_truth_sample_of_any_plant():
 
 def test_grouped_hosting_runs_every_ecu_in_one_process(realtime_run):
     """[realtime] hosting = "grouped", the default: the plant, one process for every other node and the
-    recorder; every node's frames reach the trace and their receivers (no E2E or SecOC rejection: a frame
-    the bus echoes back to its host is not delivered twice).  The stop against lockstep:
+    recorder; every node's frames reach the trace and their receivers, each once (no E2E or SecOC
+    rejection: a frame delivered twice would be one).  The stop against lockstep:
     test_stopping_distance_agrees_with_lockstep, on the same run."""
     out, _, stderr = realtime_run
     pids = stderr.split("pids ", 1)[1].splitlines()[0].split()

@@ -60,8 +60,7 @@ class FrameIO:
     def __init__(self, bus: can.BusABC, drop_own: bool = False) -> None:
         self.bus = bus
         self.undecodable = 0          # datagrams on the group that are not python-can frames (fast path)
-        self.own_dropped = False      # this FrameIO's own frames do not come back (drop_own, fast path)
-        self._tx: socket.socket | None = None
+        self._tx: socket.socket | None = None     # drop_own's socket to send from (fast path)
         multicast = getattr(bus, "_multicast", None)
         sock = getattr(multicast, "_socket", None)
         self.fast = (UdpMulticastBus is not None and isinstance(bus, UdpMulticastBus)
@@ -77,9 +76,8 @@ class FrameIO:
             self._stamp = struct.Struct(multicast.received_timestamp_struct).unpack
             self._fd = bus.protocol is can.CanProtocol.CAN_FD
             self._unpackb = msgpack.unpackb
-            if drop_own:
-                self._tx = _own_sender(sock)
-                self.own_dropped = self._tx is not None
+            self._tx = _own_sender(sock) if drop_own else None
+            self._out = self._tx or sock
 
     def send(self, arbitration_id: int, is_extended_id: bool, data: bytes) -> None:
         """One classic data frame on the bus (python-can's errors as the bus raises them)."""
@@ -89,7 +87,7 @@ class FrameIO:
             return
         packed = pack_data_frame(arbitration_id, is_extended_id, data)
         try:
-            sent = (self._tx or self._sock).sendto(packed, self._dest)
+            sent = self._out.sendto(packed, self._dest)
         except OSError as error:
             raise can.CanOperationError("failed to send via socket") from error
         if sent < len(packed):
@@ -138,9 +136,15 @@ class FrameIO:
             on_frame(timestamp, arbitration_id, extended, data, msg)
             n += 1
 
+    @property
+    def own_dropped(self) -> bool:
+        """This FrameIO's own frames do not come back to it (drop_own, in effect)."""
+        return self._tx is not None
+
     def close(self) -> None:
         """Close the socket of its own that `drop_own` sends from (the bus stays open: its owner's)."""
         if self._tx is not None:
+            self._out = self._sock
             self._tx.close()
             self._tx = None
 

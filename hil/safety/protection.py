@@ -170,19 +170,15 @@ def influence(scenario, db: Database, recordings: dict[str, Recording], bindings
         for fid, pairs in rx_map.items():
             msg = db.get_message_by_frame_id(fid)
             for signal, key in pairs:
-                changed: set[str] = set()
+                still = set(sent)                  # the sent outputs not yet seen to change
                 for value in _values_to_try(db, msg.name, signal):
-                    still = [k for k in sent if k not in changed]
                     for a, b in zip(_replay(build, rec, key, value), nominal, strict=True):
-                        hit = [k for k in still if a.get(k) != b.get(k) and _differs(a.get(k), b.get(k))]
-                        if hit:
-                            changed.update(hit)
-                            still = [k for k in still if k not in changed]
-                            if not still:
-                                break
+                        still -= {k for k in still if a.get(k) != b.get(k) and _differs(a.get(k), b.get(k))}
+                        if not still:
+                            break
                     if not still:
                         break
-                per[key] = changed
+                per[key] = sent - still
         result[name] = per
     return result
 
