@@ -7,10 +7,12 @@ node code is the same in every hosting (hil.runtime.node.Node), as in lockstep.
 
 Scheduling. Every node keeps its own absolute deadlines on CLOCK_MONOTONIC, relative to one start instant
 t0 (openpilot's Ratekeeper: next += period); the earliest due runs next. The host sleeps until a margin
-before the deadline (the margin from this machine's measured sleep lateness, hil.runtime.rtos), takes
-the frames the bus has for it, then waits out the rest of the margin by polling the clock, and releases
-the cycle. Each cycle's release lateness (now − deadline) is recorded (`CycleTiming`). A node more than
-CATCH_UP_CYCLES periods behind skips to its next slot and counts the cycles skipped.
+before the deadline (the margin from this machine's measured sleep lateness, hil.runtime.rtos), waits out
+the rest of the margin by polling the clock, and releases the cycle: it takes the frames the bus has for
+it, as an ECU's cycle task reads its receive mailboxes first, and runs the node: one sleep a wake (a
+wake-up costs ~40 µs of CPU here). Each cycle's release lateness (now − deadline) is recorded
+(`CycleTiming`). A node more than CATCH_UP_CYCLES periods behind skips to its next slot and counts the
+cycles skipped.
 
 Receiving. A host does not wake for each frame: frames wait in the socket (its receive buffer enlarged)
 until the host wakes for its next deadline, then they are taken (hil.can.frame_io: on udp_multicast
@@ -51,8 +53,6 @@ MAX_BATCH_US = 5_000           # a plant woken on its frames is woken at least t
 TIMESTAMP_TRUST_US = 1_000_000  # a message timestamp further than this from now is not this run's [µs]
 ECHO_DEPTH = 4                 # a host's last frames per id it sent, to know them when the bus echoes them
 PARENT_CHECK_US = 500_000      # how often a host checks that its runner is alive [µs]
-SECOND_SLEEP_MIN_NS = 100_000  # after taking the frames, sleep again only if that leaves more than this to
-#                                poll: a wake-up costs ~40 µs of CPU here and returns late by as much
 IDLE_GC_NS = 2_000_000         # the automatic collector is off in the loop: young objects are collected
 IDLE_GC_OBJECTS = 5_000        # when at least this many were allocated and the next deadline is at least
 IDLE_GC_OLDER = 10             # IDLE_GC_NS away (the middle generation every IDLE_GC_OLDER times); one
@@ -279,7 +279,6 @@ class Host:
             if hasattr(truth, "t_us"):          # the foundation's TruthLog (a study's may have no µs)
                 truth.rt_lag_us = []
         self.frames_received = 0
-        self.drain_ns = 300_000          # how long taking the frames from the socket takes (running estimate)
         self.timestamps_untrusted = 0    # frames stamped on reception, their own timestamp implausible
 
     # -- time --------------------------------------------------------------------------------------
@@ -306,29 +305,20 @@ class Host:
         self.delivery.receive(frame_id, data, t_us)
 
     def _wait(self, deadline_ns: int) -> int:
-        """Collect garbage if there is time, sleep until the frames can be taken before the deadline, take
-        them, sleep to the precise wait's margin, poll out the rest, take what came meanwhile; now [ns]
-        (the cycle's release)."""
+        """Collect garbage if there is time, sleep until the precise wait's margin before the deadline, poll
+        out the rest; now [ns] (the cycle's release).  The frames are taken after it (`_drain`): before it,
+        they needed a second sleep a wake (taking them ends at an instant no estimate knows), which cost a
+        fifth of a host's CPU."""
         now = time.monotonic_ns
-        early = self.margin_ns + self.drain_ns
         remaining = deadline_ns - now()
         if remaining > IDLE_GC_NS and gc.get_count()[0] > IDLE_GC_OBJECTS:
             gc.collect(1 if gc.get_count()[1] >= IDLE_GC_OLDER else 0)
             remaining = deadline_ns - now()
-        if remaining > early:
-            time.sleep((remaining - early) / 1e9)
-        t = now()
-        self._drain()
-        took = now() - t
-        # wake early enough for the longest recent drain: 1.5 × the largest, forgotten by 2 % a cycle
-        self.drain_ns = max(took + (took >> 1), self.drain_ns - (self.drain_ns >> 6))
-        remaining = deadline_ns - now()
-        if remaining > self.margin_ns + SECOND_SLEEP_MIN_NS:
+        if remaining > self.margin_ns:
             time.sleep((remaining - self.margin_ns) / 1e9)
         t = now()
         while t < deadline_ns:
             t = now()
-        self._drain()                  # what arrived meanwhile: usually nothing (one empty poll)
         return t
 
     def _send(self, node, frames) -> None:
@@ -379,6 +369,7 @@ class Host:
             now_ns = self._wait(deadline_ns)
             timing = timings[i]
             late_us = timing.released(deadline_ns, t0, now_ns)
+            self._drain()
             if i != plant:
                 self.end_us = slot[i] // 1000
                 self._send(node, node.cycle(slot[i] // 1000, nominal[i]))

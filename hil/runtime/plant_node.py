@@ -74,12 +74,14 @@ class TruthLog:
         self.t_us.append(t_us)
         self.snaps.append(snap)
 
-    def __getstate__(self) -> dict:          # crosses process boundaries without the plant
-        return {"plant": None, "t_us": self.t_us, "snaps": [tuple(s) for s in self.snaps],
-                "series": self.series(), "max_slip_mps": self.max_slip_mps, "rt_lag_us": self.rt_lag_us}
+    def __getstate__(self) -> dict:
+        """Crosses process boundaries as its series, without the plant or the raw snapshots (pickling those
+        lists of floats took a real-time plant host ~0.4 CPU s at the end of a 30 s run)."""
+        return {"t_us": self.t_us, "series": self.series(), "max_slip_mps": self.max_slip_mps,
+                "rt_lag_us": self.rt_lag_us}
 
     def __setstate__(self, state: dict) -> None:
-        self.plant, self.t_us, self.snaps = None, state["t_us"], state["snaps"]
+        self.plant, self.t_us, self.snaps = None, state["t_us"], []
         self._series = state["series"]
         self.max_slip_mps = state.get("max_slip_mps")
         self.rt_lag_us = state.get("rt_lag_us")
