@@ -136,3 +136,36 @@ def test_a_host_does_not_take_back_its_own_frames_and_every_other_socket_gets_th
         assert io.take(lambda *frame: got.append(frame)) == 0
     finally:
         io.close()
+
+
+def test_a_host_takes_only_the_frames_it_does_not_drop_and_every_other_socket_gets_them_all(pair):
+    """drop_ids: the socket filter drops the datagrams with those ids, read where python-can's msgpack puts
+    them (a positive fixint, uint8, uint16, uint32); python-can's bus beside it still gets every frame, and
+    a datagram laid out otherwise (no python-can frame) still comes, counted as before."""
+    watcher, b = pair
+    io = FrameIO(b, drop_ids={0x7F, 0xC8, 0x123, 0x18FF_0001})
+    if not io.ids_dropped:
+        pytest.skip("no socket filter (SO_ATTACH_FILTER) on this OS: a host drops those frames itself")
+    group, port = b._multicast._send_destination[:2]
+    sender = can.Bus(interface="udp_multicast", channel=group, port=port, hop_limit=0)
+    try:
+        ids = [0x05, 0x7F, 0x80, 0xC8, 0x123, 0x7FF, 0x1_0000, 0x18FF_0001, 0x22]
+        sent = [(fid, fid > 0x7FF, bytes([k, fid & 0xFF])) for k, fid in enumerate(ids)]
+        for fid, extended, data in sent:
+            sender.send(can.Message(arbitration_id=fid, is_extended_id=extended, data=data))
+        seen = [watcher.recv(WAIT_S) for _ in sent]
+        assert [(m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in seen if m is not None] == sent
+        got = take_until(io, 5)
+        assert [f[1:4] for f in got] == [f for f in sent if f[0] in (0x05, 0x80, 0x7FF, 0x1_0000, 0x22)]
+        stray = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        stray.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
+        stray.sendto(b"\xc1not msgpack", b._multicast._send_destination)         # short: kept as it is
+        stray.sendto(b"\xc1" + bytes(63), b._multicast._send_destination)       # long, not the layout: kept
+        stray.close()
+        sender.send(can.Message(arbitration_id=0x123, is_extended_id=False, data=b"\x01"))
+        sender.send(can.Message(arbitration_id=0x33, is_extended_id=False, data=b"\x02"))
+        assert [f[1:4] for f in take_until(io, 1)] == [(0x33, False, b"\x02")]
+        assert io.undecodable == 2
+    finally:
+        io.close()
+        sender.shutdown()

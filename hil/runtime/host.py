@@ -260,7 +260,11 @@ class Host:
         self.t0_ns, self.speed, self.margin_ns = t0_ns, speed, margin_ns
         self.epoch_t0 = time.time() + (t0_ns - time.monotonic_ns()) / 1e9   # t0 on the wall clock [s]
         self._scale = 1e6 * speed                  # bus seconds to µs of simulated time
-        self.io = FrameIO(bus, drop_own=True)     # udp_multicast on Linux: its own frames do not come back
+        # udp_multicast on Linux: its own frames do not come back, nor the DBC's frames no hosted node takes
+        # (a frame the DBC does not define still comes: every node counts it)
+        wanted = {fid for node in nodes for fid in node.rx_ids}
+        unwanted = [fc.frame_id for fc in codec if fc.frame_id not in wanted]
+        self.io = FrameIO(bus, drop_own=True, drop_ids=unwanted)
         self._now_us: int | None = None            # now, once per drain
         self.plant = next((k for k, n in enumerate(nodes) if n.name == "PLANT"), None)
         batched = frozenset({"PLANT"}) if self.plant is not None and plant_wake == "frames" else frozenset()
