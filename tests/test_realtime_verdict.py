@@ -120,3 +120,14 @@ def test_a_miss_behind_a_late_cycle_of_the_same_host_inherits_its_verdict():
     v = realtime_verdict(outcome(nodes, {"PROBE0": stall}))
     assert [(v["nodes"][n]["misses_machine"], v["nodes"][n]["misses_bench"]) for n in nodes] == \
         [(1, 0), (1, 0), (0, 1), (0, 1)]
+
+
+def test_the_plant_woken_on_its_frames_is_said_to_be_judged_in_its_wakes():
+    """The plant woken on its frames computes its 1 ms steps at each wake: its lateness is counted over
+    its wakes (at most 5 ms apart), and the summary and the report say wakes, not cycles of 5 ms."""
+    plant = {**cycles(5_000, 200), "judged_in": "wakes"}
+    v = realtime_verdict(outcome({"PLANT": plant, "BCU": cycles(10_000, 100)}))
+    assert v["nodes"]["PLANT"]["judged_in"] == "wakes" and v["nodes"]["BCU"]["judged_in"] == "cycles"
+    lines = {line.split()[0]: line for line in realtime_lines(v)[2:]}
+    assert "over 200 wakes at most 5 ms apart;" in lines["PLANT"]
+    assert "over 100 cycles of 10 ms;" in lines["BCU"]

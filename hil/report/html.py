@@ -503,7 +503,8 @@ def _realtime_table(rt: dict, meta: dict) -> str:
     """A real-time run's lateness per node against the budget, the machine probe beside, and what the OS
     granted each process (kpis.json realtime, run.json realtime)."""
     stats = meta.get("node_stats") or {}
-    rows = [[n, stats.get(n, {}).get("host"), v["period_us"], v["cycles"], v["p50_us"], v["p99_us"],
+    rows = [[f"{n} (wakes at most the period apart)" if v.get("judged_in") == "wakes" else n,
+             stats.get(n, {}).get("host"), v["period_us"], v["cycles"], v["p50_us"], v["p99_us"],
              v["max_us"], v["miss_threshold_us"], v["misses_bench"], v["misses_machine"], v["misses_allowed"],
              v["skipped"], "held" if v["held"] else "NOT HELD"] for n, v in rt["nodes"].items()]
     m = rt.get("machine") or {}

@@ -77,10 +77,18 @@ def realtime_lines(rt: dict) -> list[str]:
                 + (f"; PLANT p99 {plant['p99_us']} us" if plant else "")
                 + f"; {floor}; {rt['misses_machine']} misses at machine stalls")
     per_node = [f"  {name:<21} p50 {v['p50_us']} / p99 {v['p99_us']} / max {v['max_us']} us over "
-                f"{v['cycles']} cycles of {v['period_us'] / 1e3:g} ms; misses {v['misses_bench']} bench / "
+                f"{_judged(v)}; misses {v['misses_bench']} bench / "
                 f"{v['misses_machine']} machine (> {v['miss_threshold_us']} us); {v['skipped']} skipped"
                 for name, v in nodes.items()]
     return [head, lateness, *per_node]
+
+
+def _judged(v: dict) -> str:
+    """What a node's lateness is counted over: its cycles, or, for the plant woken on its frames (its 1 ms
+    steps computed at each wake), its wakes."""
+    if v.get("judged_in") == "wakes":
+        return f"{v['cycles']} wakes at most {v['period_us'] / 1e3:g} ms apart"
+    return f"{v['cycles']} cycles of {v['period_us'] / 1e3:g} ms"
 
 
 def external_lines(conduct: dict) -> list[str]:

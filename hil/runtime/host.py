@@ -417,9 +417,11 @@ class Host:
     def payloads(self) -> dict[str, dict]:
         """Each hosted node's result: its stats and timing (and the plant's truth)."""
         out = {}
-        for node, timing in zip(self.nodes, self.timings, strict=True):
+        for k, (node, timing) in enumerate(zip(self.nodes, self.timings, strict=True)):
             payload = timing.payload(node)
             payload["end_us"] = self.end_us
+            # the plant woken on its frames is judged in its wakes (at most MAX_BATCH_US apart), not steps
+            payload["judged_in"] = "wakes" if k == self.plant and self.batched else "cycles"
             if node.name == "PLANT":
                 payload["truth"] = node.controller.truth
             out[node.name] = payload

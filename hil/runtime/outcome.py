@@ -98,7 +98,8 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
         too_late = int((bench_late > budget["max_late_periods"] * period).sum())
         skipped = int((outcome.node_stats.get(name) or {}).get("missed_cycles") or 0)
         nodes[name] = {
-            "period_us": period, **lateness_figures(c["lateness_us"]), "miss_threshold_us": threshold,
+            "period_us": period, "judged_in": c.get("judged_in", "cycles"),
+            **lateness_figures(c["lateness_us"]), "miss_threshold_us": threshold,
             "misses_bench": int(bench_late.size), "misses_machine": int(machine_hit.sum()),
             "misses_allowed": allowed, "bench_misses_over_a_period": too_late,
             "worst_bench_miss_us": int(bench_late.max()) if bench_late.size else 0,
