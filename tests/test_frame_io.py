@@ -169,3 +169,20 @@ def test_a_host_takes_only_the_frames_it_does_not_drop_and_every_other_socket_ge
     finally:
         io.close()
         sender.shutdown()
+
+
+def test_a_filter_too_long_for_the_kernel_still_drops_the_hosts_own_frames(pair):
+    """More ids than a classic BPF program can compare (4,096 instructions): the ids are not filtered (the
+    host drops those frames itself), its own frames still are."""
+    a, b = pair
+    io = FrameIO(b, drop_own=True, drop_ids=range(0x100, 0x100 + 3_000))
+    if not io.own_dropped:
+        pytest.skip("no socket filter (SO_ATTACH_FILTER) on this OS")
+    try:
+        assert not io.ids_dropped
+        io.send(0x101, False, b"\x01")
+        a.send(can.Message(arbitration_id=0x102, is_extended_id=False, data=b"\x02"))
+        got = take_until(io, 1)
+        assert [f[1:4] for f in got] == [(0x102, False, b"\x02")]
+    finally:
+        io.close()

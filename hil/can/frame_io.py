@@ -89,13 +89,13 @@ class FrameIO:
             drop_ids = sorted(set(drop_ids))
             if (self._tx is not None or drop_ids) and sys.platform.startswith("linux"):
                 port = self._tx.getsockname()[1] if self._tx is not None else None
-                try:
-                    _attach(sock, _filter_program(port, drop_ids))
+                # refused with the ids (e.g. longer than BPF_MAXINSNS): its own frames are dropped at least;
+                # no filter at all: they come back and are recognised (hil.runtime.host.Delivery)
+                if _attached(sock, _filter_program(port, drop_ids)):
                     self.ids_dropped = bool(drop_ids)
-                except OSError:
-                    if self._tx is not None:      # without the filter its own frames come back: recognised
-                        self._tx.close()
-                        self._tx, self._out = None, sock
+                elif self._tx is not None and not _attached(sock, _filter_program(port, [])):
+                    self._tx.close()
+                    self._tx, self._out = None, sock
 
     def send(self, arbitration_id: int, is_extended_id: bool, data: bytes) -> None:
         """One classic data frame on the bus (python-can's errors as the bus raises them)."""
@@ -234,11 +234,15 @@ def _filter_program(own_port: int | None, drop_ids: list[int]) -> list[tuple[int
     return prog + [_KEEP]
 
 
-def _attach(sock: socket.socket, program: list[tuple[int, int, int, int]]) -> None:
-    """Attach the classic BPF `program` to `sock` (OSError where refused)."""
+def _attached(sock: socket.socket, program: list[tuple[int, int, int, int]]) -> bool:
+    """Attach the classic BPF `program` to `sock`; False where the OS refuses it (or it is too long)."""
     insns = ctypes.create_string_buffer(b"".join(struct.pack("HBBI", *i) for i in program))
     fprog = struct.pack("HL", len(program), ctypes.addressof(insns))
-    sock.setsockopt(socket.SOL_SOCKET, SO_ATTACH_FILTER, fprog)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_ATTACH_FILTER, fprog)
+    except OSError:
+        return False
+    return True
 
 
 SO_ATTACH_FILTER = getattr(socket, "SO_ATTACH_FILTER", 26)    # Linux <asm-generic/socket.h>
