@@ -28,7 +28,7 @@ the datagrams that carry one of those ids, as a CAN controller's acceptance filt
 CAN_RAW_FILTER) would: it reads the id where python-can's msgpack layout puts it, and keeps every
 datagram laid out otherwise (another sender, another python-can version) for the host to read.  A host
 then no longer takes, unpacks and drops the frames it has no use for (in the default run the plant took
-31,800 datagrams and used 17,700; a node hosted alone used a tenth of the bus).
+31,800 datagrams and used 17,700; a BECU hosted alone takes 7,300 of the bus's 49,400).
 """
 
 from __future__ import annotations
