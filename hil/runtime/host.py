@@ -166,8 +166,9 @@ class CycleTiming:
     lateness [µs], the cycles released late, the cycles skipped, the largest lag (and when) and, for the
     plant, how far its clock slipped behind the bus's."""
 
-    def __init__(self, period_us: int, may_skip: bool = True) -> None:
+    def __init__(self, period_us: int, may_skip: bool = True, judged_in: str = "cycles") -> None:
         self.period_us, self.may_skip = period_us, may_skip   # the plant never skips: physics time
+        self.judged_in = judged_in     # "wakes": the plant woken on its frames (wakes ≤ period_us apart)
         self.deadline_us = array("q")
         self.lateness = array("q")
         self.ended_us = array("q")     # when each cycle's frames were out [µs since t0]: it blocked the next
@@ -213,7 +214,7 @@ class CycleTiming:
 
     def payload(self, node) -> dict:
         return {"stats": self.stats(node), "lateness_us": self.lateness, "deadline_us": self.deadline_us,
-                "period_us": self.period_us, "ended_us": self.ended_us}
+                "period_us": self.period_us, "ended_us": self.ended_us, "judged_in": self.judged_in}
 
 
 class PlantEnd:
@@ -272,8 +273,9 @@ class Host:
         self.batched = bool(batched)
         # a node is judged in its cycles; the plant woken on its frames in its wakes (MAX_BATCH_US apart:
         # its 1 ms steps are computed at each, on time by construction, and its frames leave at them)
-        self.timings = [CycleTiming(MAX_BATCH_US if k == self.plant and self.batched else n.period_us,
-                                    may_skip=k != self.plant) for k, n in enumerate(nodes)]
+        self.timings = [CycleTiming(MAX_BATCH_US, may_skip=False, judged_in="wakes")
+                        if k == self.plant and self.batched
+                        else CycleTiming(n.period_us, may_skip=k != self.plant) for k, n in enumerate(nodes)]
         self.end = end
         self.orphaned = orphaned
         self.reason: str | None = None
@@ -417,11 +419,9 @@ class Host:
     def payloads(self) -> dict[str, dict]:
         """Each hosted node's result: its stats and timing (and the plant's truth)."""
         out = {}
-        for k, (node, timing) in enumerate(zip(self.nodes, self.timings, strict=True)):
+        for node, timing in zip(self.nodes, self.timings, strict=True):
             payload = timing.payload(node)
             payload["end_us"] = self.end_us
-            # the plant woken on its frames is judged in its wakes (at most MAX_BATCH_US apart), not steps
-            payload["judged_in"] = "wakes" if k == self.plant and self.batched else "cycles"
             if node.name == "PLANT":
                 payload["truth"] = node.controller.truth
             out[node.name] = payload

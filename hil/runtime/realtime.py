@@ -602,9 +602,9 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         "margin_ns": shared.margin_ns.value, "probes": probes, "probe_errors": probe_errors,
         "external": list(external),
         "external_first_frame_s": external_seen, "deadline": rt.deadline.model_dump(),
-        "cycles": {n: {**{k: payloads[n][k] for k in ("deadline_us", "lateness_us", "period_us", "ended_us")},
-                       "host": payloads[n]["stats"].get("host"),
-                       "judged_in": payloads[n].get("judged_in", "cycles")} for n in nodes},
+        "cycles": {n: {**{k: payloads[n][k] for k in ("deadline_us", "lateness_us", "period_us", "ended_us",
+                                                      "judged_in")},
+                       "host": payloads[n]["stats"].get("host")} for n in nodes},
         "host_frames": host_info,
     }
     outcome = RunOutcome(
