@@ -86,3 +86,18 @@ def test_a_host_whose_bus_drops_its_own_frames_keeps_no_echo_memory():
     assert not group._echo and [g[2] for g in becu1.got] == [100]
     group.receive(demand.frame_id, data, 150)
     assert [g[2] for g in becu1.got] == [100, 150] and group.received == 1
+
+
+def test_a_batched_node_takes_every_frame_it_received_at_its_release_in_order():
+    db = load_dbc()
+    codec = Codec(db)
+    demand = codec.by_name("BCU_DEMAND")
+    becu = FakeNode("BECU1", {demand.frame_id})
+    group = Delivery([FakeNode("BCU", set()), becu], codec, batched=frozenset({"BECU1"}))
+    for t_us, decel in ((100, 0.5), (200, 0.8)):
+        group.receive(demand.frame_id, demand.encode({"TargetDecel": decel}), t_us)
+    assert becu.got == []                                    # nothing until its cycle is released
+    group.replay_all(becu)
+    assert [(g[2], g[1]["TargetDecel"]) for g in becu.got] == [(100, 0.5), (200, 0.8)]
+    group.replay_all(becu)
+    assert len(becu.got) == 2                                # each frame once

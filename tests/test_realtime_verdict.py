@@ -89,7 +89,7 @@ def test_not_held_over_the_budget_or_with_a_bench_miss_later_than_a_period():
     assert "machine floor: probe p99 60 us" in lines[1]
     checks = {c.check: c for c in run_verdicts({"realtime": v}, {"mode": "realtime"})}
     assert checks["real time held (the bench's deadline misses)"].passed is False
-    assert checks["the machine's own misses (probe stalls)"].passed is None
+    assert checks["the machine's own misses (stalls of a probe or seen by a host)"].passed is None
 
 
 def test_no_probe_is_said_not_hidden():
@@ -131,3 +131,31 @@ def test_the_plant_woken_on_its_frames_is_said_to_be_judged_in_its_wakes():
     lines = {line.split()[0]: line for line in realtime_lines(v)[2:]}
     assert "over 200 wakes at most 5 ms apart;" in lines["PLANT"]
     assert "over 100 cycles of 10 ms;" in lines["BCU"]
+
+
+def test_a_miss_at_a_stall_its_host_saw_itself_is_the_machines_and_only_for_that_host():
+    """A stall between the probe's 10 ms samples is not seen by the probe; the host that lost its CPU saw
+    it (hil.runtime.host.StallWatch) and says so for its own nodes.  The same miss in a host that saw
+    nothing stays the bench's, and the stalls it saw are reported beside."""
+    def node(host, deadline, late):
+        return {"period_us": 10_000, "host": host, "deadline_us": np.array([deadline]),
+                "lateness_us": np.array([late]), "ended_us": np.array([deadline + late + 200])}
+
+    nodes = {"BECU1": node("ECUS", 3_000, 1_500), "PLANT": node("PLANT", 3_000, 1_500)}
+    v = realtime_verdict(outcome(nodes))
+    def split(v):
+        return [(v["nodes"][n]["misses_machine"], v["nodes"][n]["misses_bench"]) for n in nodes]
+
+    assert split(v) == [(0, 1), (0, 1)]
+    o = outcome(nodes)
+    o.realtime["host_stalls"] = {"ECUS": {"stalls_us": [[3_400, 4_400]], "not_counted": None},
+                                 "PLANT": {"stalls_us": [], "not_counted": None}}
+    v = realtime_verdict(o)
+    assert split(v) == [(1, 0), (0, 1)]
+    assert v["machine"]["host_stalls"]["ECUS"] == {"stalls": 1, "worst_us": 1_000, "counted": True}
+    assert v["misses_machine"] == 1 and v["misses_machine_probes"] == 0
+    assert "stalls the hosts saw themselves: ECUS 1, PLANT 0" in realtime_lines(v)[1]
+    o.realtime["host_stalls"]["ECUS"]["not_counted"] = "/proc/thread-self/schedstat unreadable"
+    v = realtime_verdict(o)            # a host that could not tell counts nothing
+    assert v["nodes"]["BECU1"]["misses_bench"] == 1
+    assert v["machine"]["host_stalls"]["ECUS"]["why"].startswith("/proc")

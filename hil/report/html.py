@@ -54,6 +54,7 @@ import numpy as np
 from hil.errors import RailhilError
 from hil.report import kpi_info
 from hil.report.kpi_info import Kpi
+from hil.report.summary import host_stalls_text
 from hil.scenario import registry
 
 REPORT_NAME = "report.html"
@@ -195,11 +196,12 @@ def run_verdicts(kpis: dict, meta: dict) -> list[Verdict]:
                                f"{b['max_late_periods']:g} period late; miss: > max({b['miss_min_us']} µs, "
                                f"{b['miss_period_pct']:g} % of the period)", rt["held"]))
             m = rt.get("machine") or {}
-            out.append(Verdict("the machine's own misses (probe stalls)",
-                               f"{rt['misses_machine']} misses; probe p99 {m.get('p99_us')} µs, worst stall "
-                               f"{(m.get('worst_stall_us') or 0) / 1e3:.1f} ms" if "error" not in m
-                               else f"no probe: {m['error']}", "(informational: the host, not the bench)",
-                               None))
+            seen = host_stalls_text(m)
+            out.append(Verdict("the machine's own misses (stalls of a probe or seen by a host)",
+                               (f"{rt['misses_machine']} misses; probe p99 {m.get('p99_us')} µs, worst stall "
+                                f"{(m.get('worst_stall_us') or 0) / 1e3:.1f} ms" if "error" not in m
+                                else f"no probe: {m['error']}") + (f"; {seen}" if seen else ""),
+                               "(informational: the host, not the bench)", None))
         elif rt:                                  # a run folder of an earlier release
             out.append(Verdict("real time held", str(rt.get("worst_node")), "(earlier release's verdict)",
                                rt.get("held")))
@@ -513,7 +515,8 @@ def _realtime_table(rt: dict, meta: dict) -> str:
                      m.get("max_us"), 500, "—", f"{m.get('stalls')} stalls", "—", "—", "(reference)"])
     out = ("<p>release lateness = when a cycle's wait returned − its absolute deadline [µs]; a miss is the "
            "machine's when the probe (a bare loop at 10 ms deadlines, one priority above the nodes) was late "
-           "at the same time; lateness.png (below, with the static figures) has the histograms</p>"
+           "at the same time, or its host saw the machine keep it from running then; "
+           "lateness.png (below, with the static figures) has the histograms</p>"
            + _table(["node", "host", "period [µs]", "cycles", "p50 [µs]", "p99 [µs]", "max [µs]",
                      "miss threshold [µs]", "misses: bench", "misses: machine", "bench misses allowed",
                      "skipped", "verdict"], rows, set(range(2, 12))))

@@ -117,12 +117,18 @@ FOUNDATION: dict[str, tuple] = {
                              "99th percentile of the release lateness of every 10 ms node's cycles, pooled"),
     "realtime.p50_10ms_us": ("p50 lateness, 10 ms nodes", "µs", "median of the same"),
     "realtime.misses_bench": ("deadline misses, the bench's", "count",
-                              "misses at instants the machine probe was on time, all nodes"),
+                              "misses at instants neither the machine probe nor the node's host saw a "
+                              "stall, all nodes"),
     "realtime.misses_machine": ("deadline misses, the machine's", "count",
-                                "misses that coincide with a stall of the machine probe, all nodes"),
+                                "misses that coincide with a stall of the machine probe or one the node's "
+                                "host saw itself, all nodes"),
+    "realtime.misses_machine_probes": ("deadline misses at the probes' stalls", "count",
+                                       "of the machine's misses, those a verdict from the probes alone "
+                                       "would give the machine, all nodes"),
     "realtime.machine": ("machine floor (probe)", "µs",
                          "lateness of a bare loop per CPU sleeping to absolute 10 ms deadlines during the "
-                         "run, at the nodes' priority: p50, p99, max, its stalls (> 500 µs late), the worst"),
+                         "run, at the nodes' priority: p50, p99, max, its stalls (> 500 µs late), the worst; "
+                         "host_stalls: the stalls each host saw itself (kept from running > 500 µs)"),
     "realtime.nodes": ("per node", "µs",
                        "period, lateness p50/p99/max, the miss threshold, misses (bench / machine / "
                        "allowed), the worst bench miss, cycles skipped, held, the lateness histogram"),

@@ -54,6 +54,16 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
     return lines
 
 
+def host_stalls_text(machine: dict) -> str:
+    """The stalls the hosts saw themselves ('' for a run that did not watch them)."""
+    seen = machine.get("host_stalls") or {}
+    if not seen:
+        return ""
+    parts = [f"{h} {v['stalls']}" + ("" if v["counted"] else f" (not counted: {v.get('why')})")
+             for h, v in seen.items()]
+    return "stalls the hosts saw themselves: " + ", ".join(parts)
+
+
 def realtime_lines(rt: dict) -> list[str]:
     """The verdict of a real-time run against its budget, the lateness and the machine's own floor
     (hil.runtime.outcome.realtime_verdict)."""
@@ -73,9 +83,12 @@ def realtime_lines(rt: dict) -> list[str]:
     floor = "machine floor: probe " + (f"p99 {m['p99_us']} us, worst stall {m['worst_stall_us'] / 1e3:.1f} "
                                        "ms" if "error" not in m else f"failed ({m['error']})")
     plant = nodes.get("PLANT")
+    seen = host_stalls_text(m)
     lateness = (f"  lateness              10 ms nodes p50 {rt['p50_10ms_us']} / p99 {rt['p99_10ms_us']} us"
                 + (f"; PLANT p99 {plant['p99_us']} us" if plant else "")
-                + f"; {floor}; {rt['misses_machine']} misses at machine stalls")
+                + f"; {floor}" + (f"; {seen}" if seen else "")
+                + f"; {rt['misses_machine']} misses at machine stalls"
+                + (f" ({rt['misses_machine_probes']} at the probes' alone)" if seen else ""))
     per_node = [f"  {name:<21} p50 {v['p50_us']} / p99 {v['p99_us']} / max {v['max_us']} us over "
                 f"{_judged(v)}; misses {v['misses_bench']} bench / "
                 f"{v['misses_machine']} machine (> {v['miss_threshold_us']} us); {v['skipped']} skipped"

@@ -17,10 +17,14 @@ cycles skipped.
 Receiving. A host does not wake for each frame: frames wait in the socket (its receive buffer enlarged)
 until the host wakes for its next deadline, then they are taken (hil.can.frame_io: on udp_multicast
 without a select or a can.Message per frame, python-can's wire format either way; frames are sent the
-same way), and each is decoded once and handed to the hosted nodes
-that receive it (`Delivery`, as the lockstep bus does), stamped with its reception time — the kernel's
-timestamp that python-can gives the message, where that is a plausible time of this run, else the time
-it was taken from the socket.
+same way), and each is decoded once and kept for the hosted nodes that receive it (`Delivery`, as the
+lockstep bus does), stamped with its reception time — the kernel's timestamp that python-can gives the
+message, where that is a plausible time of this run, else the time it was taken from the socket.  A node
+takes its frames at its own release, as an ECU's cycle task reads its mailboxes: each cycle checks
+(SecOC, E2E) its own frames, not those of the nodes due after it.
+
+Stalls.  Each host also watches for the machine keeping it from running (`StallWatch`): the probes see a
+CPU every 10 ms, the host every instant of its own waits and cycles.
 
 The plant. Its physics steps every 1 ms on a fixed clock, but only its frames are seen from outside:
 with [realtime] plant_wake = "frames" (the default) the host wakes the plant when a frame of it is due
@@ -36,6 +40,8 @@ from __future__ import annotations
 
 import gc
 import heapq
+import os
+import resource
 import time
 from array import array
 from collections.abc import Callable
@@ -57,6 +63,8 @@ IDLE_GC_NS = 2_000_000         # the automatic collector is off in the loop: you
 IDLE_GC_OBJECTS = 5_000        # when at least this many were allocated and the next deadline is at least
 IDLE_GC_OLDER = 10             # IDLE_GC_NS away (the middle generation every IDLE_GC_OLDER times); one
 #                                collection of 50,000 young objects, at Python's own moment, took ~1 ms
+HOST_STALL_NS = 500_000        # the machine kept the host from running longer than this: a stall it saw [ns]
+#                                (as a probe's: hil.runtime.probe.PROBE_STALL_US)
 
 
 def orphaned() -> bool:
@@ -75,9 +83,10 @@ class Delivery:
     own nodes' frames are handed over as they are sent (`sent`), since not every bus returns a socket's own
     frames (SocketCAN does not; udp_multicast on one host does, unless the host's FrameIO drops them); one
     that does comes back, is recognised among the last ECHO_DEPTH frames sent with its id, and is not
-    delivered twice.  A node in `batched` gets its frames later, in time order, from `replay` (the plant
-    woken on its frames).  The nodes' counts are what one process per node would count: a frame the DBC
-    does not define is unknown to every node, a malformed one bad for each node that takes its id."""
+    delivered twice.  A node in `batched` gets its frames later, in time order: all of them at its release
+    (`replay_all`), or up to a time (`replay`: the plant woken on its frames).  The nodes' counts are what
+    one process per node would count: a frame the DBC does not define is unknown to every node, a
+    malformed one bad for each node that takes its id."""
 
     def __init__(self, nodes: list, codec, batched: frozenset = frozenset(), echoes: bool = True) -> None:
         self.nodes = nodes
@@ -133,6 +142,15 @@ class Delivery:
                 inbox[node].append((t_us, frame_id, values, data))
             else:
                 node.receive_values(frame_id, values, t_us, data)
+
+    def replay_all(self, node) -> None:
+        """Hand a batched node every frame it has received, oldest first."""
+        box = self.inbox[node]
+        if box:
+            receive = node.receive_values
+            for t_us, frame_id, values, data in box:
+                receive(frame_id, values, t_us, data)
+            box.clear()
 
     def replay(self, node, until_us: int, offset_us: int = 0) -> None:
         """Hand a batched node its frames received up to `until_us` on its own clock (host time −
@@ -250,6 +268,83 @@ class PlantEnd:
         return False
 
 
+class StallWatch:
+    """The stalls a host sees itself: intervals in which the machine kept it from running for more than
+    HOST_STALL_NS.  The host's time is split into windows: a wait (from a cycle's end to the next release)
+    and a cycle (release to its frames out).  In each, the time lost is the wall time minus what the thread
+    was given to run (its CPU time), minus what it spent runnable waiting for another process to give a CPU
+    up (the kernel's run_delay, /proc/thread-self/schedstat), minus the sleep it asked for.  What is left
+    the kernel did not give to any process of this machine's: the hypervisor took the virtual CPU, or the
+    timer fired late — the machine's doing, as a probe's stall is.  A cycle in which the thread blocked of
+    its own accord (a voluntary context switch) counts no stall.  A lost interval is placed at the end of
+    its window (within it, where is not known).  Intervals in µs since t0.
+
+    The probes sample each CPU every 10 ms and miss what falls between; the host sees every instant of its
+    own waits and cycles.  Where schedstat cannot be read, nothing is counted (`why_not`)."""
+
+    def __init__(self, t0_ns: int, threshold_ns: int = HOST_STALL_NS) -> None:
+        self.t0_ns, self.threshold_ns = t0_ns, threshold_ns
+        self.intervals = array("q")      # start, end, start, end, ... [µs since t0]
+        self.why_not: str | None = "not watched"
+        self._fd: int | None = None
+        self._wall = self._cpu = self._delay = self._asleep = self._voluntary = 0
+
+    def _lost(self, now_ns: int) -> int:
+        """The time lost since the window began [ns]; a new window begins at `now_ns`."""
+        cpu, delay = time.thread_time_ns(), int(os.pread(self._fd, 64, 0).split()[1])
+        lost = (now_ns - self._wall) - (cpu - self._cpu) - (delay - self._delay) - self._asleep
+        self._wall, self._cpu, self._delay, self._asleep = now_ns, cpu, delay, 0
+        return lost
+
+    def _saw(self, lost_ns: int, end_ns: int) -> None:
+        self.intervals.extend(((end_ns - lost_ns - self.t0_ns) // 1000, (end_ns - self.t0_ns) // 1000))
+
+    def start(self) -> None:
+        """Begin watching, in the thread that runs the loop."""
+        try:
+            self._fd = os.open("/proc/thread-self/schedstat", os.O_RDONLY)
+            int(os.pread(self._fd, 64, 0).split()[1])
+        except (OSError, IndexError, ValueError) as exc:
+            self.close()
+            self.why_not = f"/proc/thread-self/schedstat unreadable ({exc})"
+            return
+        self.why_not = None
+        self._lost(time.monotonic_ns())
+
+    def asleep(self, ns: float) -> None:
+        """The host asked to sleep this long in the window."""
+        self._asleep += int(ns)
+
+    def released(self, now_ns: int) -> None:
+        """A wait ended at `now_ns` (a cycle's release); the cycle's window begins."""
+        if self._fd is None:
+            return
+        lost = self._lost(now_ns)
+        if lost > self.threshold_ns:
+            self._saw(lost, now_ns)
+        self._voluntary = resource.getrusage(resource.RUSAGE_THREAD).ru_nvcsw
+
+    def cycle_ended(self) -> None:
+        """The cycle released last has sent its frames; the wait's window begins."""
+        if self._fd is None:
+            return
+        now = time.monotonic_ns()
+        lost = self._lost(now)
+        if lost > self.threshold_ns and \
+                resource.getrusage(resource.RUSAGE_THREAD).ru_nvcsw == self._voluntary:
+            self._saw(lost, now)
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    def rows(self) -> list[list[int]]:
+        """The stalls as [start, end] rows [µs since t0]."""
+        a = self.intervals
+        return [[a[k], a[k + 1]] for k in range(0, len(a), 2)]
+
+
 class Host:
     """Nodes hosted in this process, their releases and the bus: `run()` until `stop` is set, the plant
     ends the run, or `orphaned()` says the runner died."""
@@ -268,9 +363,12 @@ class Host:
         self.io = FrameIO(bus, drop_own=True, drop_ids=unwanted)
         self._now_us: int | None = None            # now, once per drain
         self.plant = next((k for k, n in enumerate(nodes) if n.name == "PLANT"), None)
-        batched = frozenset({"PLANT"}) if self.plant is not None and plant_wake == "frames" else frozenset()
-        self.delivery = Delivery(nodes, codec, batched, echoes=not self.io.own_dropped)
-        self.batched = bool(batched)
+        self.batched = self.plant is not None and plant_wake == "frames"
+        # every node takes its frames at its own release (an ECU reads its mailboxes at its cycle's start):
+        # a cycle then checks (SecOC, E2E) only its own frames, not those of the nodes due after it
+        self.delivery = Delivery(nodes, codec, frozenset(n.name for k, n in enumerate(nodes)
+                                                         if k != self.plant or self.batched),
+                                 echoes=not self.io.own_dropped)
         # a node is judged in its cycles; the plant woken on its frames in its wakes (MAX_BATCH_US apart:
         # its 1 ms steps are computed at each, on time by construction, and its frames leave at them)
         self.timings = [CycleTiming(MAX_BATCH_US, may_skip=False, judged_in="wakes")
@@ -286,6 +384,7 @@ class Host:
                 truth.rt_lag_us = []
         self.frames_received = 0
         self.timestamps_untrusted = 0    # frames stamped on reception, their own timestamp implausible
+        self.stalls = StallWatch(t0_ns)
 
     # -- time --------------------------------------------------------------------------------------
     def now_us(self) -> int:
@@ -321,6 +420,7 @@ class Host:
             gc.collect(1 if gc.get_count()[1] >= IDLE_GC_OLDER else 0)
             remaining = deadline_ns - now()
         if remaining > self.margin_ns:
+            self.stalls.asleep(remaining - self.margin_ns)
             time.sleep((remaining - self.margin_ns) / 1e9)
         t = now()
         while t < deadline_ns:
@@ -336,11 +436,13 @@ class Host:
     # -- the loop ----------------------------------------------------------------------------------
     def run(self, stop) -> None:
         gc.disable()                         # collected at idle moments instead (_wait)
+        self.stalls.start()
         try:
             self._loop(stop)
         finally:
             gc.enable()
             self.io.close()
+            self.stalls.close()
 
     def _plant_wake_ns(self, node, slot_ns: int) -> int:
         """When to wake the plant whose next step is `slot_ns` [ns, its own clock]: at that step, or, woken
@@ -373,13 +475,16 @@ class Host:
                     return
             deadline_ns = t0 + round(wake_ns / speed)
             now_ns = self._wait(deadline_ns)
+            self.stalls.released(now_ns)
             timing = timings[i]
             late_us = timing.released(deadline_ns, t0, now_ns)
             self._drain()
             if i != plant:
+                self.delivery.replay_all(node)
                 self.end_us = slot[i] // 1000
                 self._send(node, node.cycle(slot[i] // 1000, nominal[i]))
                 timing.ended(t0)
+                self.stalls.cycle_ended()
                 release_ns, nominal[i], _ = releases[i].next()
                 due_us = release_ns // 1000
                 for _ in range(timing.cycles_to_skip(self.now_us() - due_us, due_us)):
@@ -407,8 +512,10 @@ class Host:
                 if self.end is not None and self.end.after(node.controller, step_us):
                     self.reason = self.end.reason
                     timing.ended(t0)
+                    self.stalls.cycle_ended()
                     return
             timing.ended(t0)
+            self.stalls.cycle_ended()
             behind_us = self.now_us() - (slot[i] + slip_ns) // 1000
             timing.cycles_to_skip(behind_us, slot[i] // 1000)
             if behind_us > PLANT_CATCH_UP_US:          # rebase: the plant's clock slips behind the bus's

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hil.runtime.plant_node import TruthLog
-from hil.runtime.probe import late_threshold_us, machine_cycles, stall_intervals
+from hil.runtime.probe import late_threshold_us, machine_cycles, merge_intervals, stall_intervals
 
 
 @dataclass
@@ -57,7 +57,8 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
     """Did the run hold real time?  Every simulated node's cycles (the plant's steps: its wakes) are judged
     against the scenario's [realtime.deadline] budget: a cycle released more than max(miss_min_us,
     miss_period_pct % of the period) after its deadline is a miss; a miss at an instant the machine probe
-    was late too is the machine's (hil.runtime.probe), any other the bench's; a miss behind a late cycle
+    was late too is the machine's (hil.runtime.probe), as is one at an instant its host saw the machine
+    keep it from running (hil.runtime.host.StallWatch); any other the bench's; a miss behind a late cycle
     of the same host inherits that cycle's verdict (hil.runtime.probe.machine_cycles).  The run held when
     no node's bench misses exceed budget_pct % of its cycles and none is later than max_late_periods
     periods.  The machine's misses and its worst stall are reported beside, so that a reader sees
@@ -68,8 +69,7 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
     probes = rt.get("probes") or {}
     if probes:
         rows = [stall_intervals(p["deadline_us"], p["lateness_us"]) for p in probes.values()]
-        stalls = stall_intervals(np.concatenate([r[:, 0] for r in rows]),
-                                 np.concatenate([r[:, 1] - r[:, 0] for r in rows]), stall_us=-1)
+        stalls = merge_intervals(np.concatenate(rows))
         pl = np.concatenate([np.asarray(p["lateness_us"], dtype=np.int64) for p in probes.values()])
         machine = {**lateness_figures(pl), "histogram": histogram(pl), "probes": len(probes),
                    "stalls": int(len(stalls)),
@@ -81,11 +81,22 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
         stalls = np.zeros((0, 2), dtype=np.int64)
         machine = {"error": "; ".join(f"{n}: {e}" for n, e in (rt.get("probe_errors") or {}).items())
                    or "no probe reported"}
+    seen = {h: merge_intervals(v["stalls_us"]) for h, v in (rt.get("host_stalls") or {}).items()}
+    counted = {h: a for h, a in seen.items() if rt["host_stalls"][h]["not_counted"] is None}
+    if seen:
+        machine["host_stalls"] = {
+            h: {"stalls": int(len(a)), "worst_us": int((a[:, 1] - a[:, 0]).max()) if len(a) else 0,
+                "counted": h in counted,
+                **({} if h in counted else {"why": rt["host_stalls"][h]["not_counted"]})}
+            for h, a in seen.items()}
     nodes: dict[str, dict] = {}
     cycles_of = rt.get("cycles") or {}
     thresholds = {n: late_threshold_us(int(c["period_us"]), budget["miss_min_us"],
                                        budget["miss_period_pct"] / 100) for n, c in cycles_of.items()}
-    machines = machine_cycles(cycles_of, thresholds, stalls)
+    machines = machine_cycles(cycles_of, thresholds, stalls, counted)
+    by_probes = machine_cycles(cycles_of, thresholds, stalls) if counted else machines
+    probes_alone = sum(int((by_probes[n] & (np.asarray(c["lateness_us"]) > thresholds[n])).sum())
+                       for n, c in cycles_of.items())
     for name, c in cycles_of.items():
         period = int(c["period_us"])
         threshold = thresholds[name]
@@ -120,6 +131,8 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
         "p99_10ms_us": _pct(pooled, 99), "p50_10ms_us": _pct(pooled, 50),
         "misses_bench": sum(v["misses_bench"] for v in nodes.values()),
         "misses_machine": sum(v["misses_machine"] for v in nodes.values()),
+        # of those, at a probe's stall (or behind one): what a verdict from the probes alone would say
+        "misses_machine_probes": probes_alone,
         "machine": machine,
         "nodes": nodes,
         "histogram_edges_us": list(HISTOGRAM_EDGES_US),

@@ -12,9 +12,11 @@ one probe per CPU.  Before the run the first probe also calibrates the hosts' pr
 A node's cycle released more than `late_threshold_us(period)` after its deadline is a deadline miss.  A
 miss whose interval [deadline, release] overlaps an interval in which a probe was late too (a probe
 stall: [its deadline, its release] with the probe more than PROBE_STALL_US late) is the machine's; any
-other miss is the bench's (`classify_misses`).  Each probe samples every 10 ms: a stall shorter than that
-which falls between its deadlines is not seen, and a miss it causes counts as the bench's — the verdict
-errs against the bench, never for it.
+other miss is the bench's (`classify_misses`).  Each probe samples every 10 ms: a stall that falls between
+its deadlines is not seen by it; the host it kept from running sees it (hil.runtime.host.StallWatch: time
+neither given to it as CPU time nor spent waiting for another process, beyond the sleep it asked for), and
+a miss at a stall of its own host is the machine's too.  A stall seen by neither counts as the bench's —
+the verdict errs against the bench, never for it.
 """
 
 from __future__ import annotations
@@ -53,6 +55,12 @@ def stall_intervals(probe_deadlines_us, probe_lateness_us, stall_us: int = PROBE
     late = np.asarray(probe_lateness_us, dtype=np.int64)
     k = late > stall_us
     rows = np.stack([d[k], d[k] + late[k]], axis=1) if k.any() else np.zeros((0, 2), dtype=np.int64)
+    return merge_intervals(rows)
+
+
+def merge_intervals(rows: np.ndarray) -> np.ndarray:
+    """[start, end] rows sorted by start, those that overlap merged into one."""
+    rows = np.asarray(rows, dtype=np.int64).reshape(-1, 2)
     merged: list[list[int]] = []
     for start, end in rows[np.argsort(rows[:, 0])] if len(rows) else rows:
         if merged and start <= merged[-1][1]:
@@ -78,17 +86,21 @@ def classify_misses(misses: Misses, stalls: np.ndarray) -> np.ndarray:
 
 
 def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
-                   stalls: np.ndarray) -> dict[str, np.ndarray]:
+                   stalls: np.ndarray, host_stalls: dict[str, np.ndarray] | None = None
+                   ) -> dict[str, np.ndarray]:
     """Per node, True for each cycle that is a deadline miss of the machine's.  The nodes of one host run
     one after another: a miss whose deadline came while the host was still busy with a late cycle (the one
     before it ended after this deadline) inherits that cycle's verdict — a stall that delays one cycle of a
     grouped host delays the cycles due behind it too, and those are the stall's doing, not the bench's;
-    every other miss is the machine's when its [deadline, release] overlaps a probe stall."""
+    every other miss is the machine's when its [deadline, release] overlaps a probe stall, or a stall its
+    host saw itself (`host_stalls`, host -> [start, end] rows: hil.runtime.host.StallWatch)."""
     by_host: dict[object, list[str]] = {}
     for name, c in cycles.items():
         by_host.setdefault(c.get("host") or name, []).append(name)
     out = {name: np.zeros(len(c["lateness_us"]), dtype=bool) for name, c in cycles.items()}
-    for names in by_host.values():
+    for host, names in by_host.items():
+        seen = (host_stalls or {}).get(host)
+        known = stalls if seen is None or not len(seen) else merge_intervals(np.concatenate([stalls, seen]))
         rows = []
         for k, name in enumerate(names):
             c = cycles[name]
@@ -106,7 +118,7 @@ def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
         misses = order[order[:, 6] == 1]
         if not len(misses):
             continue
-        alone = classify_misses(Misses(misses[:, 1], misses[:, 2]), stalls)
+        alone = classify_misses(Misses(misses[:, 1], misses[:, 2]), known)
         verdict = dict(zip(map(tuple, misses[:, 4:6].tolist()), alone.tolist(), strict=True))
         prev_end, prev_verdict = -1, None
         for _, deadline, _, ended, k, i, miss in order.tolist():

@@ -272,7 +272,8 @@ def _host_process(host: str, names: tuple[str, ...], scenario_json: str, dbc_pat
             results.put(("result", name, payload))
         results.put(("host", host, {"frames_received": runner.frames_received,
                                     "timestamps_untrusted": runner.timestamps_untrusted,
-                                    "cpu_s": cpu_seconds()}))
+                                    "cpu_s": cpu_seconds(), "stalls_us": runner.stalls.rows(),
+                                    "stalls_not_counted": runner.stalls.why_not}))
     except BaseException as exc:  # report, then exit non-zero: the parent names the host
         _report_failure(results, host, exc)
     finally:
@@ -595,7 +596,10 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     for name, probe in probes.items():          # each process's CPU seconds side by side in run.json
         if "cpu_s" in probe:
             host_info.setdefault(name, {"cpu_s": probe["cpu_s"]})
+    host_stalls = {h: {"stalls_us": info.pop("stalls_us"), "not_counted": info.pop("stalls_not_counted")}
+                   for h, info in host_info.items() if "stalls_us" in info}
     realtime = {
+        "host_stalls": host_stalls,
         "hosting": rt.hosting, "plant_process": rt.plant_process, "plant_wake": rt.plant_wake,
         "hosts": {h: list(m) for h, m in plan.items()},
         "os": setups, "calibration": calibration, "precise_wait": rt.precise_wait,

@@ -217,7 +217,7 @@ def realtime_meta(rt: dict) -> dict:
     """run.json's record of a real-time run: hosting, what the OS granted each process, the sleep
     calibration and the precise wait's margin, the external nodes (the per-cycle figures are in kpis.json's
     verdict, not here)."""
-    skip = ("cycles", "probes")
+    skip = ("cycles", "probes", "host_stalls")
     return {k: v for k, v in rt.items() if k not in skip}
 
 
