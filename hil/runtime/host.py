@@ -183,8 +183,9 @@ def lateness_summary(lateness_us) -> dict:
 
 class CycleTiming:
     """One node's real-time record: each cycle's deadline [µs since t0, on the bus's clock] and release
-    lateness [µs], the cycles released late, the cycles skipped, the largest lag (and when) and, for the
-    plant, how far its clock slipped behind the bus's."""
+    lateness [µs], the time the machine took from its host in the wait before it and in the cycle
+    (`StallWatch`) [µs], the cycles released late, the cycles skipped, the largest lag (and when) and, for
+    the plant, how far its clock slipped behind the bus's."""
 
     def __init__(self, period_us: int, may_skip: bool = True, judged_in: str = "cycles") -> None:
         self.period_us, self.may_skip = period_us, may_skip   # the plant never skips: physics time
@@ -192,19 +193,24 @@ class CycleTiming:
         self.deadline_us = array("q")
         self.lateness = array("q")
         self.ended_us = array("q")     # when each cycle's frames were out [µs since t0]: it blocked the next
+        self.wait_lost_us = array("q")   # the time the machine took from the host in the wait before it
+        self.cycle_lost_us = array("q")  # ... and in the cycle
         self.late = self.missed = self.max_lag = self.max_lag_at = 0
         self.slip_us = 0
 
-    def released(self, deadline_ns: int, t0_ns: int, now_ns: int) -> int:
-        """The wait for a cycle returned at `now_ns`, its deadline was `deadline_ns`: its lateness [µs]."""
+    def released(self, deadline_ns: int, t0_ns: int, now_ns: int, lost_ns: int = 0) -> int:
+        """The wait for a cycle returned at `now_ns`, its deadline was `deadline_ns`, the machine took
+        `lost_ns` of the wait: its lateness [µs]."""
         late = (now_ns - deadline_ns) // 1000
         self.deadline_us.append((deadline_ns - t0_ns) // 1000)
         self.lateness.append(late)
+        self.wait_lost_us.append(lost_ns // 1000)
         return late
 
-    def ended(self, t0_ns: int) -> None:
-        """The cycle released last has sent its frames now."""
+    def ended(self, t0_ns: int, lost_ns: int = 0) -> None:
+        """The cycle released last has sent its frames now; the machine took `lost_ns` of it."""
         self.ended_us.append((time.monotonic_ns() - t0_ns) // 1000)
+        self.cycle_lost_us.append(lost_ns // 1000)
 
     def cycles_to_skip(self, lag_us: int, due_us: int) -> int:
         """The next cycle, due at `due_us`, is `lag_us` late when the one before ended: count it, and
@@ -234,7 +240,8 @@ class CycleTiming:
 
     def payload(self, node) -> dict:
         return {"stats": self.stats(node), "lateness_us": self.lateness, "deadline_us": self.deadline_us,
-                "period_us": self.period_us, "ended_us": self.ended_us, "judged_in": self.judged_in}
+                "period_us": self.period_us, "ended_us": self.ended_us, "judged_in": self.judged_in,
+                "wait_lost_us": self.wait_lost_us, "cycle_lost_us": self.cycle_lost_us}
 
 
 class PlantEnd:
@@ -275,7 +282,8 @@ class StallWatch:
     HOST_STALL_NS.  The host's time is split into windows: a wait (from a cycle's end to the next release)
     and a cycle (release to its frames out).  In each, the time lost is the wall time minus what the thread
     was given to run (its CPU time), minus what it spent runnable waiting for another process to give a CPU
-    up (the kernel's run_delay, /proc/thread-self/schedstat), minus the sleep it asked for.  What is left
+    up (the kernel's run_delay, /proc/thread-self/schedstat), minus the sleep it asked for and the lateness
+    the precise wait allows each sleep (its margin: a sleep's usual lateness, as calibrated).  What is left
     the kernel did not give to any process of this machine's: the hypervisor took the virtual CPU, or the
     timer fired late — the machine's doing, as a probe's stall is.  A cycle in which the thread blocked of
     its own accord (a voluntary context switch) counts no stall.  A lost interval is placed at the end of
@@ -284,8 +292,9 @@ class StallWatch:
     The probes sample each CPU every 10 ms and miss what falls between; the host sees every instant of its
     own waits and cycles.  Where schedstat cannot be read, nothing is counted (`why_not`)."""
 
-    def __init__(self, t0_ns: int, threshold_ns: int = HOST_STALL_NS) -> None:
+    def __init__(self, t0_ns: int, threshold_ns: int = HOST_STALL_NS, allowance_ns: int = 0) -> None:
         self.t0_ns, self.threshold_ns = t0_ns, threshold_ns
+        self.allowance_ns = allowance_ns   # of each sleep's lateness, not counted: what the wait allows for
         self.intervals = array("q")      # start, end, start, end, ... [µs since t0]
         self.why_not: str | None = "not watched"
         self._fd: int | None = None
@@ -314,27 +323,32 @@ class StallWatch:
         self._lost(time.monotonic_ns())
 
     def asleep(self, ns: float) -> None:
-        """The host asked to sleep this long in the window."""
-        self._asleep += int(ns)
+        """The host asked to sleep this long in the window (and allows it to return `allowance_ns` late)."""
+        self._asleep += int(ns) + self.allowance_ns
 
-    def released(self, now_ns: int) -> None:
-        """A wait ended at `now_ns` (a cycle's release); the cycle's window begins."""
+    def released(self, now_ns: int) -> int:
+        """A wait ended at `now_ns` (a cycle's release); the cycle's window begins.  The time the wait lost
+        [ns]."""
         if self._fd is None:
-            return
+            return 0
         lost = self._lost(now_ns)
         if lost > self.threshold_ns:
             self._saw(lost, now_ns)
         self._voluntary = resource.getrusage(resource.RUSAGE_THREAD).ru_nvcsw
+        return max(lost, 0)
 
-    def cycle_ended(self) -> None:
-        """The cycle released last has sent its frames; the wait's window begins."""
+    def cycle_ended(self) -> int:
+        """The cycle released last has sent its frames; the wait's window begins.  The time the cycle lost
+        [ns] (0 when it blocked of its own accord)."""
         if self._fd is None:
-            return
+            return 0
         now = time.monotonic_ns()
         lost = self._lost(now)
-        if lost > self.threshold_ns and \
-                resource.getrusage(resource.RUSAGE_THREAD).ru_nvcsw == self._voluntary:
+        if lost <= 0 or resource.getrusage(resource.RUSAGE_THREAD).ru_nvcsw != self._voluntary:
+            return 0
+        if lost > self.threshold_ns:
             self._saw(lost, now)
+        return lost
 
     def close(self) -> None:
         if self._fd is not None:
@@ -386,7 +400,7 @@ class Host:
                 truth.rt_lag_us = []
         self.frames_received = 0
         self.timestamps_untrusted = 0    # frames stamped on reception, their own timestamp implausible
-        self.stalls = StallWatch(t0_ns)
+        self.stalls = StallWatch(t0_ns, allowance_ns=margin_ns)
 
     # -- time --------------------------------------------------------------------------------------
     def now_us(self) -> int:
@@ -485,16 +499,15 @@ class Host:
                     return
             deadline_ns = t0 + round(wake_ns / speed)
             now_ns = self._wait(deadline_ns)
-            self.stalls.released(now_ns)
+            lost_ns = self.stalls.released(now_ns)
             timing = timings[i]
-            late_us = timing.released(deadline_ns, t0, now_ns)
+            late_us = timing.released(deadline_ns, t0, now_ns, lost_ns)
             self._drain()
             if i != plant:
                 self.delivery.replay_all(node)
                 self.end_us = slot[i] // 1000
                 self._send(node, node.cycle(slot[i] // 1000, nominal[i]))
-                timing.ended(t0)
-                self.stalls.cycle_ended()
+                timing.ended(t0, self.stalls.cycle_ended())
                 release_ns, nominal[i], _ = releases[i].next()
                 due_us = release_ns // 1000
                 for _ in range(timing.cycles_to_skip(self.now_us() - due_us, due_us)):
@@ -521,11 +534,9 @@ class Host:
                 slot[i], nominal[i], _ = releases[i].next()
                 if self.end is not None and self.end.after(node.controller, step_us):
                     self.reason = self.end.reason
-                    timing.ended(t0)
-                    self.stalls.cycle_ended()
+                    timing.ended(t0, self.stalls.cycle_ended())
                     return
-            timing.ended(t0)
-            self.stalls.cycle_ended()
+            timing.ended(t0, self.stalls.cycle_ended())
             behind_us = self.now_us() - (slot[i] + slip_ns) // 1000
             timing.cycles_to_skip(behind_us, slot[i] // 1000)
             if behind_us > PLANT_CATCH_UP_US:          # rebase: the plant's clock slips behind the bus's

@@ -57,9 +57,10 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
     """Did the run hold real time?  Every simulated node's cycles (the plant's steps: its wakes) are judged
     against the scenario's [realtime.deadline] budget: a cycle released more than max(miss_min_us,
     miss_period_pct % of the period) after its deadline is a miss; a miss at an instant the machine probe
-    was late too is the machine's (hil.runtime.probe), as is one at an instant its host saw the machine
-    keep it from running (hil.runtime.host.StallWatch); any other the bench's; a miss behind a late cycle
-    of the same host inherits that cycle's verdict (hil.runtime.probe.machine_cycles).  The run held when
+    was late too is the machine's (hil.runtime.probe), as is one that would have been on time but for the
+    time the machine kept its host from running (hil.runtime.host.StallWatch); any other the bench's; a
+    miss behind a late cycle of the same host inherits that cycle's verdict
+    (hil.runtime.probe.machine_cycles).  The run held when
     no node's bench misses exceed budget_pct % of its cycles and none is later than max_late_periods
     periods.  The machine's misses and its worst stall are reported beside, so that a reader sees
     whether the bench or the host failed."""
@@ -93,8 +94,10 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
     cycles_of = rt.get("cycles") or {}
     thresholds = {n: late_threshold_us(int(c["period_us"]), budget["miss_min_us"],
                                        budget["miss_period_pct"] / 100) for n, c in cycles_of.items()}
-    machines = machine_cycles(cycles_of, thresholds, stalls, counted)
-    by_probes = machine_cycles(cycles_of, thresholds, stalls) if counted else machines
+    machines = machine_cycles(cycles_of, thresholds, stalls)
+    no_host = {n: {k: v for k, v in c.items() if k not in ("wait_lost_us", "cycle_lost_us")}
+               for n, c in cycles_of.items()}
+    by_probes = machine_cycles(no_host, thresholds, stalls)
     probes_alone = sum(int((by_probes[n] & (np.asarray(c["lateness_us"]) > thresholds[n])).sum())
                        for n, c in cycles_of.items())
     for name, c in cycles_of.items():

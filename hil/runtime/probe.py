@@ -15,8 +15,9 @@ stall: [its deadline, its release] with the probe more than PROBE_STALL_US late)
 other miss is the bench's (`classify_misses`).  Each probe samples every 10 ms: a stall that falls between
 its deadlines is not seen by it; the host it kept from running sees it (hil.runtime.host.StallWatch: time
 neither given to it as CPU time nor spent waiting for another process, beyond the sleep it asked for), and
-a miss at a stall of its own host is the machine's too.  A stall seen by neither counts as the bench's —
-the verdict errs against the bench, never for it.
+a miss that would have been on time without the time its host lost is the machine's too
+(`machine_cycles`).  A stall seen by neither counts as the bench's — the verdict errs against the bench,
+never for it.
 """
 
 from __future__ import annotations
@@ -85,32 +86,42 @@ def classify_misses(misses: Misses, stalls: np.ndarray) -> np.ndarray:
     return hit
 
 
+def _column(cycle: dict, key: str, fallback: np.ndarray) -> np.ndarray:
+    """A node's per-cycle record `key`, or `fallback` where it was not recorded for every cycle."""
+    a = np.asarray(cycle.get(key, ()), dtype=np.int64)
+    return a if len(a) == len(fallback) else fallback
+
+
 def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
-                   stalls: np.ndarray, host_stalls: dict[str, np.ndarray] | None = None
-                   ) -> dict[str, np.ndarray]:
-    """Per node, True for each cycle that is a deadline miss of the machine's.  The nodes of one host run
-    one after another: a miss whose deadline came while the host was still busy with a late cycle (the one
-    before it ended after this deadline) inherits that cycle's verdict — a stall that delays one cycle of a
-    grouped host delays the cycles due behind it too, and those are the stall's doing, not the bench's;
-    every other miss is the machine's when its [deadline, release] overlaps a probe stall, or a stall its
-    host saw itself (`host_stalls`, host -> [start, end] rows: hil.runtime.host.StallWatch)."""
+                   stalls: np.ndarray) -> dict[str, np.ndarray]:
+    """Per node, True for each cycle that is a deadline miss of the machine's.
+
+    Seen by a probe: a miss whose [deadline, release] overlaps a probe stall is the machine's.  The nodes
+    of one host run one after another: a miss whose deadline came while the host was still busy with a
+    late cycle (the one before it ended after this deadline) inherits that cycle's verdict — a stall that
+    delays one cycle of a grouped host delays the cycles due behind it too.
+
+    Seen by the host (a cycle's `wait_lost_us` and `cycle_lost_us`: the time the machine took from its
+    host in the wait before the cycle and in the cycle, hil.runtime.host.StallWatch): a miss is the
+    machine's when, without that time, it would not have been one.  Its release would have come
+    `wait_lost_us` earlier, and, if it waited behind the cycle before it, as much earlier as that cycle's
+    end would have (its own release earlier, and its `cycle_lost_us`), never before its deadline."""
     by_host: dict[object, list[str]] = {}
     for name, c in cycles.items():
         by_host.setdefault(c.get("host") or name, []).append(name)
     out = {name: np.zeros(len(c["lateness_us"]), dtype=bool) for name, c in cycles.items()}
-    for host, names in by_host.items():
-        seen = (host_stalls or {}).get(host)
-        known = stalls if seen is None or not len(seen) else merge_intervals(np.concatenate([stalls, seen]))
+    for names in by_host.values():
         rows = []
         for k, name in enumerate(names):
             c = cycles[name]
             d = np.asarray(c["deadline_us"], dtype=np.int64)
             late = np.asarray(c["lateness_us"], dtype=np.int64)
-            ended = np.asarray(c.get("ended_us", ()), dtype=np.int64)
-            if len(ended) != len(d):                     # no record of the cycles' ends: their releases
-                ended = d + late
-            rows.append(np.stack([d + late, d, late, ended, np.full(len(d), k), np.arange(len(d)),
-                                  late > thresholds[name]], axis=1))
+            n = len(d)
+            ended = _column(c, "ended_us", d + late)        # no record of the cycles' ends: their releases
+            zero = np.zeros(n, dtype=np.int64)
+            lost = [_column(c, "wait_lost_us", zero), _column(c, "cycle_lost_us", zero)]
+            rows.append(np.stack([d + late, d, late, ended, np.full(n, k), np.arange(n),
+                                  late > thresholds[name], np.full(n, thresholds[name]), *lost], axis=1))
         if not rows:
             continue
         order = np.concatenate(rows)
@@ -118,18 +129,23 @@ def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
         misses = order[order[:, 6] == 1]
         if not len(misses):
             continue
-        alone = classify_misses(Misses(misses[:, 1], misses[:, 2]), known)
+        alone = classify_misses(Misses(misses[:, 1], misses[:, 2]), stalls)
         verdict = dict(zip(map(tuple, misses[:, 4:6].tolist()), alone.tolist(), strict=True))
-        prev_end, prev_verdict = -1, None
-        for _, deadline, _, ended, k, i, miss in order.tolist():
+        prev_end, prev_verdict, prev_gain = -1, None, 0
+        for _, deadline, late, ended, k, i, miss, threshold, wait_lost, cycle_lost in order.tolist():
+            blocked = prev_end > deadline
+            # without the machine's time, released this much earlier (never before the deadline)
+            gain = min(late, wait_lost + (prev_gain if blocked else 0)) if late > 0 else 0
             if miss:
-                if prev_verdict is not None and prev_end > deadline:          # blocked behind a late cycle
+                if prev_verdict is not None and blocked:          # behind a late cycle: its verdict
                     verdict[(k, i)] = prev_verdict
+                if late - gain <= threshold:                     # on time but for the machine's time
+                    verdict[(k, i)] = True
                 prev_verdict = verdict[(k, i)]
                 out[names[k]][i] = prev_verdict
             else:
                 prev_verdict = None
-            prev_end = ended
+            prev_end, prev_gain = ended, gain + cycle_lost
     return out
 
 

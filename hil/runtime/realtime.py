@@ -607,7 +607,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         "external": list(external),
         "external_first_frame_s": external_seen, "deadline": rt.deadline.model_dump(),
         "cycles": {n: {**{k: payloads[n][k] for k in ("deadline_us", "lateness_us", "period_us", "ended_us",
-                                                      "judged_in")},
+                                                      "judged_in", "wait_lost_us", "cycle_lost_us")},
                        "host": payloads[n]["stats"].get("host")} for n in nodes},
         "host_frames": host_info,
     }
