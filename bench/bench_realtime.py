@@ -211,7 +211,8 @@ def _rows(m: dict, hosting: str) -> list[tuple[str, str]]:
                      f"{plant['cycles']} wakes, p50 {plant['p50_us']} / p99 {plant['p99_us']} / max "
                      f"{plant['max_us']} us"))
     rows.append(("  verdict: bench misses / machine misses (all nodes)",
-                 f"{'held' if rt['held'] else 'NOT HELD'}: {rt['misses_bench']} / {rt['misses_machine']}"))
+                 f"{'held' if rt['held'] else 'NOT HELD'}: {rt['misses_bench']} / {rt['misses_machine']} "
+                 f"({rt.get('misses_machine_probes', rt['misses_machine'])} at the probes' stalls)"))
     rows.append(("  CPU s per simulated s (the whole command)",
                  f"{m['cpu_s'] / m['simulated_s']:.3f} ({m['cpu_s']:.1f} s for {m['simulated_s']:.1f} s)"))
     if m.get("host_cpu_s"):

@@ -31,6 +31,7 @@ def one_run(k: int) -> dict:
     rt = kpis["realtime"]
     worst = max(rt["nodes"], key=lambda n: rt["nodes"][n]["worst_bench_miss_us"])
     return {"run": k, "held": rt["held"], "bench": rt["misses_bench"], "machine": rt["misses_machine"],
+            "probes": rt.get("misses_machine_probes", rt["misses_machine"]),
             "p99": rt["p99_10ms_us"], "probe_p99": rt["machine"].get("p99_us"),
             "stall_ms": (rt["machine"].get("worst_stall_us") or 0) / 1e3, "worst": worst,
             "worst_miss_ms": rt["nodes"][worst]["worst_bench_miss_us"] / 1e3,
@@ -49,8 +50,9 @@ def main() -> int:
             continue
         held += r["held"]
         verdict = "held    " if r["held"] else "NOT HELD"
-        print(f"  run {k:2d}: {verdict} misses bench {r['bench']:3d} / machine {r['machine']:3d}; 10 ms p99 "
-              f"{r['p99']} us; probe p99 {r['probe_p99']} us, worst stall {r['stall_ms']:.1f} ms; worst "
+        print(f"  run {k:2d}: {verdict} misses bench {r['bench']:3d} / machine {r['machine']:3d} "
+              f"({r['probes']} at the probes' stalls); 10 ms p99 {r['p99']} us; "
+              f"probe p99 {r['probe_p99']} us, worst stall {r['stall_ms']:.1f} ms; worst "
               f"bench miss {r['worst_miss_ms']:.1f} ms ({r['worst']}); stop {r['stop_m']:.2f} m; load "
               f"{r['load']:.1f}", flush=True)
     print(f"soak: {held} of {RUNS} runs held real time (goal: {RUNS} of {RUNS}): "
