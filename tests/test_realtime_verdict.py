@@ -160,3 +160,22 @@ def test_a_miss_is_the_machines_when_without_the_time_the_machine_took_from_its_
         in realtime_lines(v)[1]
     o.realtime["host_stalls"]["ECUS"]["not_counted"] = "/proc/thread-self/schedstat unreadable"
     assert realtime_verdict(o)["machine"]["host_stalls"]["ECUS"]["why"].startswith("/proc")
+
+
+def test_cycles_due_after_the_plants_last_wake_are_not_the_runs():
+    """The plant ends the run; a host releases a few more cycles before it hears so (the plant meanwhile
+    hands its results over at the nodes' priority): those are not judged, nor the probes' samples then."""
+    from array import array
+
+    from hil.runtime.realtime import judged_until_the_end
+
+    payloads = {"PLANT": {"deadline_us": array("q", [0, 5_000, 10_000])},
+                "BCU": {"deadline_us": array("q", [2_000, 12_000, 22_000]),
+                        "lateness_us": array("q", [0, 10_100, 30]),
+                        "ended_us": array("q", [2_300, 22_400, 22_300]),
+                        "wait_lost_us": array("q", [0, 0, 0]), "cycle_lost_us": array("q", [0, 0, 0])},
+                "PROBE0": {"deadline_us": array("q", [10_000, 20_000]), "lateness_us": array("q", [60, 70])}}
+    judged_until_the_end(payloads)
+    assert list(payloads["PLANT"]["deadline_us"]) == [0, 5_000, 10_000]
+    assert list(payloads["BCU"]["lateness_us"]) == [0] and len(payloads["BCU"]["cycle_lost_us"]) == 1
+    assert list(payloads["PROBE0"]["deadline_us"]) == [10_000]

@@ -32,6 +32,7 @@ the run with a NodeDied error naming its nodes, after the others ran on for OBSE
 
 from __future__ import annotations
 
+import bisect
 import gc
 import multiprocessing as mp
 import os
@@ -598,6 +599,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
             host_info.setdefault(name, {"cpu_s": probe["cpu_s"]})
     host_stalls = {h: {"stalls_us": info.pop("stalls_us"), "not_counted": info.pop("stalls_not_counted")}
                    for h, info in host_info.items() if "stalls_us" in info}
+    judged_until_the_end(payloads)
     realtime = {
         "host_stalls": host_stalls,
         "hosting": rt.hosting, "plant_process": rt.plant_process, "plant_wake": rt.plant_wake,
@@ -617,6 +619,27 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         node_stats={n: payloads[n]["stats"] for n in nodes}, wall_s=wall,
         lateness_us={n: payloads[n]["lateness_us"] for n in nodes}, realtime=realtime)
     return outcome, epoch_t0, failure
+
+
+PER_CYCLE = ("deadline_us", "lateness_us", "ended_us", "wait_lost_us", "cycle_lost_us")
+
+
+def judged_until_the_end(payloads: dict[str, dict]) -> None:
+    """Keep of each node's (and probe's) per-cycle records only the cycles due by the plant's last wake: the
+    run ended there (standstill, the duration, a death observed); the cycles a host released after it,
+    before it heard the run was over, are not the run's (the plant then hands its results over, at the nodes'
+    priority: one such BCU cycle waited 10 ms for a CPU)."""
+    plant = payloads.get("PLANT")
+    if plant is None or not len(plant["deadline_us"]):
+        return
+    end_us = plant["deadline_us"][-1]
+    for name, payload in payloads.items():
+        if name == "PLANT" or "deadline_us" not in payload:
+            continue
+        k = bisect.bisect_right(payload["deadline_us"], end_us)
+        for key in PER_CYCLE:
+            if key in payload:
+                del payload[key][k:]
 
 
 def _watch_external(bus: can.BusABC, ids: dict[str, set[int]], seen: dict[str, float],
