@@ -179,3 +179,25 @@ def test_cycles_due_after_the_plants_last_wake_are_not_the_runs():
     assert list(payloads["PLANT"]["deadline_us"]) == [0, 5_000, 10_000]
     assert list(payloads["BCU"]["lateness_us"]) == [0] and len(payloads["BCU"]["cycle_lost_us"]) == 1
     assert list(payloads["PROBE0"]["deadline_us"]) == [10_000]
+
+
+@pytest.mark.parametrize(("wait_delay", "plant_cpu", "machines"),
+                         [(1_400, 100, 1), (1_400, 800, 0), (0, 100, 0)])
+def test_a_wait_for_a_cpu_no_other_host_or_probe_could_fill_is_the_machines(wait_delay, plant_cpu, machines):
+    """BECU1 waited 1.4 ms runnable for a CPU in the 4.5 ms before its release, 1.5 ms late.  The plant's
+    windows beside it ran 0.1 ms, the probes may have run 0.3 ms (two probes, one period): 1 ms of the wait
+    was the machine's (its virtual CPU taken while BECU1 queued), and 0.5 ms late is no miss.  Had the plant
+    run 0.8 ms then, only 0.3 ms is the machine's and the miss the bench's; no wait recorded (a host below
+    SCHED_FIFO), the bench's."""
+    nodes = {"BECU1": {"period_us": 10_000, "host": "ECUS", "deadline_us": np.array([3_000]),
+                       "lateness_us": np.array([1_500]), "ended_us": np.array([4_800]),
+                       "wait_lost_us": np.array([0]), "cycle_lost_us": np.array([0]),
+                       "wait_cpu_us": np.array([50]), "cycle_cpu_us": np.array([300]),
+                       "wait_delay_us": np.array([wait_delay]), "cycle_delay_us": np.array([0])},
+             "PLANT": {"period_us": 5_000, "judged_in": "wakes", "host": "PLANT",
+                       "deadline_us": np.array([0]), "lateness_us": np.array([0]),
+                       "ended_us": np.array([200]), "wait_cpu_us": np.array([0]),
+                       "cycle_cpu_us": np.array([plant_cpu])}}
+    v = realtime_verdict(outcome(nodes))
+    becu1 = v["nodes"]["BECU1"]
+    assert (becu1["misses_machine"], becu1["misses_bench"]) == (machines, 1 - machines)

@@ -195,22 +195,30 @@ class CycleTiming:
         self.ended_us = array("q")     # when each cycle's frames were out [µs since t0]: it blocked the next
         self.wait_lost_us = array("q")   # the time the machine took from the host in the wait before it
         self.cycle_lost_us = array("q")  # ... and in the cycle
+        self.wait_cpu_us, self.cycle_cpu_us = array("q"), array("q")        # the host's CPU time in each
+        self.wait_delay_us, self.cycle_delay_us = array("q"), array("q")    # its time waiting for a CPU
         self.late = self.missed = self.max_lag = self.max_lag_at = 0
         self.slip_us = 0
 
-    def released(self, deadline_ns: int, t0_ns: int, now_ns: int, lost_ns: int = 0) -> int:
-        """The wait for a cycle returned at `now_ns`, its deadline was `deadline_ns`, the machine took
-        `lost_ns` of the wait: its lateness [µs]."""
+    def released(self, deadline_ns: int, t0_ns: int, now_ns: int, lost_ns: int = 0, cpu_ns: int = 0,
+                 delay_ns: int = 0) -> int:
+        """The wait for a cycle returned at `now_ns`, its deadline was `deadline_ns`; in the wait the machine
+        took `lost_ns`, the host ran `cpu_ns` and waited `delay_ns` for a CPU: its lateness [µs]."""
         late = (now_ns - deadline_ns) // 1000
         self.deadline_us.append((deadline_ns - t0_ns) // 1000)
         self.lateness.append(late)
         self.wait_lost_us.append(lost_ns // 1000)
+        self.wait_cpu_us.append(cpu_ns // 1000)
+        self.wait_delay_us.append(delay_ns // 1000)
         return late
 
-    def ended(self, t0_ns: int, lost_ns: int = 0) -> None:
-        """The cycle released last has sent its frames now; the machine took `lost_ns` of it."""
+    def ended(self, t0_ns: int, lost_ns: int = 0, cpu_ns: int = 0, delay_ns: int = 0) -> None:
+        """The cycle released last has sent its frames now; in it the machine took `lost_ns`, the host ran
+        `cpu_ns` and waited `delay_ns` for a CPU."""
         self.ended_us.append((time.monotonic_ns() - t0_ns) // 1000)
         self.cycle_lost_us.append(lost_ns // 1000)
+        self.cycle_cpu_us.append(cpu_ns // 1000)
+        self.cycle_delay_us.append(delay_ns // 1000)
 
     def cycles_to_skip(self, lag_us: int, due_us: int) -> int:
         """The next cycle, due at `due_us`, is `lag_us` late when the one before ended: count it, and
@@ -241,7 +249,9 @@ class CycleTiming:
     def payload(self, node) -> dict:
         return {"stats": self.stats(node), "lateness_us": self.lateness, "deadline_us": self.deadline_us,
                 "period_us": self.period_us, "ended_us": self.ended_us, "judged_in": self.judged_in,
-                "wait_lost_us": self.wait_lost_us, "cycle_lost_us": self.cycle_lost_us}
+                "wait_lost_us": self.wait_lost_us, "cycle_lost_us": self.cycle_lost_us,
+                "wait_cpu_us": self.wait_cpu_us, "cycle_cpu_us": self.cycle_cpu_us,
+                "wait_delay_us": self.wait_delay_us, "cycle_delay_us": self.cycle_delay_us}
 
 
 class PlantEnd:
@@ -299,11 +309,13 @@ class StallWatch:
         self.why_not: str | None = "not watched"
         self._fd: int | None = None
         self._wall = self._cpu = self._delay = self._asleep = self._voluntary = 0
+        self.cpu_ns = self.delay_ns = 0  # the last window's CPU time and time waiting for a CPU [ns]
 
     def _lost(self, now_ns: int) -> int:
         """The time lost since the window began [ns]; a new window begins at `now_ns`."""
         cpu, delay = time.thread_time_ns(), int(os.pread(self._fd, 64, 0).split()[1])
-        lost = (now_ns - self._wall) - (cpu - self._cpu) - (delay - self._delay) - self._asleep
+        self.cpu_ns, self.delay_ns = cpu - self._cpu, delay - self._delay
+        lost = (now_ns - self._wall) - self.cpu_ns - self.delay_ns - self._asleep
         self._wall, self._cpu, self._delay, self._asleep = now_ns, cpu, delay, 0
         return lost
 
@@ -344,7 +356,10 @@ class StallWatch:
             return 0
         now = time.monotonic_ns()
         lost = self._lost(now)
-        if lost <= 0 or resource.getrusage(resource.RUSAGE_THREAD).ru_nvcsw != self._voluntary:
+        if resource.getrusage(resource.RUSAGE_THREAD).ru_nvcsw != self._voluntary:
+            self.delay_ns = 0            # it blocked: none of its time is counted the machine's
+            return 0
+        if lost <= 0:
             return 0
         if lost > self.threshold_ns:
             self._saw(lost, now)
@@ -499,15 +514,16 @@ class Host:
                     return
             deadline_ns = t0 + round(wake_ns / speed)
             now_ns = self._wait(deadline_ns)
-            lost_ns = self.stalls.released(now_ns)
+            watch = self.stalls
+            lost_ns = watch.released(now_ns)
             timing = timings[i]
-            late_us = timing.released(deadline_ns, t0, now_ns, lost_ns)
+            late_us = timing.released(deadline_ns, t0, now_ns, lost_ns, watch.cpu_ns, watch.delay_ns)
             self._drain()
             if i != plant:
                 self.delivery.replay_all(node)
                 self.end_us = slot[i] // 1000
                 self._send(node, node.cycle(slot[i] // 1000, nominal[i]))
-                timing.ended(t0, self.stalls.cycle_ended())
+                timing.ended(t0, watch.cycle_ended(), watch.cpu_ns, watch.delay_ns)
                 release_ns, nominal[i], _ = releases[i].next()
                 due_us = release_ns // 1000
                 for _ in range(timing.cycles_to_skip(self.now_us() - due_us, due_us)):
@@ -534,9 +550,9 @@ class Host:
                 slot[i], nominal[i], _ = releases[i].next()
                 if self.end is not None and self.end.after(node.controller, step_us):
                     self.reason = self.end.reason
-                    timing.ended(t0, self.stalls.cycle_ended())
+                    timing.ended(t0, watch.cycle_ended(), watch.cpu_ns, watch.delay_ns)
                     return
-            timing.ended(t0, self.stalls.cycle_ended())
+            timing.ended(t0, watch.cycle_ended(), watch.cpu_ns, watch.delay_ns)
             behind_us = self.now_us() - (slot[i] + slip_ns) // 1000
             timing.cycles_to_skip(behind_us, slot[i] // 1000)
             if behind_us > PLANT_CATCH_UP_US:          # rebase: the plant's clock slips behind the bus's

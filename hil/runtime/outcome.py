@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hil.runtime.plant_node import TruthLog
-from hil.runtime.probe import late_threshold_us, machine_cycles, merge_intervals, stall_intervals
+from hil.runtime.probe import HOST_SEEN, late_threshold_us, machine_cycles, merge_intervals, stall_intervals
 
 
 @dataclass
@@ -94,9 +94,8 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
     cycles_of = rt.get("cycles") or {}
     thresholds = {n: late_threshold_us(int(c["period_us"]), budget["miss_min_us"],
                                        budget["miss_period_pct"] / 100) for n, c in cycles_of.items()}
-    machines = machine_cycles(cycles_of, thresholds, stalls)
-    no_host = {n: {k: v for k, v in c.items() if k not in ("wait_lost_us", "cycle_lost_us")}
-               for n, c in cycles_of.items()}
+    machines = machine_cycles(cycles_of, thresholds, stalls, max(1, len(probes)))
+    no_host = {n: {k: v for k, v in c.items() if k not in HOST_SEEN} for n, c in cycles_of.items()}
     by_probes = machine_cycles(no_host, thresholds, stalls)
     probes_alone = sum(int((by_probes[n] & (np.asarray(c["lateness_us"]) > thresholds[n])).sum())
                        for n, c in cycles_of.items())

@@ -92,8 +92,40 @@ def _column(cycle: dict, key: str, fallback: np.ndarray) -> np.ndarray:
     return a if len(a) == len(fallback) else fallback
 
 
+PROBE_SAMPLE_CPU_US = 150     # a probe's CPU time a sample, at most (0.3-0.4 CPU s for 2,940 samples,
+#                               start-up included): what the probes may take from a host in a window
+
+
+HOST_SEEN = ("wait_lost_us", "cycle_lost_us", "wait_cpu_us", "cycle_cpu_us", "wait_delay_us",
+             "cycle_delay_us")
+
+
+def _windows(order: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A host's waits and cycles in time order as (starts, ends, cumulative CPU [µs]): the wait before each
+    cycle from the end of the one before, then the cycle."""
+    rel, ended = order[:, 0], order[:, 3]
+    starts = np.empty(2 * len(order), dtype=np.int64)
+    ends = np.empty_like(starts)
+    starts[0::2] = np.concatenate([[0], ended[:-1]])
+    ends[0::2] = rel
+    starts[1::2], ends[1::2] = rel, ended
+    cpu = np.empty_like(starts)
+    cpu[0::2], cpu[1::2] = order[:, 10], order[:, 11]
+    return starts, ends, np.concatenate([[0], np.cumsum(cpu)])
+
+
+def _others_cpu(windows: list, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The CPU time the other hosts' windows overlapping [a, b] had, in all (the whole of each)."""
+    total = np.zeros(len(a), dtype=np.int64)
+    for starts, ends, cum in windows:
+        lo = np.searchsorted(np.maximum.accumulate(ends), a, side="right")
+        hi = np.searchsorted(starts, b, side="left")
+        total += np.where(hi > lo, cum[np.maximum(hi, lo)] - cum[lo], 0)
+    return total
+
+
 def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
-                   stalls: np.ndarray) -> dict[str, np.ndarray]:
+                   stalls: np.ndarray, probes: int = 2) -> dict[str, np.ndarray]:
     """Per node, True for each cycle that is a deadline miss of the machine's.
 
     Seen by a probe: a miss whose [deadline, release] overlaps a probe stall is the machine's.  The nodes
@@ -101,16 +133,21 @@ def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
     late cycle (the one before it ended after this deadline) inherits that cycle's verdict — a stall that
     delays one cycle of a grouped host delays the cycles due behind it too.
 
-    Seen by the host (a cycle's `wait_lost_us` and `cycle_lost_us`: the time the machine took from its
-    host in the wait before the cycle and in the cycle, hil.runtime.host.StallWatch): a miss is the
-    machine's when, without that time, it would not have been one.  Its release would have come
-    `wait_lost_us` earlier, and, if it waited behind the cycle before it, as much earlier as that cycle's
-    end would have (its own release earlier, and its `cycle_lost_us`), never before its deadline."""
+    Seen by the host (hil.runtime.host.StallWatch): in the wait before a cycle and in the cycle, the time
+    the machine took from it (`wait_lost_us`, `cycle_lost_us`), and the time it waited for a CPU
+    (`wait_delay_us`, `cycle_delay_us`, recorded only for a host at SCHED_FIFO, which only the other hosts
+    and the probes above it could keep waiting).  Of that wait, what the other hosts' waits and cycles
+    overlapping it ran on a CPU in all, and `probes` × PROBE_SAMPLE_CPU_US a probe period, may have been
+    the bench's; the rest was the machine's (its virtual CPU taken while the host queued).  A miss is the
+    machine's when, without the machine's time, it would not have been one: its release would have come
+    that much earlier, and, if it waited behind the cycle before it, as much earlier as that cycle's end
+    would have, never before its deadline."""
     by_host: dict[object, list[str]] = {}
     for name, c in cycles.items():
         by_host.setdefault(c.get("host") or name, []).append(name)
     out = {name: np.zeros(len(c["lateness_us"]), dtype=bool) for name, c in cycles.items()}
-    for names in by_host.values():
+    orders = {}
+    for host, names in by_host.items():
         rows = []
         for k, name in enumerate(names):
             c = cycles[name]
@@ -119,20 +156,30 @@ def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
             n = len(d)
             ended = _column(c, "ended_us", d + late)        # no record of the cycles' ends: their releases
             zero = np.zeros(n, dtype=np.int64)
-            lost = [_column(c, "wait_lost_us", zero), _column(c, "cycle_lost_us", zero)]
+            host_seen = [_column(c, key, zero) for key in HOST_SEEN]
             rows.append(np.stack([d + late, d, late, ended, np.full(n, k), np.arange(n),
-                                  late > thresholds[name], np.full(n, thresholds[name]), *lost], axis=1))
-        if not rows:
-            continue
-        order = np.concatenate(rows)
-        order = order[np.argsort(order[:, 0], kind="stable")]       # the host's cycles as it ran them
+                                  late > thresholds[name], np.full(n, thresholds[name]), *host_seen], axis=1))
+        if rows:
+            order = np.concatenate(rows)
+            orders[host] = order[np.argsort(order[:, 0], kind="stable")]   # the host's cycles as it ran them
+    windows = {host: _windows(order) for host, order in orders.items()}
+    for host, order in orders.items():
+        names = by_host[host]
+        others = [w for h, w in windows.items() if h != host]
+        starts, ends, _ = windows[host]
+        allowed = _others_cpu(others, starts, ends) + probes * PROBE_SAMPLE_CPU_US * (
+            (ends - starts) // PROBE_PERIOD_US + 1)
+        machine_wait = np.maximum(0, order[:, 12:14].reshape(-1) - allowed)
+        order[:, 8] += machine_wait[0::2]          # the wait's and the cycle's time the machine took
+        order[:, 9] += machine_wait[1::2]
         misses = order[order[:, 6] == 1]
         if not len(misses):
             continue
         alone = classify_misses(Misses(misses[:, 1], misses[:, 2]), stalls)
         verdict = dict(zip(map(tuple, misses[:, 4:6].tolist()), alone.tolist(), strict=True))
         prev_end, prev_verdict, prev_gain = -1, None, 0
-        for _, deadline, late, ended, k, i, miss, threshold, wait_lost, cycle_lost in order.tolist():
+        for row in order.tolist():
+            _, deadline, late, ended, k, i, miss, threshold, wait_lost, cycle_lost = row[:10]
             blocked = prev_end > deadline
             # without the machine's time, released this much earlier (never before the deadline)
             gain = min(late, wait_lost + (prev_gain if blocked else 0)) if late > 0 else 0
