@@ -183,9 +183,10 @@ def lateness_summary(lateness_us) -> dict:
 
 class CycleTiming:
     """One node's real-time record: each cycle's deadline [µs since t0, on the bus's clock] and release
-    lateness [µs], the time the machine took from its host in the wait before it and in the cycle
-    (`StallWatch`) [µs], the cycles released late, the cycles skipped, the largest lag (and when) and, for
-    the plant, how far its clock slipped behind the bus's."""
+    lateness [µs]; in the wait before it and in the cycle, the time the machine took from its host, the
+    host's CPU time and its time waiting for a CPU (`StallWatch`) [µs]; the cycles released late, the
+    cycles skipped, the largest lag (and when) and, for the plant, how far its clock slipped behind the
+    bus's."""
 
     def __init__(self, period_us: int, may_skip: bool = True, judged_in: str = "cycles") -> None:
         self.period_us, self.may_skip = period_us, may_skip   # the plant never skips: physics time
@@ -288,16 +289,16 @@ class PlantEnd:
 
 
 class StallWatch:
-    """The stalls a host sees itself: intervals in which the machine kept it from running for more than
-    HOST_STALL_NS.  The host's time is split into windows: a wait (from a cycle's end to the next release)
-    and a cycle (release to its frames out).  In each, the time lost is the wall time minus what the thread
-    was given to run (its CPU time), minus what it spent runnable waiting for another process to give a CPU
-    up (the kernel's run_delay, /proc/thread-self/schedstat), minus the sleep it asked for and the lateness
-    the precise wait allows each sleep (its margin: a sleep's usual lateness, as calibrated).  What is left
-    the kernel did not give to any process of this machine's: the hypervisor took the virtual CPU, or the
-    timer fired late — the machine's doing, as a probe's stall is.  A cycle in which the thread blocked of
-    its own accord (a voluntary context switch) counts no stall.  A lost interval is placed at the end of
-    its window (within it, where is not known).  Intervals in µs since t0.
+    """What a host sees of the machine itself.  Its time is split into windows: a wait (from a cycle's end
+    to the next release) and a cycle (release to its frames out); of each it keeps its CPU time
+    (`cpu_ns`), its time runnable waiting for a CPU (`delay_ns`) and the time lost.  The time lost is the
+    wall time minus the CPU time, minus the wait for a CPU (the kernel's run_delay,
+    /proc/thread-self/schedstat), minus the sleep it asked for and the lateness the precise wait allows each
+    sleep (its margin: a sleep's usual lateness, as calibrated).  What is left the kernel did not give to
+    any process of this machine's: the hypervisor took the virtual CPU, or the timer fired late — the
+    machine's doing, as a probe's stall is.  A cycle in which the thread blocked of its own accord (a
+    voluntary context switch) counts nothing.  More than HOST_STALL_NS lost in one window is a stall
+    (`rows`: placed at the end of its window, where within it is not known; µs since t0).
 
     The probes sample each CPU every 10 ms and miss what falls between; the host sees every instant of its
     own waits and cycles.  Where schedstat cannot be read, nothing is counted (`why_not`)."""

@@ -60,10 +60,9 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
     was late too is the machine's (hil.runtime.probe), as is one that would have been on time but for the
     time the machine kept its host from running (hil.runtime.host.StallWatch); any other the bench's; a
     miss behind a late cycle of the same host inherits that cycle's verdict
-    (hil.runtime.probe.machine_cycles).  The run held when
-    no node's bench misses exceed budget_pct % of its cycles and none is later than max_late_periods
-    periods.  The machine's misses and its worst stall are reported beside, so that a reader sees
-    whether the bench or the host failed."""
+    (hil.runtime.probe.machine_cycles).  The run held when no node's bench misses exceed budget_pct % of
+    its cycles and none is later than max_late_periods periods.  The machine's misses and its worst stall
+    are reported beside, so that a reader sees whether the bench or the host failed."""
     rt = outcome.realtime or {}
     budget = rt.get("deadline") or {"miss_min_us": 500, "miss_period_pct": 5.0, "budget_pct": 0.1,
                                     "max_late_periods": 1.0}

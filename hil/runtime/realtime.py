@@ -55,6 +55,7 @@ from hil.runtime.gctune import LOOP_THRESHOLDS
 from hil.runtime.host import orphaned
 from hil.runtime.outcome import RunOutcome
 from hil.runtime.plant_node import TruthLog
+from hil.runtime.probe import HOST_SEEN
 from hil.runtime.rtos import NODE_PRIORITY, RECORDER_PRIORITY, RtSetup, make_realtime, pin_plan
 from hil.scenario import Scenario
 from hil.trace.writers import open_writer
@@ -608,12 +609,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         "margin_ns": shared.margin_ns.value, "probes": probes, "probe_errors": probe_errors,
         "external": list(external),
         "external_first_frame_s": external_seen, "deadline": rt.deadline.model_dump(),
-        "cycles": {n: {**{k: payloads[n][k] for k in ("period_us", "judged_in", *PER_CYCLE)
-                          # a wait for a CPU is the machine's only at SCHED_FIFO: below it, the bench's own
-                          # recorder and runner may have held the CPU (hil.runtime.probe.machine_cycles)
-                          if k not in CPU_WAITS or (setups.get(payloads[n]["stats"].get("host")) or {})
-                          .get("policy") == "SCHED_FIFO"},
-                       "host": payloads[n]["stats"].get("host")} for n in nodes},
+        "cycles": {n: cycle_record(payloads[n], setups) for n in nodes},
         "host_frames": host_info,
     }
     outcome = RunOutcome(
@@ -624,9 +620,18 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     return outcome, epoch_t0, failure
 
 
-PER_CYCLE = ("deadline_us", "lateness_us", "ended_us", "wait_lost_us", "cycle_lost_us", "wait_cpu_us",
-             "cycle_cpu_us", "wait_delay_us", "cycle_delay_us")
+PER_CYCLE = ("deadline_us", "lateness_us", "ended_us", *HOST_SEEN)     # a node's records, one per cycle
 CPU_WAITS = ("wait_delay_us", "cycle_delay_us")
+
+
+def cycle_record(payload: dict, setups: dict[str, dict]) -> dict:
+    """A node's cycles as the verdict reads them (hil.runtime.probe.machine_cycles), and its host.  Its
+    waits for a CPU only from a host at SCHED_FIFO: below it, the bench's own recorder and runner may have
+    held the CPU."""
+    host = payload["stats"].get("host")
+    fifo = (setups.get(host) or {}).get("policy") == "SCHED_FIFO"
+    return {**{k: payload[k] for k in ("period_us", "judged_in", *PER_CYCLE) if fifo or k not in CPU_WAITS},
+            "host": host}
 
 
 def judged_until_the_end(payloads: dict[str, dict]) -> None:
