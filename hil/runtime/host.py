@@ -388,19 +388,18 @@ class Host:
         self.t0_ns, self.speed, self.margin_ns = t0_ns, speed, margin_ns
         self.epoch_t0 = time.time() + (t0_ns - time.monotonic_ns()) / 1e9   # t0 on the wall clock [s]
         self._scale = 1e6 * speed                  # bus seconds to µs of simulated time
-        # udp_multicast on Linux: its own frames do not come back, nor the DBC's frames no hosted node takes
-        # (a frame the DBC does not define still comes: every node counts it)
-        wanted = {fid for node in nodes for fid in node.rx_ids}
-        unwanted = [fc.frame_id for fc in codec if fc.frame_id not in wanted]
-        self.io = FrameIO(bus, drop_own=True, drop_ids=unwanted)
         self._now_us: int | None = None            # now, once per drain
         self.plant = next((k for k, n in enumerate(nodes) if n.name == "PLANT"), None)
         self.batched = self.plant is not None and plant_wake == "frames"
         # every node takes its frames at its own release (an ECU reads its mailboxes at its cycle's start):
         # a cycle then checks (SecOC, E2E) only its own frames, not those of the nodes due after it
         self.delivery = Delivery(nodes, codec, frozenset(n.name for k, n in enumerate(nodes)
-                                                         if k != self.plant or self.batched),
-                                 echoes=not self.io.own_dropped)
+                                                         if k != self.plant or self.batched))
+        # udp_multicast on Linux: its own frames do not come back, nor the DBC's frames no hosted node takes
+        # (a frame the DBC does not define still comes: every node counts it)
+        unwanted = [fc.frame_id for fc in codec if fc.frame_id not in self.delivery.subscribers]
+        self.io = FrameIO(bus, drop_own=True, drop_ids=unwanted)
+        self.delivery.echoes = not self.io.own_dropped
         # a node is judged in its cycles; the plant woken on its frames in its wakes (MAX_BATCH_US apart:
         # its 1 ms steps are computed at each, on time by construction, and its frames leave at them)
         self.timings = [CycleTiming(MAX_BATCH_US, may_skip=False, judged_in="wakes")
