@@ -15,7 +15,9 @@ from hil.runtime.host import StallWatch
 pytestmark = pytest.mark.skipif(not os.path.exists("/proc/thread-self/schedstat"),
                                 reason="the kernel gives no /proc/thread-self/schedstat (CONFIG_SCHED_INFO)")
 
-TRIALS = 5       # the machine may take the CPU in any one trial: a clean trial shows what the host did
+TRIALS = 20      # the machine may take the CPU in any one trial (in a stall-heavy hour of this VM, in most
+#                  trials of 5 ms: the clean-clone `make test` of 14:17 failed with 5): a clean trial shows
+#                  what the host did
 
 
 def busy(ns: int) -> None:
@@ -39,9 +41,9 @@ def watched(window) -> list[list[int]]:
 def test_the_sleep_asked_for_and_the_hosts_own_work_are_no_stall():
     def window(kind, w):
         if kind == "wait":
-            w.asleep(3_000_000)
-            time.sleep(0.003)            # asked for
-        busy(2_000_000)                  # work, and polling the clock
+            w.asleep(2_000_000)
+            time.sleep(0.002)            # asked for
+        busy(1_000_000)                  # work, and polling the clock
     assert any(watched(window) == [] for _ in range(TRIALS))
 
 
