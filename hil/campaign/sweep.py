@@ -596,8 +596,12 @@ def _summary_plots(result: CampaignResult) -> list[Path]:
         xs = [r.point.values[key] for r in ok]
         if not all(_is_number(x) for x in xs):
             continue
-        fig, axes = plt.subplots(len(metrics), 1, figsize=(6.4, 2.2 * len(metrics) + 0.6), sharex=True,
-                                 squeeze=False)
+        height_in = 2.2 * len(metrics) + 0.6
+        fig, axes = plt.subplots(len(metrics), 1, figsize=(6.4, height_in), sharex=True, squeeze=False)
+        # fixed margins [in] for the tick labels, the y labels and the title: tight_layout drew the whole
+        # figure once more to measure them, 40 % of the campaign's closing plot (~0.1-0.2 s on 2 cores)
+        fig.subplots_adjust(left=1.0 / 6.4, right=1.0 - 0.15 / 6.4, top=1.0 - 0.45 / height_in,
+                            bottom=0.55 / height_in, hspace=0.12)
         for ax, metric in zip(axes[:, 0], metrics, strict=True):
             pairs = [(x, _flatten(r.kpis).get(metric)) for x, r in zip(xs, ok, strict=True)]
             pairs = [(x, y) for x, y in pairs if _is_number(y)]
@@ -611,7 +615,6 @@ def _summary_plots(result: CampaignResult) -> list[Path]:
             ax.grid(True, alpha=0.3)
         axes[-1, 0].set_xlabel(key)
         fig.suptitle(f"campaign {result.campaign.name}: {len(ok)} points")
-        fig.tight_layout()
         path = result.out_dir / f"plot_{key.replace('/', '_')}.png"
         fig.savefig(path, dpi=100)
         plt.close(fig)
