@@ -201,3 +201,35 @@ def test_a_wait_for_a_cpu_no_other_host_or_probe_could_fill_is_the_machines(wait
     v = realtime_verdict(outcome(nodes))
     becu1 = v["nodes"]["BECU1"]
     assert (becu1["misses_machine"], becu1["misses_bench"]) == (machines, 1 - machines)
+
+
+@pytest.mark.parametrize(("pinned", "machines"), [(False, 1), (True, 0)])
+def test_on_two_cpus_one_other_host_cannot_keep_an_unpinned_host_waiting(pinned, machines):
+    """The same 1.4 ms wait, the plant running 0.8 ms beside it, on a machine of two CPUs (a probe each).
+    ECUS may run on either: it waits only while both run another host or a probe, at most the probes' 0.3 ms
+    here (the plant and a probe at once, or both probes), plus what a process below it may hold a CPU in a
+    system call: 1 ms of the wait is the machine's, the miss too.  ECUS pinned to one CPU: the plant may
+    have held that one all along, the miss is the bench's."""
+    from hil.runtime.probe import BENCH_HOLD_US, PROBE_SAMPLE_CPU_US, bench_wait_bound
+
+    becu1 = {"period_us": 10_000, "host": "ECUS", "deadline_us": np.array([3_000]),
+             "lateness_us": np.array([1_500]), "ended_us": np.array([4_800]),
+             "wait_lost_us": np.array([0]), "cycle_lost_us": np.array([0]),
+             "wait_cpu_us": np.array([50]), "cycle_cpu_us": np.array([300]),
+             "wait_delay_us": np.array([1_400]), "cycle_delay_us": np.array([0]),
+             **({"cpus": 1} if pinned else {})}
+    plant = {"period_us": 5_000, "judged_in": "wakes", "host": "PLANT", "deadline_us": np.array([0]),
+             "lateness_us": np.array([0]), "ended_us": np.array([1_000]), "wait_cpu_us": np.array([0]),
+             "cycle_cpu_us": np.array([800])}
+    v = realtime_verdict(outcome({"BECU1": becu1, "PLANT": plant},
+                                 probes={"PROBE0": probe(3_000), "PROBE1": probe(3_000)}))
+    assert (v["nodes"]["BECU1"]["misses_machine"], v["nodes"]["BECU1"]["misses_bench"]) == (machines,
+                                                                                           1 - machines)
+    # the bound itself: the plant's 0.8 ms and two probes' 0.15 ms in a 4.5 ms window
+    plant_window = (np.array([0, 0]), np.array([0, 1_000]), np.array([0, 0, 800]))
+    a, b = np.array([0]), np.array([4_500])
+    probes = 2 * PROBE_SAMPLE_CPU_US
+    assert bench_wait_bound([plant_window], a, b, probes=2, cpus=2)[0] == probes + BENCH_HOLD_US
+    assert bench_wait_bound([plant_window], a, b, probes=2, cpus=1)[0] == 800 + probes + BENCH_HOLD_US
+    # no host's CPU time counts for more than the window's length: a 0.3 ms window beside 0.8 ms of plant
+    assert bench_wait_bound([plant_window], a, np.array([300]), probes=0, cpus=1)[0] == 300 + BENCH_HOLD_US

@@ -94,6 +94,10 @@ def _column(cycle: dict, key: str, fallback: np.ndarray) -> np.ndarray:
 
 PROBE_SAMPLE_CPU_US = 150     # a probe's CPU time a sample, at most (0.3-0.4 CPU s for 2,940 samples,
 #                               start-up included): what the probes may take from a host in a window
+BENCH_HOLD_US = 100           # what the bench's processes below the hosts' priority (the recorder, the
+#                               runner) may hold a CPU a window in the kernel, where a real-time task cannot
+#                               preempt them (this VM's kernel: "Dynamic Preempt: none"): a system call's
+#                               length, tens of µs (chosen, generous)
 
 
 HOST_SEEN = ("wait_lost_us", "cycle_lost_us", "wait_cpu_us", "cycle_cpu_us", "wait_delay_us",
@@ -114,14 +118,34 @@ def _windows(order: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return starts, ends, np.concatenate([[0], np.cumsum(cpu)])
 
 
-def _others_cpu(windows: list, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The CPU time the other hosts' windows overlapping [a, b] had, in all (the whole of each)."""
-    total = np.zeros(len(a), dtype=np.int64)
-    for starts, ends, cum in windows:
-        lo = np.searchsorted(np.maximum.accumulate(ends), a, side="right")
-        hi = np.searchsorted(starts, b, side="left")
-        total += np.where(hi > lo, cum[np.maximum(hi, lo)] - cum[lo], 0)
-    return total
+def _window_cpu(window: tuple, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The CPU time another host's windows overlapping [a, b] had, in all (the whole of each)."""
+    starts, ends, cum = window
+    lo = np.searchsorted(np.maximum.accumulate(ends), a, side="right")
+    hi = np.searchsorted(starts, b, side="left")
+    return np.where(hi > lo, cum[np.maximum(hi, lo)] - cum[lo], 0)
+
+
+def bench_wait_bound(others: list, a: np.ndarray, b: np.ndarray, probes: int, cpus: int) -> np.ndarray:
+    """The most a host at SCHED_FIFO that may run on `cpus` CPUs could have waited for a CPU in each of its
+    windows [a, b] because of the bench [µs].
+
+    A task at SCHED_FIFO waits for a CPU only while every CPU it may run on runs a task of its priority or
+    above: the kernel's real-time balancing moves it to a CPU that runs anything less.  Of the bench those
+    are the other hosts (`others`: their windows) and the probes, one step above.  The time in which all
+    `cpus` CPUs ran one of them is at most their CPU time in the window less that of the cpus − 1 busiest
+    (at every such instant one of the others runs), each counted as the whole CPU time of its windows that
+    overlap [a, b] (it may have fallen anywhere in them) but at most the window's length (one thread), a
+    probe as PROBE_SAMPLE_CPU_US a sample.  Plus BENCH_HOLD_US: a process below the hosts' priority in a
+    system call holds its CPU until it returns.  Bounds, never estimates: what they leave is the machine's
+    (the hypervisor ran another virtual CPU while the host was queued on this one)."""
+    span = b - a
+    each = [np.minimum(span, _window_cpu(w, a, b)) for w in others]
+    each += [np.minimum(span, PROBE_SAMPLE_CPU_US * (span // PROBE_PERIOD_US + 1))] * probes
+    if not each:
+        return np.full(len(a), BENCH_HOLD_US, dtype=np.int64)
+    ranked = np.sort(np.stack(each), axis=0)
+    return ranked[:max(len(each) - (cpus - 1), 0)].sum(axis=0) + BENCH_HOLD_US
 
 
 def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
@@ -136,15 +160,18 @@ def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
     Seen by the host (hil.runtime.host.StallWatch): in the wait before a cycle and in the cycle, the time
     the machine took from it (`wait_lost_us`, `cycle_lost_us`), and the time it waited for a CPU
     (`wait_delay_us`, `cycle_delay_us`, recorded only for a host at SCHED_FIFO, which only the other hosts
-    and the probes above it could keep waiting).  Of that wait, what the other hosts' waits and cycles
-    overlapping it ran on a CPU in all, and `probes` × PROBE_SAMPLE_CPU_US a probe period, may have been
-    the bench's; the rest was the machine's (its virtual CPU taken while the host queued).  A miss is the
+    and the probes above it could keep waiting).  Of that wait, at most `bench_wait_bound` may have been
+    the bench's: on a host's `cpus` CPUs (its record's, else one per probe), the time all of them ran
+    another host or a probe; the rest was the machine's (its virtual CPU taken while the host queued).
+    A miss is the
     machine's when, without the machine's time, it would not have been one: its release would have come
     that much earlier, and, if it waited behind the cycle before it, as much earlier as that cycle's end
     would have, never before its deadline."""
     by_host: dict[object, list[str]] = {}
+    cpus: dict[object, int | None] = {}          # the CPUs a host could run on (None: all, one probe each)
     for name, c in cycles.items():
         by_host.setdefault(c.get("host") or name, []).append(name)
+        cpus[c.get("host") or name] = c.get("cpus")
     out = {name: np.zeros(len(c["lateness_us"]), dtype=bool) for name, c in cycles.items()}
     orders = {}
     for host, names in by_host.items():
@@ -167,8 +194,7 @@ def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
         names = by_host[host]
         others = [w for h, w in windows.items() if h != host]
         starts, ends, _ = windows[host]
-        allowed = _others_cpu(others, starts, ends) + probes * PROBE_SAMPLE_CPU_US * (
-            (ends - starts) // PROBE_PERIOD_US + 1)
+        allowed = bench_wait_bound(others, starts, ends, probes, cpus.get(host) or probes)
         machine_wait = np.maximum(0, order[:, 12:14].reshape(-1) - allowed)
         order[:, 8] += machine_wait[0::2]          # the wait's and the cycle's time the machine took
         order[:, 9] += machine_wait[1::2]

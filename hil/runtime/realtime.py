@@ -625,13 +625,14 @@ CPU_WAITS = ("wait_delay_us", "cycle_delay_us")
 
 
 def cycle_record(payload: dict, setups: dict[str, dict]) -> dict:
-    """A node's cycles as the verdict reads them (hil.runtime.probe.machine_cycles), and its host.  Its
-    waits for a CPU only from a host at SCHED_FIFO: below it, the bench's own recorder and runner may have
-    held the CPU."""
+    """A node's cycles as the verdict reads them (hil.runtime.probe.machine_cycles), its host, and the
+    number of CPUs the host was pinned to (absent: not pinned, every CPU).  Its waits for a CPU only from a
+    host at SCHED_FIFO: below it, the bench's own recorder and runner may have held the CPU."""
     host = payload["stats"].get("host")
-    fifo = (setups.get(host) or {}).get("policy") == "SCHED_FIFO"
+    setup = setups.get(host) or {}
+    fifo = setup.get("policy") == "SCHED_FIFO"
     return {**{k: payload[k] for k in ("period_us", "judged_in", *PER_CYCLE) if fifo or k not in CPU_WAITS},
-            "host": host}
+            "host": host, **({"cpus": len(setup["cpus"])} if setup.get("cpus") else {})}
 
 
 def judged_until_the_end(payloads: dict[str, dict]) -> None:
