@@ -1,9 +1,10 @@
 """Shared fixtures: one lockstep run of the default scenario per test session (it is deterministic), and
-one real-time run of it for the real-time tests."""
+one real-time run of it for the real-time tests; where the corpus of third-party files is (CORPUS)."""
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -12,6 +13,24 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT = ROOT / "scenarios" / "default.toml"
+
+
+def _corpus() -> Path:
+    """The corpus of DBC files and traces no one here wrote (python-can, cantools, opendbc, SavvyCAN): the
+    folder RAILHIL_CORPUS names, else ../shared/corpus beside the repository, else the development
+    machine's copy (a clean clone elsewhere, as CI's, still reads it); the tests that need it skip, saying
+    so, where none exists."""
+    named = os.environ.get("RAILHIL_CORPUS")
+    if named:
+        return Path(named)
+    beside = ROOT.parent / "shared" / "corpus"
+    for folder in (beside, Path("/work/shared/corpus")):
+        if folder.is_dir():
+            return folder
+    return beside
+
+
+CORPUS = _corpus()
 
 
 @pytest.fixture(scope="session")

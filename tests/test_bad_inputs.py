@@ -34,7 +34,7 @@ import can
 import numpy as np
 import pytest
 from can.io import blf
-from conftest import ROOT, assert_one_line_error, railhil
+from conftest import CORPUS, assert_one_line_error, railhil
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pydantic import BaseModel
@@ -43,9 +43,6 @@ from hil.can.codec import Codec
 from hil.can.dbc import DEFAULT_DBC, load_dbc
 from hil.errors import ScenarioError
 
-CORPUS = ROOT.parent / "shared" / "corpus"
-if not CORPUS.is_dir():
-    CORPUS = Path("/work/shared/corpus")
 TESLA = CORPUS / "opendbc" / "opendbc" / "dbc" / "tesla_can.dbc"
 RAILHIL = Path(sys.executable).with_name("railhil")
 N_FRAMES = 3000                # frames of the good traces: 10 ms apart, several BLF containers

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import cantools
 import pytest
+from conftest import CORPUS
 
 from hil.can.busload import (
     BusLoad,
@@ -20,7 +20,6 @@ from hil.can.busload import (
 from hil.errors import DbcError
 
 ROOT = Path(__file__).resolve().parents[1]
-CORPUS = Path(os.environ.get("RAILHIL_CORPUS", "/work/shared/corpus"))
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 import random
 from pathlib import Path
 
@@ -17,6 +16,7 @@ import cantools
 import numpy as np
 import pytest
 from cantools.database.errors import DecodeError, EncodeError
+from conftest import CORPUS
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
@@ -24,7 +24,6 @@ from hil.can.codec import Codec, FrameCodec, FrameError
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN_DBC = ROOT / "dbc" / "train_brake.dbc"
-CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
 CORPUS_DBCS = sorted(CORPUS.glob("**/*.dbc")) if CORPUS.is_dir() else []
 MAX_LEN = 64  # longest CAN FD payload; one drawn payload is cut to each message's length
 PROPERTY = settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])

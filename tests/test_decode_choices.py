@@ -26,7 +26,7 @@ import can
 import pytest
 from cantools.database.can import Database
 from cantools.database.namedsignalvalue import NamedSignalValue
-from conftest import assert_one_line_error, railhil
+from conftest import CORPUS, assert_one_line_error, railhil
 
 from hil.can.codec import Codec
 from hil.can.dbc import load_dbc
@@ -34,7 +34,6 @@ from hil.errors import DbcError
 from hil.trace.fastdecode import table_word
 
 ROOT = Path(__file__).resolve().parents[1]
-CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
 NO_CORPUS = f"no trace corpus at {CORPUS} (set RAILHIL_CORPUS)"
 CANTOOLS_DBC = CORPUS / "cantools" / "tests" / "files" / "dbc"
 MOTOHAWK = CANTOOLS_DBC / "motohawk.dbc"

@@ -8,11 +8,11 @@ The corpus lives outside the repository; RAILHIL_CORPUS points to it (default ..
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import CORPUS
 
 from hil.can.codec import Codec, FrameError
 from hil.can.dbc import load_dbc
@@ -21,7 +21,6 @@ from hil.trace.columns import FrameBlock
 from hil.trace.decoded import DecodedTrace
 
 ROOT = Path(__file__).resolve().parents[1]
-CORPUS = Path(os.environ.get("RAILHIL_CORPUS", ROOT.parent / "shared" / "corpus"))
 
 
 def dbcs() -> list:

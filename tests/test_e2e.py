@@ -10,11 +10,11 @@ from __future__ import annotations
 import os
 import random
 import time
-from pathlib import Path
 
 import cantools
 import pytest
 from cantools.autosar.end_to_end import compute_profile2_crc
+from conftest import CORPUS
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -39,7 +39,6 @@ from hil.can.e2e import (
 from hil.can.secoc import AUTH_BYTES, Reason, SecOcReceiver, SecOcSender
 from hil.errors import RailhilError
 
-CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
 VW_MQB_DBC = CORPUS / "opendbc" / "opendbc" / "dbc" / "vw_mqb.dbc"   # commaai/opendbc @ 7343a66d4621
 
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 from pathlib import Path
 
 import can
@@ -23,6 +22,7 @@ import pytest
 from cantools.database.can import Database, Message, Signal
 from cantools.database.conversion import BaseConversion
 from cantools.database.namedsignalvalue import NamedSignalValue
+from conftest import CORPUS
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
@@ -36,7 +36,6 @@ from hil.trace.fastdecode import BlockDecoder
 from hil.trace.readers import TraceError
 
 ROOT = Path(__file__).resolve().parents[1]
-CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
 NO_CORPUS = f"no trace corpus at {CORPUS} (set RAILHIL_CORPUS)"
 CANTOOLS_DBC = CORPUS / "cantools" / "tests" / "files" / "dbc"
 CANDUMP = CORPUS / "SavvyCAN" / "examples" / "candump.log"

@@ -4,13 +4,13 @@ written with python-can, on a corpus trace without a DBC, and on a short lockste
 from __future__ import annotations
 
 import json
-import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import can
 import numpy as np
 import pytest
+from conftest import CORPUS
 
 from hil.can.busload import with_functions
 from hil.can.dbc import load_dbc
@@ -27,7 +27,6 @@ from hil.trace.timing import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
 ISSUE_1256 = CORPUS / "python-can" / "test" / "data" / "issue_1256.asc"
 
 # FAST 0x100 10 ms (11-bit), SLOW 0x18FF0001 100 ms (29-bit), MID 0x200 50 ms, EVENT 0x300 no cycle

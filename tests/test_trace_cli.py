@@ -9,7 +9,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -19,14 +18,13 @@ import cantools
 import pytest
 from can.io.player import MESSAGE_READERS
 from cantools.database.namedsignalvalue import NamedSignalValue
-from conftest import assert_one_line_error, railhil
+from conftest import CORPUS, assert_one_line_error, railhil
 
 from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN_DBC = ROOT / "dbc" / "train_brake.dbc"
-CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
 NO_CORPUS = pytest.mark.skipif(not CORPUS.is_dir(),
                                reason=f"no trace corpus at {CORPUS} (set RAILHIL_CORPUS)")
 CANDUMP = CORPUS / "SavvyCAN" / "examples" / "candump.log"

@@ -8,7 +8,6 @@ The corpus lives outside the repository; RAILHIL_CORPUS points to it (default ..
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -16,14 +15,13 @@ from pathlib import Path
 import can
 import cantools
 import pytest
-from conftest import assert_one_line_error, railhil
+from conftest import CORPUS, assert_one_line_error, railhil
 
 from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN_DBC = ROOT / "dbc" / "train_brake.dbc"
-CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
 MULTIPLEX_DBC = CORPUS / "cantools" / "tests" / "files" / "dbc" / "multiplex.dbc"
 NO_CORPUS = pytest.mark.skipif(not CORPUS.is_dir(),
                                reason=f"no trace corpus at {CORPUS} (set RAILHIL_CORPUS)")

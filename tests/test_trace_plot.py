@@ -7,7 +7,6 @@ The corpus lives outside the repository; RAILHIL_CORPUS points to it (default ..
 
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 
@@ -15,7 +14,7 @@ import can
 import cantools
 import matplotlib.image
 import pytest
-from conftest import assert_one_line_error, railhil
+from conftest import CORPUS, assert_one_line_error, railhil
 
 from hil.can.codec import Codec
 from hil.can.dbc import load_dbc
@@ -26,7 +25,6 @@ from hil.trace.readers import open_trace
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN_DBC = ROOT / "dbc" / "train_brake.dbc"
-CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
 NO_CORPUS = pytest.mark.skipif(not CORPUS.is_dir(),
                                reason=f"no trace corpus at {CORPUS} (set RAILHIL_CORPUS)")
 ISSUE_1256 = CORPUS / "python-can" / "test" / "data" / "issue_1256.asc"

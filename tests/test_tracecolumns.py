@@ -9,7 +9,6 @@ The corpus lives outside the repository; RAILHIL_CORPUS points to it (default ..
 from __future__ import annotations
 
 import io
-import os
 import sys
 from pathlib import Path
 
@@ -17,6 +16,7 @@ import can
 import numpy as np
 import pytest
 from can.io import blf
+from conftest import CORPUS
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -34,7 +34,6 @@ from hil.trace.columns import (
 from hil.trace.readers import CandumpReader, TraceError, open_trace
 from hil.trace.timing import FrameArrays, frame_arrays
 
-CORPUS = Path(os.environ.get("RAILHIL_CORPUS", Path(__file__).resolve().parents[2] / "shared" / "corpus"))
 CORPUS_BLFS = sorted(p for p in (CORPUS.rglob("*") if CORPUS.is_dir() else ())
                      if p.is_file() and p.name.lower().endswith((".blf", ".blf.gz")))
 NO_CORPUS = f"no BLF in a trace corpus at {CORPUS} (set RAILHIL_CORPUS)"
