@@ -94,10 +94,12 @@ def _column(cycle: dict, key: str, fallback: np.ndarray) -> np.ndarray:
 
 PROBE_SAMPLE_CPU_US = 150     # a probe's CPU time a sample, at most (0.3-0.4 CPU s for 2,940 samples,
 #                               start-up included): what the probes may take from a host in a window
-BENCH_HOLD_US = 100           # what the bench's processes below the hosts' priority (the recorder, the
-#                               runner) may hold a CPU a window in the kernel, where a real-time task cannot
-#                               preempt them (this VM's kernel: "Dynamic Preempt: none"): a system call's
-#                               length, tens of µs (chosen, generous)
+BENCH_HOLD_US = 100           # what else of the bench may hold a CPU a window: its processes below the
+#                               hosts' priority (the recorder, the runner) inside a system call, where a
+#                               real-time task cannot preempt them (this VM's kernel: "Dynamic Preempt:
+#                               none"), a system call's length, tens of µs; the kernel's network processing
+#                               of the bench's frames (softirq, in no process's CPU time: 0.3 % of this
+#                               machine's CPU time since boot, /proc/stat, ~30 µs a 10 ms) (chosen, generous)
 
 
 HOST_SEEN = ("wait_lost_us", "cycle_lost_us", "wait_cpu_us", "cycle_cpu_us", "wait_delay_us",
