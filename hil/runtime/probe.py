@@ -98,8 +98,8 @@ BENCH_HOLD_US = 100           # what else of the bench may hold a CPU a window: 
 #                               hosts' priority (the recorder, the runner) inside a system call, where a
 #                               real-time task cannot preempt them (this VM's kernel: "Dynamic Preempt:
 #                               none"), a system call's length, tens of µs; the kernel's network processing
-#                               of the bench's frames (softirq, in no process's CPU time: 0.3 % of this
-#                               machine's CPU time since boot, /proc/stat, ~30 µs a 10 ms) (chosen, generous)
+#                               of the bench's frames (softirq, in no process's CPU time: 0.14 % of this
+#                               machine's CPU time since boot, /proc/stat, ~14 µs a 10 ms) (chosen, generous)
 
 
 HOST_SEEN = ("wait_lost_us", "cycle_lost_us", "wait_cpu_us", "cycle_cpu_us", "wait_delay_us",
