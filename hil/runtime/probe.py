@@ -139,8 +139,9 @@ def bench_wait_bound(others: list, a: np.ndarray, b: np.ndarray, probes: int, cp
     (at every such instant one of the others runs), each counted as the whole CPU time of its windows that
     overlap [a, b] (it may have fallen anywhere in them) but at most the window's length (one thread), a
     probe as PROBE_SAMPLE_CPU_US a sample.  Plus BENCH_HOLD_US: a process below the hosts' priority in a
-    system call holds its CPU until it returns.  Bounds, never estimates: what they leave is the machine's
-    (the hypervisor ran another virtual CPU while the host was queued on this one)."""
+    system call holds its CPU until it returns, and the kernel's network processing of the bench's frames
+    is in no process's CPU time.  Bounds, never estimates: what they leave is the machine's (the
+    hypervisor ran another virtual CPU while the host was queued on this one)."""
     span = b - a
     each = [np.minimum(span, _window_cpu(w, a, b)) for w in others]
     each += [np.minimum(span, PROBE_SAMPLE_CPU_US * (span // PROBE_PERIOD_US + 1))] * probes
@@ -164,11 +165,10 @@ def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
     (`wait_delay_us`, `cycle_delay_us`, recorded only for a host at SCHED_FIFO, which only the other hosts
     and the probes above it could keep waiting).  Of that wait, at most `bench_wait_bound` may have been
     the bench's: on a host's `cpus` CPUs (its record's, else one per probe), the time all of them ran
-    another host or a probe; the rest was the machine's (its virtual CPU taken while the host queued).
-    A miss is the
-    machine's when, without the machine's time, it would not have been one: its release would have come
-    that much earlier, and, if it waited behind the cycle before it, as much earlier as that cycle's end
-    would have, never before its deadline."""
+    another host or a probe; the rest was the machine's (its virtual CPU taken while the host queued).  A
+    miss is the machine's when, without the machine's time, it would not have been one: its release would
+    have come that much earlier, and, if it waited behind the cycle before it, as much earlier as that
+    cycle's end would have, never before its deadline."""
     by_host: dict[object, list[str]] = {}
     cpus: dict[object, int | None] = {}          # the CPUs a host could run on (None: all, one probe each)
     for name, c in cycles.items():
