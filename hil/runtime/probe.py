@@ -104,6 +104,9 @@ BENCH_HOLD_US = 100           # what else of the bench may hold a CPU a window: 
 
 HOST_SEEN = ("wait_lost_us", "cycle_lost_us", "wait_cpu_us", "cycle_cpu_us", "wait_delay_us",
              "cycle_delay_us")
+# machine_cycles' rows of a host's cycles: release, deadline, lateness, end, node, cycle, miss, threshold
+# [0..7], then HOST_SEEN; the column of each of those
+_COL = {key: 8 + k for k, key in enumerate(HOST_SEEN)}
 
 
 def _windows(order: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -116,7 +119,7 @@ def _windows(order: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     ends[0::2] = rel
     starts[1::2], ends[1::2] = rel, ended
     cpu = np.empty_like(starts)
-    cpu[0::2], cpu[1::2] = order[:, 10], order[:, 11]
+    cpu[0::2], cpu[1::2] = order[:, _COL["wait_cpu_us"]], order[:, _COL["cycle_cpu_us"]]
     return starts, ends, np.concatenate([[0], np.cumsum(cpu)])
 
 
@@ -197,9 +200,10 @@ def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
         others = [w for h, w in windows.items() if h != host]
         starts, ends, _ = windows[host]
         allowed = bench_wait_bound(others, starts, ends, probes, cpus.get(host) or probes)
-        machine_wait = np.maximum(0, order[:, 12:14].reshape(-1) - allowed)
-        order[:, 8] += machine_wait[0::2]          # the wait's and the cycle's time the machine took
-        order[:, 9] += machine_wait[1::2]
+        delays = order[:, [_COL["wait_delay_us"], _COL["cycle_delay_us"]]].reshape(-1)   # window by window
+        machine_wait = np.maximum(0, delays - allowed)          # the machine's, added to what it took
+        order[:, _COL["wait_lost_us"]] += machine_wait[0::2]
+        order[:, _COL["cycle_lost_us"]] += machine_wait[1::2]
         misses = order[order[:, 6] == 1]
         if not len(misses):
             continue
