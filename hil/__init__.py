@@ -11,7 +11,11 @@ In a notebook: `hil.open_run(RUN_FOLDER)` and `hil.open_trace(TRACE, dbc=DBC)` (
 imported on first use, so `import hil` stays light).
 """
 
+from hil.can import lazy_mf4
+
 __all__ = ["open_run", "open_trace"]
+
+lazy_mf4.install()        # python-can's MF4 support loads asammdf when first used, not on `import can`
 
 
 def __getattr__(name: str):

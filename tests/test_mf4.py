@@ -232,3 +232,27 @@ def test_export_bad_output_is_one_line_and_leaves_nothing(mf4_run, tmp_path, mon
     assert main(["trace", "export", str(mf4_run / "trace.mf4"), "--dbc", str(DBC), "-o", str(out)]) == 2
     assert "cannot write the export: No space left on device" in capsys.readouterr().err
     assert not out.exists() and not list(tmp_path.glob(".half*"))          # nothing half-written
+
+
+def test_import_can_leaves_asammdf_until_an_mf4_file_is_opened(tmp_path):
+    """hil.can.lazy_mf4: after `import hil`, `import can` does not load asammdf (0.64 s of pandas and
+    canmatrix); the first MF4Writer or MF4Reader does, and python-can's MF4 works as without railhil."""
+    code = f"""
+import sys
+import hil, can
+from hil.trace.writers import Mf4Writer
+assert "asammdf" not in sys.modules and "pandas" not in sys.modules, "loaded on import"
+assert can.io.mf4.asammdf is None
+with can.Logger({str(tmp_path / "plain.mf4")!r}) as w:
+    w.on_message_received(can.Message(timestamp=1.5, arbitration_id=0x123, is_extended_id=False, data=b"ab"))
+assert "asammdf" in sys.modules and can.io.mf4.asammdf is not None
+w = Mf4Writer({str(tmp_path / "ours.mf4")!r}, start_time_s=0.0)
+w.on_message_received(can.Message(timestamp=2.5, arbitration_id=0x42, is_extended_id=False, data=b"z"))
+w.stop()
+for name, want in (("plain", (1.5, 0x123, b"ab")), ("ours", (2.5, 0x42, b"z"))):
+    got = [(m.timestamp, m.arbitration_id, bytes(m.data)) for m in can.LogReader(f"{tmp_path}/{{name}}.mf4")]
+    assert got == [want], (name, got)
+print("ok")
+"""
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr
