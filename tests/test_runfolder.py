@@ -85,3 +85,22 @@ def test_bad_names_and_folders_are_one_line_errors(run, tmp_path):
         run.signal("BCU_DEMAND.Nope")
     with pytest.raises(RunFolderError, match="not a run folder"):
         railhil.open_run(tmp_path)
+
+
+def test_truth_csv_reads_back_what_was_written_and_names_a_malformed_file(tmp_path):
+    from hil.errors import RailhilError
+    from hil.report.kpis import read_truth_csv, write_truth_csv
+
+    cols = {"t_s": np.array([0.0, 0.01, 0.02]), "v_mps_1": np.array([25.0, np.nan, -1.25e-7])}
+    write_truth_csv(cols, tmp_path / "truth.csv")
+    back = read_truth_csv(tmp_path / "truth.csv")
+    assert list(back) == ["t_s", "v_mps_1"]
+    assert all(np.array_equal(back[k], cols[k], equal_nan=True) for k in cols)
+    write_truth_csv({"t_s": np.array([0.5]), "v_mps_1": np.array([3.0])}, tmp_path / "one.csv")
+    assert read_truth_csv(tmp_path / "one.csv")["v_mps_1"].tolist() == [3.0]       # one sample: 1-d
+    (tmp_path / "none.csv").write_text("t_s,v_mps_1\r\n")
+    assert read_truth_csv(tmp_path / "none.csv")["t_s"].size == 0
+    for name, text in (("word.csv", "t_s,v\r\n0,fast\r\n"), ("wide.csv", "t_s,v\r\n0,1,2\r\n")):
+        (tmp_path / name).write_text(text)
+        with pytest.raises(RailhilError, match=name):
+            read_truth_csv(tmp_path / name)
