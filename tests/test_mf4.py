@@ -256,3 +256,24 @@ print("ok")
 """
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr
+
+
+def test_without_asammdf_python_cans_own_error_comes_at_the_first_mf4_file(tmp_path):
+    """Where asammdf is really missing, the deferred imports fail as they would have on `import can`, and
+    python-can's own error follows (not an ImportError of railhil's making)."""
+    code = f"""
+import sys
+class NoAsammdf:
+    def find_spec(self, name, path, target=None):
+        if name.split(".")[0] == "asammdf":
+            raise ModuleNotFoundError(name)
+sys.meta_path.insert(0, NoAsammdf())
+import hil, can
+try:
+    can.Logger({str(tmp_path / "x.mf4")!r})
+except NotImplementedError as exc:
+    print("python-can:", exc)
+"""
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and "python-can: The asammdf package was not found" in proc.stdout, \
+        (proc.stdout, proc.stderr)
