@@ -233,3 +233,25 @@ def test_on_two_cpus_one_other_host_cannot_keep_an_unpinned_host_waiting(pinned,
     assert bench_wait_bound([plant_window], a, b, probes=2, cpus=1)[0] == 800 + probes + BENCH_HOLD_US
     # no host's CPU time counts for more than the window's length: a 0.3 ms window beside 0.8 ms of plant
     assert bench_wait_bound([plant_window], a, np.array([300]), probes=0, cpus=1)[0] == 300 + BENCH_HOLD_US
+
+
+def test_bench_misses_released_behind_another_cycle_of_the_host_are_counted_apart():
+    """A grouped host runs its nodes one after another: BECU1's cycle, on time but 1.6 ms long (3.0 to 4.6
+    ms), keeps BECU2 (due at 3.5 ms) and BECU3 (due at 4.0 ms, behind BECU2's cycle) from their
+    deadlines.  No probe stalled: the misses are the bench's, two of them behind another cycle of
+    the host; BECU4's own late release (nothing before it running) is not.  The count changes no verdict."""
+    def node(deadline, late, ended):
+        return {"period_us": 10_000, "host": "ECUS", "deadline_us": np.array([deadline]),
+                "lateness_us": np.array([late]), "ended_us": np.array([ended])}
+
+    nodes = {"BECU1": node(3_000, 0, 4_600), "BECU2": node(3_500, 1_100, 4_900),
+             "BECU3": node(4_000, 900, 5_200), "BECU4": node(6_000, 700, 6_900)}
+    v = realtime_verdict(outcome(nodes))
+    assert [(v["nodes"][n]["misses_bench"], v["nodes"][n]["misses_bench_behind"]) for n in nodes] == \
+        [(0, 0), (1, 1), (1, 1), (1, 0)]
+    assert (v["misses_bench"], v["misses_bench_behind"]) == (3, 2)
+    lines = realtime_lines(v)
+    assert "2 of the 3 bench misses behind another cycle of their host" in lines[1]
+    assert "misses 1 bench (1 behind another cycle of its host) / 0 machine" in next(
+        line for line in lines if line.lstrip().startswith("BECU2"))
+    assert "misses 1 bench / 0 machine" in next(line for line in lines if line.lstrip().startswith("BECU4"))

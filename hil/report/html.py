@@ -507,19 +507,22 @@ def _realtime_table(rt: dict, meta: dict) -> str:
     stats = meta.get("node_stats") or {}
     rows = [[f"{n} (wakes at most the period apart)" if v.get("judged_in") == "wakes" else n,
              stats.get(n, {}).get("host"), v["period_us"], v["cycles"], v["p50_us"], v["p99_us"],
-             v["max_us"], v["miss_threshold_us"], v["misses_bench"], v["misses_machine"], v["misses_allowed"],
-             v["skipped"], "held" if v["held"] else "NOT HELD"] for n, v in rt["nodes"].items()]
+             v["max_us"], v["miss_threshold_us"], v["misses_bench"], v.get("misses_bench_behind", "—"),
+             v["misses_machine"], v["misses_allowed"], v["skipped"], "held" if v["held"] else "NOT HELD"]
+            for n, v in rt["nodes"].items()]
     m = rt.get("machine") or {}
     if "error" not in m:
         rows.append(["machine probe", "PROBE", 10_000, m.get("cycles"), m.get("p50_us"), m.get("p99_us"),
-                     m.get("max_us"), 500, "—", f"{m.get('stalls')} stalls", "—", "—", "(reference)"])
+                     m.get("max_us"), 500, "—", "—", f"{m.get('stalls')} stalls", "—", "—", "(reference)"])
     out = ("<p>release lateness = when a cycle's wait returned − its absolute deadline [µs]; a miss is the "
            "machine's when the probe (a bare loop at 10 ms deadlines, one priority above the nodes) was late "
-           "at the same time, or its host saw the machine keep it from running then; "
+           "at the same time, or its host saw the machine keep it from running then; of the bench's, "
+           "'of them behind' counts those released behind another cycle of the same host (still running "
+           "at the deadline: a grouped host runs its nodes one after another); "
            "lateness.png (below, with the static figures) has the histograms</p>"
            + _table(["node", "host", "period [µs]", "cycles", "p50 [µs]", "p99 [µs]", "max [µs]",
-                     "miss threshold [µs]", "misses: bench", "misses: machine", "bench misses allowed",
-                     "skipped", "verdict"], rows, set(range(2, 12))))
+                     "miss threshold [µs]", "misses: bench", "of them behind", "misses: machine",
+                     "bench misses allowed", "skipped", "verdict"], rows, set(range(2, 13))))
     info = meta.get("realtime") or {}
     os_rows = [[host, d.get("policy"), d.get("priority"), d.get("memory_locked"),
                 d.get("cpus") or "not pinned", "; ".join(d.get("refused") or []) or "—"]

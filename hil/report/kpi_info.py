@@ -119,6 +119,10 @@ FOUNDATION: dict[str, tuple] = {
     "realtime.misses_bench": ("deadline misses, the bench's", "count",
                               "misses at instants neither the machine probe nor the node's host saw a "
                               "stall, all nodes"),
+    "realtime.misses_bench_behind": ("the bench's misses behind another cycle of their host", "count",
+                                     "of the bench's misses, those whose deadline came while their host "
+                                     "still ran the cycle before (a grouped host runs its nodes one after "
+                                     "another), all nodes; per node in nodes"),
     "realtime.misses_machine": ("deadline misses, the machine's", "count",
                                 "misses that coincide with a stall of the machine probe or one the node's "
                                 "host saw itself, all nodes"),
@@ -130,8 +134,9 @@ FOUNDATION: dict[str, tuple] = {
                          "run, at the nodes' priority: p50, p99, max, its stalls (> 500 µs late), the worst; "
                          "host_stalls: the stalls each host saw itself (kept from running > 500 µs)"),
     "realtime.nodes": ("per node", "µs",
-                       "period, lateness p50/p99/max, the miss threshold, misses (bench / machine / "
-                       "allowed), the worst bench miss, cycles skipped, held, the lateness histogram"),
+                       "period, lateness p50/p99/max, the miss threshold, misses (bench, of them behind "
+                       "another cycle of the host / machine / allowed), the worst bench miss, cycles "
+                       "skipped, held, the lateness histogram"),
     "realtime.histogram_edges_us": ("histogram bins", "µs",
                                     "lower edges of the lateness histograms' bins (the last: all above)"),
     "realtime.missed_cycles": ("skipped cycles by node", "count",

@@ -88,12 +88,21 @@ def realtime_lines(rt: dict) -> list[str]:
                 + (f"; PLANT p99 {plant['p99_us']} us" if plant else "")
                 + f"; {floor}" + (f"; {seen}" if seen else "")
                 + f"; {rt['misses_machine']} misses at machine stalls"
-                + (f" ({rt['misses_machine_probes']} at the probes' alone)" if seen else ""))
+                + (f" ({rt['misses_machine_probes']} at the probes' alone)" if seen else "")
+                + (f"; {rt['misses_bench_behind']} of the {rt['misses_bench']} bench misses behind another "
+                   "cycle of their host" if rt.get("misses_bench_behind") else ""))
     per_node = [f"  {name:<21} p50 {v['p50_us']} / p99 {v['p99_us']} / max {v['max_us']} us over "
-                f"{_judged(v)}; misses {v['misses_bench']} bench / "
+                f"{_judged(v)}; misses {v['misses_bench']} bench{_behind(v)} / "
                 f"{v['misses_machine']} machine (> {v['miss_threshold_us']} us); {v['skipped']} skipped"
                 for name, v in nodes.items()]
     return [head, lateness, *per_node]
+
+
+def _behind(v: dict) -> str:
+    """Of a node's bench misses, those released behind another cycle of its host (kpis.json of earlier
+    releases have no such count)."""
+    n = v.get("misses_bench_behind") or 0
+    return f" ({n} behind another cycle of its host)" if n else ""
 
 
 def _judged(v: dict) -> str:

@@ -7,7 +7,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hil.runtime.plant_node import TruthLog
-from hil.runtime.probe import HOST_SEEN, late_threshold_us, machine_cycles, merge_intervals, stall_intervals
+from hil.runtime.probe import (
+    HOST_SEEN,
+    behind_cycles,
+    late_threshold_us,
+    machine_cycles,
+    merge_intervals,
+    stall_intervals,
+)
 
 
 @dataclass
@@ -62,7 +69,9 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
     miss behind a late cycle of the same host inherits that cycle's verdict
     (hil.runtime.probe.machine_cycles).  The run held when no node's bench misses exceed budget_pct % of
     its cycles and none is later than max_late_periods periods.  The machine's misses and its worst stall
-    are reported beside, so that a reader sees whether the bench or the host failed."""
+    are reported beside, so that a reader sees whether the bench or the host failed, and of each node's
+    bench misses how many were released behind another cycle of its host (a grouped host's knock-ons,
+    hil.runtime.probe.behind_cycles)."""
     rt = outcome.realtime or {}
     budget = rt.get("deadline") or {"miss_min_us": 500, "miss_period_pct": 5.0, "budget_pct": 0.1,
                                     "max_late_periods": 1.0}
@@ -94,6 +103,7 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
     thresholds = {n: late_threshold_us(int(c["period_us"]), budget["miss_min_us"],
                                        budget["miss_period_pct"] / 100) for n, c in cycles_of.items()}
     machines = machine_cycles(cycles_of, thresholds, stalls, max(1, len(probes)))
+    behind = behind_cycles(cycles_of, thresholds)
     no_host = {n: {k: v for k, v in c.items() if k not in HOST_SEEN} for n, c in cycles_of.items()}
     by_probes = machine_cycles(no_host, thresholds, stalls)
     probes_alone = sum(int((by_probes[n] & (np.asarray(c["lateness_us"]) > thresholds[n])).sum())
@@ -105,6 +115,7 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
         miss = late_all > threshold
         machine_hit = machines[name][miss]
         bench_late = late_all[miss][~machine_hit]
+        knock_on = int(behind[name][miss][~machine_hit].sum())
         cycles = len(c["lateness_us"])
         allowed = int(budget["budget_pct"] / 100 * cycles)
         too_late = int((bench_late > budget["max_late_periods"] * period).sum())
@@ -113,6 +124,8 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
             "period_us": period, "judged_in": c.get("judged_in", "cycles"),
             **lateness_figures(c["lateness_us"]), "miss_threshold_us": threshold,
             "misses_bench": int(bench_late.size), "misses_machine": int(machine_hit.sum()),
+            # of the bench misses, those released behind the cycle before them on the node's host
+            "misses_bench_behind": knock_on,
             "misses_allowed": allowed, "bench_misses_over_a_period": too_late,
             "worst_bench_miss_us": int(bench_late.max()) if bench_late.size else 0,
             "skipped": skipped, "held": bool(bench_late.size <= allowed and too_late == 0),
@@ -131,6 +144,7 @@ def realtime_verdict(outcome: RunOutcome) -> dict:
         "worst_node": worst,
         "p99_10ms_us": _pct(pooled, 99), "p50_10ms_us": _pct(pooled, 50),
         "misses_bench": sum(v["misses_bench"] for v in nodes.values()),
+        "misses_bench_behind": sum(v["misses_bench_behind"] for v in nodes.values()),
         "misses_machine": sum(v["misses_machine"] for v in nodes.values()),
         # of those, at a probe's stall (or behind one): what a verdict from the probes alone would say
         "misses_machine_probes": probes_alone,

@@ -154,6 +154,49 @@ def bench_wait_bound(others: list, a: np.ndarray, b: np.ndarray, probes: int, cp
     return ranked[:max(len(each) - (cpus - 1), 0)].sum(axis=0) + BENCH_HOLD_US
 
 
+def _host_orders(cycles: dict[str, dict], thresholds: dict[str, int]) -> tuple[dict, dict, dict]:
+    """Per host: its nodes' names, the CPUs it could run on (its records' `cpus`, None: all) and its cycles
+    as it ran them (machine_cycles' rows, in order of release)."""
+    by_host: dict[object, list[str]] = {}
+    cpus: dict[object, int | None] = {}
+    for name, c in cycles.items():
+        by_host.setdefault(c.get("host") or name, []).append(name)
+        cpus[c.get("host") or name] = c.get("cpus")
+    orders = {}
+    for host, names in by_host.items():
+        rows = []
+        for k, name in enumerate(names):
+            c = cycles[name]
+            d = np.asarray(c["deadline_us"], dtype=np.int64)
+            late = np.asarray(c["lateness_us"], dtype=np.int64)
+            n = len(d)
+            ended = _column(c, "ended_us", d + late)        # no record of the cycles' ends: their releases
+            zero = np.zeros(n, dtype=np.int64)
+            host_seen = [_column(c, key, zero) for key in HOST_SEEN]
+            rows.append(np.stack([d + late, d, late, ended, np.full(n, k), np.arange(n),
+                                  late > thresholds[name], np.full(n, thresholds[name]), *host_seen], axis=1))
+        if rows:
+            order = np.concatenate(rows)
+            orders[host] = order[np.argsort(order[:, 0], kind="stable")]   # the host's cycles as it ran them
+    return by_host, cpus, orders
+
+
+def behind_cycles(cycles: dict[str, dict], thresholds: dict[str, int]) -> dict[str, np.ndarray]:
+    """Per node, True for each cycle whose deadline came while its host was still running the cycle before
+    it (another node's, in a grouped host): it could not be released on time whatever the machine did, and
+    a miss of it is a knock-on of that cycle's lateness or length.  Reported beside the verdict (how many of
+    a node's bench misses are knock-ons); it changes no verdict."""
+    by_host, _, orders = _host_orders(cycles, thresholds)
+    out = {name: np.zeros(len(c["lateness_us"]), dtype=bool) for name, c in cycles.items()}
+    for host, order in orders.items():
+        ended = order[:, 3]
+        blocked = np.concatenate([[False], ended[:-1] > order[1:, 1]])
+        for k, name in enumerate(by_host[host]):
+            mine = order[:, 4] == k
+            out[name][order[mine, 5]] = blocked[mine]
+    return out
+
+
 def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
                    stalls: np.ndarray, probes: int = 2) -> dict[str, np.ndarray]:
     """Per node, True for each cycle that is a deadline miss of the machine's.
@@ -172,28 +215,8 @@ def machine_cycles(cycles: dict[str, dict], thresholds: dict[str, int],
     miss is the machine's when, without the machine's time, it would not have been one: its release would
     have come that much earlier, and, if it waited behind the cycle before it, as much earlier as that
     cycle's end would have, never before its deadline."""
-    by_host: dict[object, list[str]] = {}
-    cpus: dict[object, int | None] = {}          # the CPUs a host could run on (None: all, one probe each)
-    for name, c in cycles.items():
-        by_host.setdefault(c.get("host") or name, []).append(name)
-        cpus[c.get("host") or name] = c.get("cpus")
+    by_host, cpus, orders = _host_orders(cycles, thresholds)
     out = {name: np.zeros(len(c["lateness_us"]), dtype=bool) for name, c in cycles.items()}
-    orders = {}
-    for host, names in by_host.items():
-        rows = []
-        for k, name in enumerate(names):
-            c = cycles[name]
-            d = np.asarray(c["deadline_us"], dtype=np.int64)
-            late = np.asarray(c["lateness_us"], dtype=np.int64)
-            n = len(d)
-            ended = _column(c, "ended_us", d + late)        # no record of the cycles' ends: their releases
-            zero = np.zeros(n, dtype=np.int64)
-            host_seen = [_column(c, key, zero) for key in HOST_SEEN]
-            rows.append(np.stack([d + late, d, late, ended, np.full(n, k), np.arange(n),
-                                  late > thresholds[name], np.full(n, thresholds[name]), *host_seen], axis=1))
-        if rows:
-            order = np.concatenate(rows)
-            orders[host] = order[np.argsort(order[:, 0], kind="stable")]   # the host's cycles as it ran them
     windows = {host: _windows(order) for host, order in orders.items()}
     for host, order in orders.items():
         names = by_host[host]
