@@ -31,6 +31,7 @@ def one_run(k: int) -> dict:
     rt = kpis["realtime"]
     worst = max(rt["nodes"], key=lambda n: rt["nodes"][n]["worst_bench_miss_us"])
     return {"run": k, "held": rt["held"], "bench": rt["misses_bench"], "machine": rt["misses_machine"],
+            "behind": rt.get("misses_bench_behind", 0),
             "probes": rt.get("misses_machine_probes", rt["misses_machine"]),
             "p99": rt["p99_10ms_us"], "probe_p99": rt["machine"].get("p99_us"),
             "stall_ms": (rt["machine"].get("worst_stall_us") or 0) / 1e3, "worst": worst,
@@ -50,7 +51,8 @@ def main() -> int:
             continue
         held += r["held"]
         verdict = "held    " if r["held"] else "NOT HELD"
-        print(f"  run {k:2d}: {verdict} misses bench {r['bench']:3d} / machine {r['machine']:3d} "
+        print(f"  run {k:2d}: {verdict} misses bench {r['bench']:3d} ({r['behind']} behind another cycle of "
+              f"their host) / machine {r['machine']:3d} "
               f"({r['probes']} at the probes' stalls); 10 ms p99 {r['p99']} us; "
               f"probe p99 {r['probe_p99']} us, worst stall {r['stall_ms']:.1f} ms; worst "
               f"bench miss {r['worst_miss_ms']:.1f} ms ({r['worst']}); stop {r['stop_m']:.2f} m; load "
