@@ -332,6 +332,26 @@ def test_unopenable_bus_is_one_line_and_falls_back_on_request(tmp_path):
     assert "falling back to lockstep" in proc.stderr and "lockstep run" in proc.stdout
 
 
+def test_a_run_that_asks_for_polling_idle_cpus_holds_it_for_its_length_and_says_so(tmp_path):
+    """[realtime] cpu_latency_us = 0: the runner holds /dev/cpu_dma_latency at 0 for the run (the set-up
+    line and run.json say so) and lets go at its end (the kernel's aggregate is what it was)."""
+    from hil.runtime.rtos import CPU_LATENCY_DEVICE
+
+    if os.geteuid() != 0 or not os.path.exists(CPU_LATENCY_DEVICE):
+        pytest.skip(f"needs root and {CPU_LATENCY_DEVICE}; the refusal is tested in test_rtos.py")
+    with open(CPU_LATENCY_DEVICE, "rb") as f:
+        before = f.read(4)
+    proc = subprocess.run([sys.executable, "-m", "hil", "run", str(DEFAULT), "--realtime", "--set",
+                           "max_duration_s=2.0", "--set", "realtime.cpu_latency_us=0", "--out",
+                           str(tmp_path / "a"), "-q"], cwd=ROOT, capture_output=True, text=True, timeout=180)
+    assert proc.returncode in (0, 1), proc.stderr              # 1: a verdict that failed, not an error
+    assert "CPU idle exits held within 0 us (idle CPUs poll, never halt)" in proc.stderr, proc.stderr
+    rt = json.loads((tmp_path / "a" / "run.json").read_text())["realtime"]
+    assert rt["cpu_latency"] == {"requested_us": 0, "held": True, "refused": None}
+    with open(CPU_LATENCY_DEVICE, "rb") as f:
+        assert f.read(4) == before
+
+
 def test_socketcan_vcan0_when_the_kernel_has_it(tmp_path):
     try:
         bus = can.Bus(interface="socketcan", channel="vcan0")
@@ -440,3 +460,6 @@ def test_grouped_hosting_runs_every_ecu_in_one_process(realtime_run):
     assert set(lateness) == set(stats) and all(v["cycles"] > 0 and v["p50_us"] <= v["p99_us"] <= v["max_us"]
                                                for v in lateness.values()), lateness
     assert kpis["frames_lost"] == 0 and kpis["stopped"], kpis
+    cpu_latency = json.loads((out / "run.json").read_text())["realtime"]["cpu_latency"]
+    assert cpu_latency == {"requested_us": None, "held": False, "refused": None}   # "off", the default
+    assert "CPU idle" not in stderr

@@ -56,7 +56,15 @@ from hil.runtime.host import orphaned
 from hil.runtime.outcome import RunOutcome
 from hil.runtime.plant_node import TruthLog
 from hil.runtime.probe import HOST_SEEN
-from hil.runtime.rtos import NODE_PRIORITY, RECORDER_PRIORITY, RtSetup, make_realtime, pin_plan
+from hil.runtime.rtos import (
+    NODE_PRIORITY,
+    RECORDER_PRIORITY,
+    CpuLatencyHold,
+    RtSetup,
+    hold_cpu_latency,
+    make_realtime,
+    pin_plan,
+)
 from hil.scenario import Scenario
 from hil.trace.writers import open_writer
 
@@ -415,6 +423,9 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     rt = scenario.realtime
     plan = hosts(scenario, simulated)
     cpus = pin_plan(list(plan)) if rt.pin_cpus and rt.scheduling == "auto" and rt.hosting == "grouped" else {}
+    # held by this process for the whole run, before the probe calibrates the sleeps' lateness under it
+    idle = hold_cpu_latency(rt.cpu_latency_us if rt.scheduling == "auto" and rt.cpu_latency_us != "off"
+                            else None)
     procs = {}
     cpus_probed = probe_cpus()
     for k, cpu in enumerate(cpus_probed):       # one probe per CPU, staggered; the first calibrates
@@ -487,7 +498,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         print(f"realtime: {len(procs)} processes on {describe_bus(cfg)}; pids "
               + " ".join(f"{n}={p.pid}" for n, p in procs.items()), file=sys.stderr, flush=True)
         print(f"realtime: watch it live with: {watch_command(cfg, dbc_path)}", file=sys.stderr, flush=True)
-        print(f"realtime: {describe_setup(setups, calibration, rt.precise_wait)}", file=sys.stderr,
+        print(f"realtime: {describe_setup(setups, calibration, rt.precise_wait, idle)}", file=sys.stderr,
               flush=True)
         if external:
             one = len(external) == 1
@@ -584,6 +595,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                 p.join(1.0)
         signal.signal(signal.SIGTERM, old_term)
         signal.signal(signal.SIGINT, old_int)
+        idle.release()
     wall = time.perf_counter() - wall0
     if "PLANT" in external:
         raise NodeDied("the PLANT is external: its ground truth is on another host; run the plant here")
@@ -605,7 +617,8 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         "host_stalls": host_stalls,
         "hosting": rt.hosting, "plant_process": rt.plant_process, "plant_wake": rt.plant_wake,
         "hosts": {h: list(m) for h, m in plan.items()},
-        "os": setups, "calibration": calibration, "precise_wait": rt.precise_wait,
+        "os": setups, "cpu_latency": idle.as_dict(), "calibration": calibration,
+        "precise_wait": rt.precise_wait,
         "margin_ns": shared.margin_ns.value, "probes": probes, "probe_errors": probe_errors,
         "external": list(external),
         "external_first_frame_s": external_seen, "deadline": rt.deadline.model_dump(),
@@ -662,8 +675,10 @@ def _watch_external(bus: can.BusABC, ids: dict[str, set[int]], seen: dict[str, f
                 seen[name] = round(msg.timestamp - epoch_t0, 4)
 
 
-def describe_setup(setups: dict[str, dict], calibration: dict | None, precise: bool) -> str:
-    """One line: what the OS granted the hosts (the first host's, and where others differ) and the wait."""
+def describe_setup(setups: dict[str, dict], calibration: dict | None, precise: bool,
+                   idle: CpuLatencyHold | None = None) -> str:
+    """One line: what the OS granted the hosts (the first host's, and where others differ), the CPUs' idle
+    states and the wait."""
     parts = []
     for name, d in setups.items():
         if name == "RECORDER" or name.startswith("PROBE"):
@@ -677,7 +692,10 @@ def describe_setup(setups: dict[str, dict], calibration: dict | None, precise: b
             f"returned p50 {calibration['p50_us']:.0f} / p90 {calibration['p90_us']:.0f} / max "
             f"{calibration['max_us']:.0f} us late in {calibration['seconds']:g} s)" if precise and calibration
             else "sleep to each deadline (no precise wait)")
-    return "; ".join(parts) + (f"; refused: {', '.join(refused)}" if refused else "") + f"; {wait}"
+    if idle is not None and idle.refused:
+        refused.append(idle.refused)
+    held = f"; {idle.describe()}" if idle is not None and idle.held else ""
+    return "; ".join(parts) + held + (f"; refused: {', '.join(refused)}" if refused else "") + f"; {wait}"
 
 
 def _show_progress(q, progress: Callable[[int, dict], None]) -> None:

@@ -7,6 +7,10 @@ SCHED_FIFO → nice REALTIME_NICE → the normal priority. It never raises: the 
 is in effect, and the runner prints that in one line, as openpilot's `config_realtime_process` asks for
 a real-time priority and a core where it may (common/realtime.py).
 
+`hold_cpu_latency(us)` asks the kernel to keep every CPU's idle-state exit latency within `us` for the
+run (Linux PM QoS through /dev/cpu_dma_latency, as cyclictest and the other rt-tests do), where the OS
+permits it: with 0, a CPU that waits for the next deadline polls instead of halting.
+
 `sleep_lateness(seconds)` measures how late `time.sleep` to an absolute deadline returns on this machine
 (CPython 3.11 sleeps with clock_nanosleep on CLOCK_MONOTONIC); the real-time hosts sleep until that
 margin before a deadline and wait out the rest by polling (`hil.runtime.host`).
@@ -17,6 +21,7 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import os
+import struct
 import time
 from array import array
 from dataclasses import asdict, dataclass
@@ -29,6 +34,9 @@ REALTIME_NICE = -10         # the fallback where SCHED_FIFO is refused (needs CA
 TIMER_SLACK_NS = 1          # PR_SET_TIMERSLACK: the kernel may delay a normal thread's timer by 50 µs
 PR_SET_TIMERSLACK = 29      # <linux/prctl.h>
 MCL_CURRENT, MCL_FUTURE, MCL_ONFAULT = 1, 2, 4    # <sys/mman.h>; ONFAULT: Linux ≥ 4.4
+CPU_LATENCY_DEVICE = "/dev/cpu_dma_latency"  # Linux PM QoS: the largest idle-state exit latency any CPU
+#                             may take while a process holds it open [µs, a native int32]
+#                             (the kernel's Documentation/power/pm_qos_interface.rst)
 MARGIN_MIN_NS = 50_000      # the precise wait's margin: at least this, ...
 MARGIN_MAX_NS = 1_000_000   # ... at most this (a machine whose sleeps are later than that most of the
 #                             time would spin for milliseconds a cycle; the margin is then capped)
@@ -115,6 +123,55 @@ def make_realtime(priority: int = NODE_PRIORITY, cpus: tuple[int, ...] | None = 
         if libc.prctl(PR_SET_TIMERSLACK, TIMER_SLACK_NS, 0, 0, 0) == 0:
             slack = TIMER_SLACK_NS
     return RtSetup(policy, prio, locked, pinned, slack, tuple(refused))
+
+
+@dataclass
+class CpuLatencyHold:
+    """A request for the CPUs' idle-state exit latency, in effect while `fd` is open; what it got."""
+
+    requested_us: int | None      # None: nothing asked ([realtime] cpu_latency_us unset, scheduling "normal")
+    held: bool
+    refused: str | None = None    # why it is not in effect ("/dev/cpu_dma_latency: Permission denied")
+    fd: int | None = None
+
+    def describe(self) -> str:
+        if self.requested_us is None:
+            return "CPU idle states as the kernel chooses"
+        if not self.held:
+            return f"CPU idle states as the kernel chooses ({self.refused})"
+        return (f"CPU idle exits held within {self.requested_us} us" +
+                (" (idle CPUs poll, never halt)" if self.requested_us == 0 else ""))
+
+    def as_dict(self) -> dict:
+        return {"requested_us": self.requested_us, "held": self.held, "refused": self.refused}
+
+    def release(self) -> None:
+        """End the request (the kernel ends it too when the process exits)."""
+        if self.fd is not None:
+            os.close(self.fd)
+            self.fd = None
+
+
+def hold_cpu_latency(us: int | None, device: str = CPU_LATENCY_DEVICE) -> CpuLatencyHold:
+    """Ask that no CPU take an idle state whose exit is slower than `us` while the returned hold is open.
+
+    A timer that fires on a halted CPU waits for it to wake; in a VM a halted vCPU is handed back to the
+    host, which may run another guest on that core until the interrupt comes.  With 0 an idle CPU polls
+    (Linux's poll idle state; the haltpoll governor of KVM guests does the same), as cyclictest asks by
+    default.  Writing needs root (the device is 0600); elsewhere the hold says what refused it and the run
+    goes on.  The request is the process's open file: it ends at `release()` or when the process dies."""
+    if us is None:
+        return CpuLatencyHold(None, False)
+    try:
+        fd = os.open(device, os.O_WRONLY | os.O_CLOEXEC)
+    except OSError as exc:
+        return CpuLatencyHold(us, False, f"CPU idle latency ({device}): {_why(exc)}")
+    try:
+        os.write(fd, struct.pack("=i", us))
+    except OSError as exc:
+        os.close(fd)
+        return CpuLatencyHold(us, False, f"CPU idle latency ({device}): {_why(exc)}")
+    return CpuLatencyHold(us, True, None, fd)
 
 
 def pin_plan(hosts: list[str], n_cpus: int | None = None) -> dict[str, tuple[int, ...] | None]:

@@ -154,6 +154,13 @@ class RealtimeSpec(_Strict):
     # Off by default: on the 2-core development VM it made the 10 ms nodes' p99 lateness worse, not better
     # (docs/lockstep-and-realtime.md)
     pin_cpus: bool = False
+    # with scheduling "auto": the idle-state exit latency every CPU is held within during the run [µs]
+    # (Linux PM QoS, /dev/cpu_dma_latency, root only; cyclictest asks for 0): 0 = an idle CPU polls
+    # instead of halting, so a wake-up at a deadline does not first bring a halted CPU back
+    # (hil.runtime.rtos.hold_cpu_latency); "off": ask nothing.  Off by default: on the 2-core development
+    # VM it cut the 10 ms nodes' p99 lateness to 0 but doubled the machine's stalls and left the bench's
+    # misses as they were (docs/lockstep-and-realtime.md)
+    cpu_latency_us: int | Literal["off"] = "off"
     # sleep until a margin before each deadline, then poll out the rest; the margin is measured on this
     # machine for calibration_s before the run (its sleep lateness, hil.runtime.rtos.sleep_lateness)
     precise_wait: bool = True
@@ -162,6 +169,13 @@ class RealtimeSpec(_Strict):
     # each before it starts [s]
     external_wait_s: Annotated[float, Field(gt=0, le=600)] = 30.0
     deadline: DeadlineSpec = Field(default_factory=DeadlineSpec)
+
+    @field_validator("cpu_latency_us", mode="before")
+    @classmethod
+    def _latency_or_off(cls, v):
+        if v == "off" or (isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 2**31 - 1):
+            return v
+        raise ValueError(f'{v!r} is not a latency: expected an integer number of µs ≥ 0, or "off"')
 
 
 class TraceSpec(_Strict):
