@@ -31,6 +31,7 @@ import tempfile
 import time
 from pathlib import Path
 
+ISSUE = "#10, #18"            # the issue that set the goals printed here (bench/run_all.py)
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))

@@ -1,5 +1,5 @@
 """`make bench`: every benchmark, in one process, printed as one table, then the figures that have a goal
-(issue #10) gathered at the end, each next to its goal.
+gathered at the end, each next to its goal and the issue that set it (each benchmark's ISSUE).
 
 BENCH_FRAMES=N shortens the multi-process bus benchmark (default 10⁶ frames, a few minutes);
 BENCH_RT_S=S the real-time lateness run (default 20 s); BENCH_ONLY=name,name runs only those.
@@ -23,7 +23,7 @@ def main() -> int:
     print(f"railhil benchmarks — Python {platform.python_version()} on {platform.machine()}, "
           f"{os.cpu_count()} CPUs, 1-min load average {os.getloadavg()[0]:.1f}")
     only = [b for b in os.environ.get("BENCH_ONLY", "").split(",") if b]
-    goals: list[tuple[str, str, str]] = []
+    goals: list[tuple[str, str, str, str]] = []
     for name in BENCHES:
         if only and name not in only:
             continue
@@ -36,11 +36,11 @@ def main() -> int:
         for label, figure in rows:
             print(f"  {label:<62} {figure}", flush=True)
             if "goal" in label:
-                goals.append((name, label, figure))
+                goals.append((name, getattr(module, "ISSUE", "?"), label, figure))
     if goals:
-        print("\n[goals of issue #10] each figure next to its goal, measured above in this run")
-        for name, label, figure in goals:
-            print(f"  {name:<16} {label:<62} {figure}")
+        print("\n[goals] each figure next to its goal and the issue that set it, measured above in this run")
+        for name, issue, label, figure in goals:
+            print(f"  {name:<16} {issue:<9} {label:<62} {figure}")
     return 0
 
 
