@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from hil.can.busload import frame_bits
+from hil.can.busload import arbitration_key, frame_bits
 
 __all__ = ["STUFFING_MODES", "BitTimedBus", "FrameBits", "Pending", "arbitration_key", "crc15",
            "exact_frame_bits", "frame_duration_bits", "stuff_bits"]
@@ -189,13 +189,6 @@ def frame_duration_bits(frame_id: int, extended: bool, data: bytes, stuffing: st
     if stuffing == "none":
         return frame_bits(len(data), extended, worst_case_stuffing=False)
     raise ValueError(f"stuffing must be one of {', '.join(STUFFING_MODES)}, got {stuffing!r}")
-
-
-def arbitration_key(frame_id: int, extended: bool) -> int:
-    """An int that orders frames as arbitration does: smaller wins (see the module docstring)."""
-    if extended:
-        return ((frame_id >> 18) << 19) | (1 << 18) | (frame_id & 0x3FFFF)
-    return frame_id << 19
 
 
 @dataclass(slots=True)

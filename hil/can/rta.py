@@ -27,7 +27,7 @@ R_m is unbounded: ``math.inf``, not schedulable.  Arithmetic is exact: times are
 1 / (bitrate x 10^6) s (1 µs = bitrate units, one bit time = 10^6 units), so no ceiling is ever off
 by a rounding error.
 
-Priority: the arbitration field as the bus compares it (``hil.can.bustiming.arbitration_key``): the 11
+Priority: the arbitration field as the bus compares it (``hil.can.busload.arbitration_key``): the 11
 base id bits first, then an 11-bit data frame's dominant RTR/IDE bits beat a 29-bit frame's
 recessive SRR/IDE bits, then the 18 extension bits.  So 0x100 (11-bit) beats every 29-bit id whose
 11 base bits are 0x100, and 29-bit 0x00CC0001 (base 0x033) beats 11-bit 0x123.  Two messages with
@@ -46,8 +46,7 @@ from fractions import Fraction
 import numpy as np
 from cantools.database.can import Database
 
-from hil.can.busload import frame_bits
-from hil.can.bustiming import arbitration_key
+from hil.can.busload import arbitration_key, frame_bits
 from hil.can.dbc import closest
 from hil.errors import DbcError, RailhilError
 
