@@ -350,6 +350,15 @@ def test_a_run_that_asks_for_polling_idle_cpus_holds_it_for_its_length_and_says_
     assert rt["cpu_latency"] == {"requested_us": 0, "held": True, "refused": None}
     with open(CPU_LATENCY_DEVICE, "rb") as f:
         assert f.read(4) == before
+    # railhil node (a device's stand-in) holds it the same way for as long as it runs
+    proc = subprocess.run([sys.executable, "-m", "hil", "node", "DESK", str(DEFAULT), "--start", "now",
+                           "--duration", "1", "--set", "realtime.cpu_latency_us=0", "--channel",
+                           "239.255.77.77", "--bus-kwargs", "port=43210"],     # a group of its own
+                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "CPU idle exits held within 0 us" in proc.stdout.splitlines()[0], proc.stdout
+    with open(CPU_LATENCY_DEVICE, "rb") as f:
+        assert f.read(4) == before
 
 
 def test_socketcan_vcan0_when_the_kernel_has_it(tmp_path):

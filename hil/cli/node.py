@@ -92,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         describe_bus,
         enlarge_receive_buffer,
         hosted_nodes,
+        idle_hold,
         os_setup,
         resolve_bus_config,
     )
@@ -116,12 +117,14 @@ def run(args: argparse.Namespace) -> int:
         stop.set()
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    idle = idle_hold(scenario)
     try:
         enlarge_receive_buffer(bus)
         rt = os_setup(scenario, NODE_PRIORITY)
         margin = sleep_lateness(scenario.realtime.calibration_s) if scenario.realtime.precise_wait else None
         own_ids = {fc.codec.frame_id for node in nodes for fc in node.tx}
         print(f"node {','.join(names)}: on {describe_bus(cfg)} ({bus_flags(cfg)}); {rt.describe()}"
+              + (f"; {idle.describe()}" if idle.requested_us is not None else "")
               + (f"; precise wait margin {margin.margin_ns / 1e3:.0f} us" if margin else ""), flush=True)
         if args.start == "bus":
             print(f"node {','.join(names)}: waiting for the first frame of another node", flush=True)
@@ -146,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         for s, handler in old.items():
             signal.signal(s, handler)
+        idle.release()
         bus.shutdown()
     report = {}
     for name, payload in host.payloads().items():

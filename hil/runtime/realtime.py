@@ -210,6 +210,14 @@ def hosted_nodes(names, scenario: Scenario, dbc_path: str) -> tuple:
     return codec, nodes, releases
 
 
+def idle_hold(scenario: Scenario) -> CpuLatencyHold:
+    """The CPUs' idle-state exit latency asked for the run ([realtime] cpu_latency_us, with scheduling
+    "auto"), held until its `release()`."""
+    rt = scenario.realtime
+    return hold_cpu_latency(rt.cpu_latency_us if rt.scheduling == "auto" and rt.cpu_latency_us != "off"
+                            else None)
+
+
 def os_setup(scenario: Scenario, priority: int, cpus: tuple[int, ...] | None = None) -> RtSetup:
     """What this process gets of the OS for real time ([realtime] scheduling)."""
     if scenario.realtime.scheduling == "normal":
@@ -423,9 +431,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     rt = scenario.realtime
     plan = hosts(scenario, simulated)
     cpus = pin_plan(list(plan)) if rt.pin_cpus and rt.scheduling == "auto" and rt.hosting == "grouped" else {}
-    # held by this process for the whole run, before the probe calibrates the sleeps' lateness under it
-    idle = hold_cpu_latency(rt.cpu_latency_us if rt.scheduling == "auto" and rt.cpu_latency_us != "off"
-                            else None)
+    idle = idle_hold(scenario)          # for the whole run, before the probe calibrates the sleeps under it
     procs = {}
     cpus_probed = probe_cpus()
     for k, cpu in enumerate(cpus_probed):       # one probe per CPU, staggered; the first calibrates
