@@ -431,7 +431,6 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     rt = scenario.realtime
     plan = hosts(scenario, simulated)
     cpus = pin_plan(list(plan)) if rt.pin_cpus and rt.scheduling == "auto" and rt.hosting == "grouped" else {}
-    idle = idle_hold(scenario)          # for the whole run, before the probe calibrates the sleeps under it
     procs = {}
     cpus_probed = probe_cpus()
     for k, cpu in enumerate(cpus_probed):       # one probe per CPU, staggered; the first calibrates
@@ -471,6 +470,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     epoch_t0 = 0.0
     failure: str | None = None
     external_seen: dict[str, float] = {}
+    idle = idle_hold(scenario)          # for the whole run, before the probe calibrates the sleeps under it
     try:
         for p in procs.values():
             p.start()

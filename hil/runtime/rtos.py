@@ -129,9 +129,10 @@ def make_realtime(priority: int = NODE_PRIORITY, cpus: tuple[int, ...] | None = 
 class CpuLatencyHold:
     """A request for the CPUs' idle-state exit latency, in effect while `fd` is open; what it got."""
 
-    requested_us: int | None      # None: nothing asked ([realtime] cpu_latency_us unset, scheduling "normal")
+    requested_us: int | None      # None: nothing asked ([realtime] cpu_latency_us "off", scheduling "normal")
     held: bool
-    refused: str | None = None    # why it is not in effect ("/dev/cpu_dma_latency: Permission denied")
+    refused: str | None = None    # why it is not in effect ("CPU idle latency (/dev/cpu_dma_latency):
+    #                               Permission denied")
     fd: int | None = None
 
     def describe(self) -> str:
