@@ -13,7 +13,12 @@ Beside each run, on the same bus, one more process with the nodes' real-time pri
 `bus.send_periodic(msg, 0.010)` (its thread: absolute due times, `time.sleep` until due) while its main
 thread receives the bus traffic, as a node does, from the run's first frame to its end; its lateness is
 taken in python-can's `modifier_callback`, right before each send.  Where rt-tests is installed,
-cyclictest (`-m -p 80 -i 10000`, its histogram) runs beside the grouped run too.
+cyclictest (`-m -p 80 -i 10000 --laptop`, its histogram) runs beside the grouped run too.  `--laptop`:
+by default cyclictest holds /dev/cpu_dma_latency at 0 while it runs, which puts every CPU's idle states,
+and so the run beside it, in other conditions than the per-node run and a user's run ([realtime]
+cpu_latency_us, "off" by default; docs/lockstep-and-realtime.md).  Without it, on 2026-12-04 at 18:03 the
+grouped run's 10 ms p99 was 0 µs and the probe's 46 µs, against 70 and 118 µs at 17:15 with nothing
+held.
 
 CPU: the CPU seconds of the whole command (every process it starts, startup and the run folder included)
 per simulated second, for the real-time runs and for `railhil run scenarios/default.toml --lockstep`,
@@ -53,6 +58,7 @@ PERIODIC_ID = 0x7F0                                       # the send_periodic fr
 GOAL_PROBE_RATIO = 1.5        # 10 ms nodes' p99 ≤ 1.5 × the probe's p99, same run (issue #17)
 GOAL_PERIODIC_RATIO = 2.0     # ... and ≥ 2 × better than python-can's send_periodic, same run
 GOAL_CPU_RATIO = 2.0          # real-time CPU s per simulated s ≤ 2 × lockstep's
+CYCLICTEST_ARGS = ("-m", "-p", "80", "-i", "10000", "--laptop")   # --laptop: the idle states left alone
 LOCKSTEP_RUNS = 3             # the lockstep command's CPU: the median of this many runs
 
 
@@ -94,8 +100,8 @@ def _cyclictest(seconds: float) -> subprocess.Popen | None:
     exe = shutil.which("cyclictest")
     if exe is None:
         return None
-    return subprocess.Popen([exe, "-m", "-p", "80", "-i", "10000", "-q", "-D", f"{max(1, round(seconds))}s",
-                             "-h", "20000"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen([exe, *CYCLICTEST_ARGS, "-q", "-D", f"{max(1, round(seconds))}s", "-h", "20000"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 def cyclictest_figures(text: str) -> tuple[float, float, float, int] | None:
@@ -204,7 +210,7 @@ def _rows(m: dict, hosting: str) -> list[tuple[str, str]]:
         rows.append((f"{hosting}: python-can send_periodic", "no data (its process did not report)"))
     if m.get("cyclictest"):
         c50, c99, cmx, cn = m["cyclictest"]
-        rows.append((f"{hosting}: cyclictest -m -p 80 -i 10000, same run, {cn} samples",
+        rows.append((f"{hosting}: cyclictest {' '.join(CYCLICTEST_ARGS)}, same run, {cn} samples",
                      f"p50 {c50:.0f} / p99 {c99:.0f} / max {cmx:.0f} us"))
     plant = rt["nodes"].get("PLANT")
     if plant:
