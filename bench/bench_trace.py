@@ -40,6 +40,7 @@ from pathlib import Path
 
 import can
 import numpy as np
+from bench_plain import verdict
 from can.io import blf as blf_format
 
 ISSUE = "#8"                  # the issue that set the goals printed here (bench/run_all.py)
@@ -183,10 +184,6 @@ def best_wall(argv: list, repeat: int, stdin: Path | None = None
     """Best wall time [s] of `repeat` runs of a subprocess (see `wall`), and the last run."""
     runs = [wall(argv, stdin) for _ in range(repeat)]
     return min(t for t, _ in runs), runs[-1][1]
-
-
-def verdict(ratio: float, goal: float) -> str:
-    return f"{ratio:.1f}x: {'met' if ratio >= goal else 'NOT met'}"
 
 
 def decode_rows(log: Path, frames: int) -> list[tuple[str, str]]:
