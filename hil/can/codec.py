@@ -2,8 +2,8 @@
 
 The lockstep run encodes and decodes about 1,500 frames per simulated second and must run more
 than 10x faster than real time; cantools' ``Message.encode`` (strict) costs about 9 µs per frame and
-``decode`` about 3 µs (bench/bench_codec.py).  ``Codec(db)`` precompiles one ``FrameCodec`` per
-message of a cantools database.
+``decode`` about 3 µs (bench/bench_codec.py).  ``Codec(db)`` holds one ``FrameCodec`` per message of
+a cantools database, each compiled on its first encode or decode.
 
 For an ordinary message (no multiplexing, no overlapping signals) the whole payload, of any length
 (CAN FD included), is one Python int -- ``int.from_bytes(data, 'little')`` for Intel signals,
@@ -426,7 +426,6 @@ class FrameCodec:
     clamped: int
     message: Message
     fallback_reason: str | None  # why cantools does the work, or None on the fast path
-    source: str  # the generated encode/decode source ('' on the fallback path)
 
     def __init__(self, message: Message) -> None:
         if message.is_container:
@@ -440,30 +439,59 @@ class FrameCodec:
         self.clamped = 0
         self.fallback_reason = _fast_path_reason(message)
         self._plans = {s.name: _plan(s, message.length) for s in message.signals}
-        self.source = ""
-        if self.fallback_reason is None:
-            plans = tuple(self._plans.values())
-            self.source = _generate(plans, self.length)
-            namespace: dict[str, Any] = {
-                "from_bytes": int.from_bytes,
-                "fix": self._fix_length,
-                "careful": self._encode_careful,
-                "sat": tuple(p.sanitize_bits for p in plans),
-                "owner": self,
-                "_bits_to_f32": _bits_to_f32,
-                "_bits_to_f64": _bits_to_f64,
-                "_f32_to_bits": _f32_to_bits,
-                "_f64_to_bits": _f64_to_bits,
-            }
-            exec(compile(self.source, f"<railhil codec {self.name}>", "exec"), namespace)  # noqa: S102
-            self.encode = namespace["encode"]  # type: ignore[method-assign]
-            self.decode = namespace["decode"]  # type: ignore[method-assign]
+        self._source: str | None = None     # generated on the first encode or decode (_build)
+
+    @property
+    def source(self) -> str:
+        """The generated encode/decode source ('' on the fallback path)."""
+        self._build()
+        return self._source or ""
+
+    def _build(self) -> None:
+        """Install this message's encode and decode as the instance's own: on the fast path the generated
+        ones, else the cantools fallback.  Done on first use, not in __init__: generating and compiling
+        them costs about 2 ms a message (73 ms for the project's DBC), which a command that decodes a
+        trace by columns (hil.trace.fastdecode) or never touches a message need not pay."""
+        if self._source is not None:
+            return
+        if self.fallback_reason is not None:
+            self.encode = self._encode_cantools  # type: ignore[method-assign]
+            self.decode = self._decode_cantools  # type: ignore[method-assign]
+            self._source = ""
+            return
+        plans = tuple(self._plans.values())
+        source = _generate(plans, self.length)
+        namespace: dict[str, Any] = {
+            "from_bytes": int.from_bytes,
+            "fix": self._fix_length,
+            "careful": self._encode_careful,
+            "sat": tuple(p.sanitize_bits for p in plans),
+            "owner": self,
+            "_bits_to_f32": _bits_to_f32,
+            "_bits_to_f64": _bits_to_f64,
+            "_f32_to_bits": _f32_to_bits,
+            "_f64_to_bits": _f64_to_bits,
+        }
+        exec(compile(source, f"<railhil codec {self.name}>", "exec"), namespace)  # noqa: S102
+        self.encode = namespace["encode"]  # type: ignore[method-assign]
+        self.decode = namespace["decode"]  # type: ignore[method-assign]
+        self._source = source
 
     def __repr__(self) -> str:
         path = "fast" if self.fallback_reason is None else f"cantools: {self.fallback_reason}"
         return f"<FrameCodec {self.name} 0x{self.frame_id:x} {self.length} B, {path}>"
 
-    # The generated methods replace these two on the fast path; these are the cantools fallback.
+    def encode(self, values: Mapping[str, float]) -> bytes:
+        """Physical values -> payload; saturates instead of raising (module docstring)."""
+        self._build()                # replaces this method on the instance: later calls go straight there
+        return self.encode(values)
+
+    def decode(self, data: bytes) -> dict[str, float]:
+        """Payload -> physical values as floats, equal to cantools (module docstring)."""
+        self._build()
+        return self.decode(data)
+
+    # The cantools fallback (the instance's encode and decode when `fallback_reason` is set).
 
     def _sanitized(self, values: Mapping[str, Any]) -> dict[str, int | float]:
         """Raw values of every signal, saturated and counted in `clamped` (module docstring)."""
@@ -473,8 +501,7 @@ class FrameCodec:
             self.clamped += k
         return raw
 
-    def encode(self, values: Mapping[str, float]) -> bytes:
-        """Physical values -> payload; saturates instead of raising (module docstring)."""
+    def _encode_cantools(self, values: Mapping[str, float]) -> bytes:
         raw = self._sanitized(values)
         self.clamped += self._fix_multiplexers(self.message.signal_tree, raw)
         try:
@@ -484,8 +511,7 @@ class FrameCodec:
                 raise
             return self._pack(raw)
 
-    def decode(self, data: bytes) -> dict[str, float]:
-        """Payload -> physical values as floats, equal to cantools (module docstring)."""
+    def _decode_cantools(self, data: bytes) -> dict[str, float]:
         data = self._fix_length(data)
         try:
             decoded = self.message.decode(data, decode_choices=False, scaling=True)
@@ -529,7 +555,7 @@ class FrameCodec:
 
 
 class Codec:
-    """One precompiled FrameCodec per message of a cantools database, by frame id and by name.
+    """One FrameCodec per message of a cantools database, by frame id and by name.
 
     Container messages (AUTOSAR ARXML only, never in a DBC) are left out; their names are in
     ``skipped``.  As in cantools, a later message with the same frame id replaces an earlier one.
@@ -547,6 +573,13 @@ class Codec:
             self._by_id[fc.frame_id] = fc
             self._by_name[fc.name] = fc
         self.skipped: tuple[str, ...] = tuple(skipped)
+
+    def compile(self) -> Codec:
+        """Compile every message's encode and decode now (each is otherwise compiled on its first use): a
+        real-time host does it before its first cycle, not in one."""
+        for fc in self._by_name.values():
+            fc._build()
+        return self
 
     def __getitem__(self, frame_id: int) -> FrameCodec:
         try:

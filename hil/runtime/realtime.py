@@ -202,6 +202,7 @@ def hosted_nodes(names, scenario: Scenario, dbc_path: str) -> tuple:
     from hil.scenario.params import secoc_keys
 
     db, codec = loaded_dbc(Path(dbc_path))
+    codec.compile()                               # its frames' encode and decode: before the first cycle
     nodes = [build_node(name, scenario, db, codec, dbc_path) for name in names]
     releases = [node_release(scenario, db, node) for node in nodes]   # jitter, drift, start delay
     keys = secoc_keys(scenario)
@@ -728,6 +729,7 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
                             "run; run it with --lockstep (in real time, kill a node process instead)")
     dbc_path = dbc_path_of(scenario)
     db, codec = loaded_dbc(dbc_path)              # bad DBC: one line, before any process starts
+    codec.compile()                               # once, inherited by the processes it forks
     external = external_nodes(scenario, external)
     if "PLANT" in external:
         raise ScenarioError("the PLANT cannot be external in `railhil run`: the run's KPIs come from its "

@@ -772,16 +772,21 @@ def parse_candump(text: str) -> tuple[FrameBlock, np.ndarray]:
     newline = b == ord("\n")
     ends = np.flatnonzero(newline)  # where each line ends
     n = len(ends)
-    line_of = np.cumsum(newline, dtype=np.int32)  # the line of each byte but the newlines
+
+    def line_of(pos: np.ndarray) -> np.ndarray:
+        """The line of each byte at `pos` (none a newline): the newlines before it (a cumulative sum over
+        every byte costs 3x more)."""
+        return np.searchsorted(ends, pos)
+
     starts = np.zeros(n, dtype=np.int64)
     starts[1:] = ends[:-1] + 1
     ok = np.ones(n, dtype=bool)
-    ok[line_of[np.flatnonzero(~_is_word_or_separator(b))]] = False
+    ok[line_of(np.flatnonzero(~_is_word_or_separator(b)))] = False
 
     def occurrences(char: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(count per line, positions, index in positions of each line's first) of one character."""
         pos = np.flatnonzero(b == ord(char))
-        count = np.bincount(line_of[pos], minlength=n)
+        count = np.bincount(line_of(pos), minlength=n)
         return count, pos, np.cumsum(count) - count
 
     def once(char: str) -> np.ndarray:
