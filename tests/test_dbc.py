@@ -1,6 +1,7 @@
 """The schema: loads, matches its generator, every cyclic frame has a cycle time, safety frames first."""
 
 import importlib.util
+import os
 import sys
 from pathlib import Path
 
@@ -56,3 +57,52 @@ def test_bad_dbc_is_one_clear_error(tmp_path, content, expected):
         load_dbc(path)
     assert expected in str(err.value) and str(path) in str(err.value)
     assert "\n" not in str(err.value)
+
+
+# -- the loaded-DBC cache (hil.can.dbc._cached) ---------------------------------------------------------
+
+def _signals(db):
+    return [(m.name, m.frame_id, m.length, m.cycle_time, [(s.name, s.start, s.length, s.byte_order, s.scale,
+             s.offset, s.minimum, s.maximum, s.unit, s.choices and dict(s.choices)) for s in m.signals])
+            for m in db.messages]
+
+
+def test_a_dbc_parsed_once_is_loaded_from_the_cache_as_it_was_parsed(tmp_path, monkeypatch):
+    import diskcache
+
+    where = tmp_path / "cache"
+    monkeypatch.setenv("RAILHIL_DBC_CACHE", str(where))
+    first = load_dbc(DEFAULT_DBC)
+    with diskcache.Cache(str(where)) as cache:
+        assert len(cache) == 1                     # parsed and kept
+    again = load_dbc(DEFAULT_DBC)
+    assert again is not first and _signals(again) == _signals(first)
+    assert again.dbc.attributes.keys() == first.dbc.attributes.keys()
+    monkeypatch.setenv("RAILHIL_DBC_CACHE", "off")
+    assert _signals(load_dbc(DEFAULT_DBC)) == _signals(first)
+
+
+def test_a_dbc_rewritten_in_place_is_parsed_anew_whatever_its_time(tmp_path, monkeypatch):
+    """The cache is keyed by the bytes: a file rewritten with the same size and modification time (as
+    within one tick of the kernel's file clock) is not served from the cache as the old one."""
+    monkeypatch.setenv("RAILHIL_DBC_CACHE", str(tmp_path / "cache"))
+    path = tmp_path / "x.dbc"
+    text = 'VERSION ""\nBU_: A B\nBO_ 256 ONE: 8 A\n SG_ S : 0|8@1+ (1,0) [0|255] "" B\n'
+    path.write_text(text)
+    stat = path.stat()
+    assert [m.name for m in load_dbc(path).messages] == ["ONE"]
+    path.write_text(text.replace("ONE", "TWO"))                       # the same size
+    os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns))           # and the same time
+    assert [m.name for m in load_dbc(path).messages] == ["TWO"]
+
+
+def test_a_broken_cache_does_not_stop_a_dbc_loading(tmp_path, monkeypatch):
+    where = tmp_path / "cache"
+    where.mkdir()
+    (where / "cache.db").write_bytes(b"not a sqlite database" * 100)
+    monkeypatch.setenv("RAILHIL_DBC_CACHE", str(where))
+    assert len(load_dbc(DEFAULT_DBC).messages) > 0
+    unwritable = tmp_path / "file"
+    unwritable.write_text("")
+    monkeypatch.setenv("RAILHIL_DBC_CACHE", str(unwritable / "below"))   # cannot be made
+    assert len(load_dbc(DEFAULT_DBC).messages) > 0

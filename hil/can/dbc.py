@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import difflib
+import hashlib
+import io
 import logging
+import os
 from collections import defaultdict
 from pathlib import Path
 
@@ -15,14 +18,7 @@ from hil.resources import default_dbc
 
 DEFAULT_DBC = default_dbc()        # dbc/train_brake.dbc, in a checkout or from the wheel (hil.resources)
 _SNIFF_BYTES = 8192  # bytes looked at to tell a binary file from DBC text
-
-
-class _Overwriting(logging.Filter):
-    """Drops cantools' warning that two messages share an id or a name: load_dbc turns that into an
-    error of its own, one line, instead of a loose log line before it."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        return not str(record.msg).startswith("Overwriting message")
+CACHE_ENV = "RAILHIL_DBC_CACHE"    # a directory for the loaded-DBC cache, or "off"
 
 
 def _printable(text: str, limit: int = 200) -> str:
@@ -58,28 +54,90 @@ def load_dbc(path: str | Path = DEFAULT_DBC) -> Database:
         what = "a directory" if path.is_dir() else "no such DBC file"
         raise DbcError(f"{path}: {what}" + (", expected a DBC file" if path.is_dir() else ""))
     try:
-        with path.open("rb") as f:
-            head = f.read(_SNIFF_BYTES)
+        data = path.read_bytes()
     except OSError as exc:
         raise DbcError(f"{path}: cannot read the DBC file: {exc.strerror or exc}") from None
-    if not head:
+    if not data:
         raise DbcError(f"{path}: empty file (0 bytes), expected a DBC text file")
-    if b"\0" in head:
+    if b"\0" in data[:_SNIFF_BYTES]:
         raise DbcError(f"{path}: a binary file (it holds NUL bytes), expected a DBC text file")
-    logger = logging.getLogger("cantools.database.can.database")
-    quiet = _Overwriting()
-    logger.addFilter(quiet)
     try:
-        db = cantools.database.load_file(str(path), database_format="dbc", strict=True)
+        db = _cached(data)
     except Exception as exc:  # cantools raises several types; all mean "not a usable DBC"
         raise DbcError(f"{path}: not a loadable DBC file: {_printable(str(exc))}") from exc
-    finally:
-        logger.removeFilter(quiet)
     if not isinstance(db, Database):
         raise DbcError(f"{path}: not a CAN database")
     clash = _duplicates(db)
     if clash is not None:
         raise DbcError(f"{path}: {clash}; expected one message per frame id and per name")
+    return db
+
+
+class _Overwriting(logging.Filter):
+    """Drops cantools' warning that two messages share an id or a name (its only warnings while it parses a
+    DBC): load_dbc turns that into an error of its own, one line, instead of a loose log line before it."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith("Overwriting message")
+
+
+def _parse(data: bytes) -> Database:
+    """cantools' load_file on these bytes: its DBC decoding (cp1252, undecodable bytes replaced, newlines
+    translated), then load_string."""
+    text = io.TextIOWrapper(io.BytesIO(data), encoding="cp1252", errors="replace").read()
+    logger = logging.getLogger("cantools.database.can.database")
+    quiet = _Overwriting()
+    logger.addFilter(quiet)
+    try:
+        return cantools.database.load_string(text, database_format="dbc", strict=True)
+    finally:
+        logger.removeFilter(quiet)
+
+
+def cache_dir() -> Path | None:
+    """Where loaded DBCs are kept: RAILHIL_DBC_CACHE, else railhil/dbc under $XDG_CACHE_HOME or ~/.cache;
+    None when that is "off", diskcache is not installed or the directory cannot be made or written."""
+    setting = os.environ.get(CACHE_ENV, "")
+    if setting == "off":
+        return None
+    try:
+        import diskcache  # noqa: F401  (cantools' own cache library: `cantools[cache]`)
+    except ImportError:
+        return None
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "railhil" / "dbc"
+    where = Path(setting) if setting else base
+    try:
+        where.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    return where if os.access(where, os.W_OK) else None
+
+
+def _cached(data: bytes) -> Database:
+    """The database these DBC bytes hold: parsed by cantools (45–100 ms for the project's DBC), or, when
+    this cantools parsed the same bytes before, unpickled from a diskcache (about 10 ms).  Keyed by the
+    bytes' SHA-256, not by the file's path and modification time as cantools' own `cache_dir` is: a file
+    rewritten within one tick of the kernel's coarse file clock keeps its time.  A cache that fails
+    (locked, corrupt, a full disk) is passed by: the bytes are parsed as without one."""
+    where = cache_dir()
+    if where is None:
+        return _parse(data)
+    import diskcache
+
+    key = ("dbc", cantools.__version__, hashlib.sha256(data).hexdigest())
+    try:
+        with diskcache.Cache(str(where)) as cache:
+            hit = cache.get(key)
+    except Exception:   # the cache's own trouble, whatever diskcache or sqlite raise
+        hit = None
+    if isinstance(hit, Database):
+        return hit
+    db = _parse(data)
+    try:
+        with diskcache.Cache(str(where)) as cache:
+            cache.set(key, db)
+    except Exception:
+        pass
     return db
 
 
