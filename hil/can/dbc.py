@@ -104,11 +104,11 @@ def cache_dir() -> Path | None:
         import diskcache  # noqa: F401  (cantools' own cache library: `cantools[cache]`)
     except ImportError:
         return None
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "railhil" / "dbc"
-    where = Path(setting) if setting else base
     try:
+        where = Path(setting) if setting else \
+            Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "railhil" / "dbc"
         where.mkdir(parents=True, exist_ok=True)
-    except OSError:
+    except (OSError, RuntimeError):        # RuntimeError: no home directory to be found
         return None
     return where if os.access(where, os.W_OK) else None
 
