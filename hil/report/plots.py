@@ -47,7 +47,9 @@ def plot_run(scenario: Scenario, cols: dict[str, np.ndarray], path: Path, title:
     for ax in axes:
         ax.grid(True, alpha=0.3)
     fig.suptitle(title)
-    fig.tight_layout()
+    # fixed margins, as tight_layout would set them for this figure: it draws the figure once more to
+    # measure them (55 of the plot's 210 ms, every railhil run)
+    fig.subplots_adjust(left=0.08, right=0.98, top=0.95, bottom=0.06, hspace=0.08)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
