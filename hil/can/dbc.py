@@ -19,6 +19,7 @@ from hil.resources import default_dbc
 DEFAULT_DBC = default_dbc()        # dbc/train_brake.dbc, in a checkout or from the wheel (hil.resources)
 _SNIFF_BYTES = 8192  # bytes looked at to tell a binary file from DBC text
 CACHE_ENV = "RAILHIL_DBC_CACHE"    # a directory for the loaded-DBC cache, or "off"
+CACHE_WAIT_S = 1.0     # s, the longest a load waits on the cache's lock (diskcache: 60), then it parses
 
 
 def _printable(text: str, limit: int = 200) -> str:
@@ -126,7 +127,7 @@ def _cached(data: bytes) -> Database:
 
     key = ("dbc", cantools.__version__, hashlib.sha256(data).hexdigest())
     try:
-        with diskcache.Cache(str(where)) as cache:
+        with diskcache.Cache(str(where), timeout=CACHE_WAIT_S) as cache:
             hit = cache.get(key)
     except Exception:   # the cache's own trouble, whatever diskcache or sqlite raise
         hit = None
@@ -134,7 +135,7 @@ def _cached(data: bytes) -> Database:
         return hit
     db = _parse(data)
     try:
-        with diskcache.Cache(str(where)) as cache:
+        with diskcache.Cache(str(where), timeout=CACHE_WAIT_S) as cache:
             cache.set(key, db)
     except Exception:
         pass
