@@ -311,6 +311,8 @@ def _literal(value: int | float) -> str:
     if isinstance(value, float) and math.isinf(value):
         return "(float('inf'))" if value > 0 else "(float('-inf'))"
     text = repr(value)
+    if type(value) is int or (type(value) is float and value == value):
+        return f"({text})"          # Python's repr of an int or a finite float reads back exactly
     if type(eval(text)) is not type(value) or eval(text) != value:  # noqa: S307 - our own repr
         raise ValueError(f"no exact literal for {value!r}")
     return f"({text})"
