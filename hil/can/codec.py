@@ -452,8 +452,8 @@ class FrameCodec:
     def _build(self) -> None:
         """Install this message's encode and decode as the instance's own: on the fast path the generated
         ones, else the cantools fallback.  Done on first use, not in __init__: generating and compiling
-        them costs about 2 ms a message (73 ms for the project's DBC), which a command that decodes a
-        trace by columns (hil.trace.fastdecode) or never touches a message need not pay."""
+        them costs about 0.3 ms a message (30 ms for the project's 101), which a command that touches few
+        messages or none need not pay."""
         if self._source is not None:
             return
         if self.fallback_reason is not None:
