@@ -239,6 +239,24 @@ def test_the_acd_reads_nmea_from_a_real_pty_through_pyserial():
     assert len(starts) >= 1 and stop > 0.0
 
 
+def test_the_acd_built_for_real_time_gets_a_pty_wherever_it_is_hosted():
+    """serial = "auto": a pseudo-terminal for a node built for real time (hil.runtime.realtime.hosted_nodes:
+    the grouped host, a host of its own, `railhil node ACD`), loop:// for lockstep; the process's name does
+    not decide (the ACD runs in railhil-ECUS by default)."""
+    from hil.can.codec import loaded_dbc
+    from hil.runtime.assembly import build_node, building_for_realtime, for_realtime
+
+    scenario = load_scenario(SCEN / "acd_anticollision.toml")
+    db, codec = loaded_dbc(scenario.dbc)
+    assert scenario.acd.gps.serial == "auto" and not building_for_realtime()
+    with for_realtime():
+        assert building_for_realtime()
+        realtime = build_node("ACD", scenario, db, codec)
+    lockstep = build_node("ACD", scenario, db, codec)
+    assert not building_for_realtime()
+    assert (realtime.controller.serial, lockstep.controller.serial) == ("pty", "loop")
+
+
 def test_instability_episodes_are_dropped_by_hdop():
     """Instability episodes (plant_sim.gps: a valid fix off by tens of m, HDOP 4) fail the HDOP check."""
     spec = AcdSpec(leader=LEADER, gps={"rate_hz": 5.0})

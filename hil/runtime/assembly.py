@@ -1,8 +1,9 @@
 """Which nodes a scenario has and how each binds to the DBC.
 
 `node_names(scenario)` lists them; `build_node(name, ...)` builds one (controller + binding + Node).
-The lockstep runner builds them all in one process; the real-time runner builds each in its own OS
-process from the same function, so the node code is the same in both modes.
+The lockstep runner builds them all in one process; the real-time runner builds them in its host processes
+(or `railhil node` in its own) from the same function, inside `for_realtime()`, so the node code is the
+same in both modes and a node that has a real device opens it only in real time.
 
 The foundation's train is PLANT, DESK, BCU and BECU1..n.  Each study that is part of the scenario
 (hil.scenario.registry) may add or replace nodes (its nodes.py `node_names(scenario, names)` and
@@ -13,6 +14,9 @@ of every controller come from hil.scenario.params.
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+from contextvars import ContextVar
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -63,6 +67,26 @@ def build_plant(scenario: Scenario) -> Plant:
     return Plant(params.plant_params(scenario), params.build_track(scenario),
                  v0_mps=scenario.train.initial_speed_kmh / 3.6, x0_m=scenario.train.start_position_m,
                  seed=scenario.seed)
+
+
+_REALTIME: ContextVar[bool] = ContextVar("railhil_building_for_realtime", default=False)
+
+
+def building_for_realtime() -> bool:
+    """Whether the nodes being built will run in real time (built inside `for_realtime()`: a real-time host,
+    `railhil node`), not in lockstep: a node may then open a real device, as the ACD its GPS line on a
+    pseudo-terminal."""
+    return _REALTIME.get()
+
+
+@contextlib.contextmanager
+def for_realtime() -> Iterator[None]:
+    """The nodes built in this block run in real time (`building_for_realtime`)."""
+    token = _REALTIME.set(True)
+    try:
+        yield
+    finally:
+        _REALTIME.reset(token)
 
 
 def build_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_name: str = "DBC") -> Node:

@@ -197,13 +197,14 @@ def hosted_nodes(names, scenario: Scenario, dbc_path: str) -> tuple:
     """(codec, nodes, their releases) of the nodes a host runs, keyed for SecOC (a runner's host process,
     `railhil node`)."""
     from hil.can.codec import loaded_dbc
-    from hil.runtime.assembly import build_node
+    from hil.runtime.assembly import build_node, for_realtime
     from hil.runtime.release import node_release
     from hil.scenario.params import secoc_keys
 
     db, codec = loaded_dbc(Path(dbc_path))
     codec.compile()                               # its frames' encode and decode: before the first cycle
-    nodes = [build_node(name, scenario, db, codec, dbc_path) for name in names]
+    with for_realtime():                          # real devices where a node has them (the ACD's GPS pty)
+        nodes = [build_node(name, scenario, db, codec, dbc_path) for name in names]
     releases = [node_release(scenario, db, node) for node in nodes]   # jitter, drift, start delay
     keys = secoc_keys(scenario)
     for node in nodes:

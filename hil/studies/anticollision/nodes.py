@@ -527,12 +527,13 @@ def node_names(scenario: Scenario, names: list[str]) -> list[str]:
 
 
 def _serial_kind(spec: AcdSpec) -> str:
+    """The GPS line as configured; "auto": a pseudo-terminal in real time (whichever process hosts the ACD,
+    or `railhil node ACD`), pyserial's loop:// in lockstep."""
     if spec.gps.serial != "auto":
         return spec.gps.serial
-    import multiprocessing as mp
+    from hil.runtime.assembly import building_for_realtime
 
-    # a real-time run builds each node in its own process named railhil-<node> (hil.runtime.realtime)
-    return "pty" if mp.current_process().name == f"railhil-{ACD_NODE}" else "loop"
+    return "pty" if building_for_realtime() else "loop"
 
 
 def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
