@@ -179,13 +179,13 @@ class _SignalPlan:
     def __post_init__(self) -> None:
         self.mask = (1 << self.length) - 1
         if self.length <= SMALL_BITS:
-            # raw value -> whether learnt, and its row in `texts`: zeroed arrays, whose pages the OS makes
+            # raw value -> whether learnt, and its row in `tables`: zeroed arrays, whose pages the OS makes
             # on first touch (an object array per raw value was filled with None up front: 88 MB and
             # about 50 ms for the project's DBC, whose 172 16-bit signals a trace may never vary)
             self.known = np.zeros(1 << self.length, dtype=bool)
             self.row = np.zeros(1 << self.length, dtype=np.int32)
-            self.texts: list[list[str]] = [[] for _ in range(self.fields)]
-            self._tables: list[np.ndarray] | None = None   # `texts` as object arrays, made on lookup
+            self.tables = [np.empty(64, dtype=object) for _ in range(self.fields)]  # texts by row, doubling
+            self.learnt = 0                                                          # rows in use
         self.cache: dict[int, tuple[str, ...]] = {}
 
     def window(self, message_length: int) -> tuple[int, int] | None:
@@ -200,10 +200,8 @@ class _SignalPlan:
     def lookup(self, bits: np.ndarray) -> list[np.ndarray]:
         """The texts (one object array per field) of raw values already learnt."""
         if self.length <= SMALL_BITS:
-            if self._tables is None:
-                self._tables = [np.array(texts, dtype=object) for texts in self.texts]
             rows = self.row[bits]
-            return [table[rows] for table in self._tables]
+            return [table[rows] for table in self.tables]
         values = np.unique(bits)  # sorted
         where = np.searchsorted(values, bits)
         known = list(map(self.cache.__getitem__, values.tolist()))
@@ -211,11 +209,17 @@ class _SignalPlan:
 
     def learn(self, values: list[int], texts: list[tuple[str, ...]]) -> None:
         if self.length <= SMALL_BITS:                 # `values` are distinct, none learnt before
-            self.row[values] = np.arange(len(self.texts[0]), len(self.texts[0]) + len(values))
-            for f, column in enumerate(self.texts):
-                column.extend(t[f] for t in texts)
+            first, end = self.learnt, self.learnt + len(values)
+            if end > len(self.tables[0]):
+                grown = [np.empty(max(end, 2 * len(table)), dtype=object) for table in self.tables]
+                for new, old in zip(grown, self.tables, strict=True):
+                    new[:first] = old[:first]
+                self.tables = grown
+            for f, table in enumerate(self.tables):
+                table[first:end] = [t[f] for t in texts]
+            self.row[values] = np.arange(first, end)
             self.known[values] = True
-            self._tables = None
+            self.learnt = end
         else:
             self.cache.update(zip(values, texts, strict=True))
 
