@@ -127,19 +127,22 @@ def _cached(data: bytes) -> Database:
 
     key = ("dbc", cantools.__version__, hashlib.sha256(data).hexdigest())
     try:
-        with diskcache.Cache(str(where), timeout=CACHE_WAIT_S) as cache:
-            hit = cache.get(key)
+        cache = diskcache.Cache(str(where), timeout=CACHE_WAIT_S)
     except Exception:   # the cache's own trouble, whatever diskcache or sqlite raise
-        hit = None
-    if isinstance(hit, Database):
-        return hit
-    db = _parse(data)
-    try:
-        with diskcache.Cache(str(where), timeout=CACHE_WAIT_S) as cache:
+        return _parse(data)
+    with cache:
+        try:
+            hit = cache.get(key)
+        except Exception:
+            hit = None
+        if isinstance(hit, Database):
+            return hit
+        db = _parse(data)
+        try:
             cache.set(key, db)
-    except Exception:
-        pass
-    return db
+        except Exception:
+            pass
+        return db
 
 
 def closest(name: str, candidates: list[str], n: int = 3) -> str:
