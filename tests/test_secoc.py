@@ -276,3 +276,20 @@ def test_the_shared_mac_of_senders_and_receivers_is_always_the_fresh_cmac(frames
         if tamper:
             frame = frame[:-1] + bytes((frame[-1] ^ 1,))
         assert receiver.verify(frame).accepted is not tamper
+
+
+def test_the_senders_own_frame_is_taken_on_trust_only_at_the_senders_freshness():
+    """A receiver handed the very frame its sender just secured accepts it without recomputing the MAC
+    (hil.can.secoc: `_SharedCmac.sent`), but only when the freshness it rebuilds is the sender's: the same
+    bytes read at another freshness are another message, and its MAC fails."""
+    sender = SecOcSender(KEY, DEMAND, freshness=299)
+    frame = sender.secure(b"\x01\x02")                   # freshness 300: its transmitted byte is 44
+    behind = SecOcReceiver(KEY, DEMAND, window=255, last=0)          # rebuilds 44, not 300
+    verdict = behind.verify(frame)
+    assert (verdict.accepted, verdict.reason, verdict.freshness) == (False, Reason.MAC_MISMATCH, 44)
+    in_step = SecOcReceiver(KEY, DEMAND, last=299)
+    verdict = in_step.verify(frame)
+    assert (verdict.accepted, verdict.freshness, verdict.payload) == (True, 300, b"\x01\x02")
+    assert in_step.verify(frame).reason is Reason.STALE_FRESHNESS            # and a replay of it is not
+    copy = bytearray(frame)                                                  # equal bytes, another object
+    assert SecOcReceiver(KEY, DEMAND, last=299).verify(copy).payload == b"\x01\x02"
