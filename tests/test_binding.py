@@ -1,5 +1,9 @@
 """Node bindings: every signal name a node uses is checked against the DBC at start."""
 
+from decimal import Decimal
+from fractions import Fraction
+
+import numpy as np
 import pytest
 
 from hil.can.codec import Codec
@@ -68,3 +72,37 @@ def test_node_cycle_encodes_due_frames_and_counts_bad_outputs():
     assert node.cycle(5_000) == []                         # not due yet
     fc, data = node.cycle(10_000)[0]
     assert fc.decode(data)["COUNTER"] == 1
+
+
+AWKWARD_OUTPUTS = [
+    {"ValveCmd": 0.5, "CylPressureSet": 2e5},                               # all finite: the quick path
+    {"ValveCmd": float("nan"), "CylPressureSet": 2e5},
+    {"ValveCmd": float("inf"), "CylPressureSet": float("-inf")},            # their sum is NaN
+    {"ValveCmd": 1e308, "CylPressureSet": 1e308},                           # finite, their sum is not
+    {"ValveCmd": 10 ** 400, "CylPressureSet": 1.0},                          # int + float overflows
+    {"ValveCmd": True, "CylPressureSet": 3},                                 # bool and int: finite
+    {"ValveCmd": 1j, "CylPressureSet": 0.0},                                 # complex: not a number here
+    {"ValveCmd": "0.5", "CylPressureSet": None},
+    {"ValveCmd": np.float64("nan"), "CylPressureSet": np.float64(2.0)},
+    {"ValveCmd": Decimal("0.5"), "CylPressureSet": Fraction(1, 3)},
+    {"ValveCmd": Decimal("NaN"), "CylPressureSet": Decimal("sNaN")},      # sNaN: float() raises
+]
+
+
+@pytest.mark.parametrize("outputs", AWKWARD_OUTPUTS, ids=range(len(AWKWARD_OUTPUTS)))
+def test_the_quick_output_check_decides_as_the_check_value_by_value(outputs):
+    """Node.cycle takes a step's outputs as they are when one sum of them is a finite int or float, and
+    checks them one by one otherwise: both decide alike, on values a controller should never return too."""
+    class Ctrl:
+        def step(self, now_us, rx):
+            return dict(outputs)
+
+    b = build(outputs=("ValveCmd", "CylPressureSet"))
+    quick = Node("BECU3", Ctrl(), b, Codec(DB), DB, period_us=10_000)
+    quick.cycle(0)
+    one_by_one = Node("BECU3", Ctrl(), b, Codec(DB), DB, period_us=10_000)
+    one_by_one._check_outputs(outputs)
+    assert quick.stats.bad_outputs == one_by_one.stats.bad_outputs
+    for key in outputs:
+        got, want = quick.outputs[key], one_by_one.outputs[key]
+        assert got is want or (got == want and type(got) is type(want)), (key, got, want)
