@@ -339,12 +339,13 @@ def protect(config: Config, state: ProtectState, payload: bytes) -> bytes:
     if n < config.length:
         raise E2EConfigError(f"{config.name}: payload of {n} bytes, expected {config.length}")
     data = bytearray(payload)
-    if isinstance(config, P01Config):
+    if config.__class__ is P01Config or isinstance(config, P01Config):
         counter = state.counter
         if not 0 <= counter < P01_COUNTER_MODULO:
             raise E2EConfigError(f"{config.name}: sender counter {counter!r}, expected 0..14")
-        _with_nibble(data, config.counter_offset, counter)
-        if config.data_id_mode is DataIdMode.NIBBLE:
+        i, shift = config.counter_offset >> 3, config.counter_offset & 4      # _with_nibble, inlined
+        data[i] = (data[i] & ~(0x0F << shift) & 0xFF) | (counter << shift)
+        if config.data_id_mode is _NIBBLE:
             _with_nibble(data, config.data_id_nibble_offset, config.data_id >> 8)
         data[config.crc_offset >> 3] = _p01_crc(config, data, counter)
         state.counter = (counter + 1) % P01_COUNTER_MODULO
@@ -365,17 +366,17 @@ def check(config: Config, state: CheckState, payload: bytes | None) -> tuple[Che
     ``payload`` is the newest frame received since the last call, or ``None`` when nothing arrived
     (the spec's NewDataAvailable = FALSE).  Never raises on the payload's length or contents.
     """
-    p01 = isinstance(config, P01Config)
-    last, max_delta, wait, lost, no_new, sync = state
-    max_delta = min(max_delta + 1, P01_MAX_DELTA_CAP if p01 else P02_MAX_DELTA_CAP)
-    if payload is None:
-        return _state((last, max_delta, wait, lost, min(no_new + 1, NO_NEW_COUNTER_CAP), sync)), _NONEWDATA
-    if len(payload) == config.length:
+    p01 = config.__class__ is P01Config or isinstance(config, P01Config)
+    cap = P01_MAX_DELTA_CAP if p01 else P02_MAX_DELTA_CAP
+    max_delta = state[1] + 1                     # min(state[1] + 1, cap), without the builtin's call
+    if max_delta > cap:
+        max_delta = cap
+    if payload is not None and len(payload) == config.length:     # a frame of the right length: the usual
         if p01:
             offset = config.counter_offset
             received = (payload[offset >> 3] >> (offset & 4)) & 0x0F          # _nibble, inlined
             if received != 0x0F \
-                    and (config.data_id_mode is not DataIdMode.NIBBLE
+                    and (config.data_id_mode is not _NIBBLE
                          or _nibble(payload, config.data_id_nibble_offset) == config.data_id >> 8) \
                     and payload[config.crc_offset >> 3] == _p01_crc(config, payload, received):
                 return _sequence(config, state, max_delta, received, P01_COUNTER_MODULO)
@@ -383,6 +384,9 @@ def check(config: Config, state: CheckState, payload: bytes | None) -> tuple[Che
             received = payload[1] & 0x0F
             if payload[0] == _p02_crc(config, payload, received):
                 return _sequence(config, state, max_delta, received, P02_COUNTER_MODULO)
+    last, _, wait, lost, no_new, sync = state
+    if payload is None:
+        return _state((last, max_delta, wait, lost, min(no_new + 1, NO_NEW_COUNTER_CAP), sync)), _NONEWDATA
     return _state((last, max_delta, wait, lost, no_new, sync)), _ERROR
 
 
@@ -391,6 +395,7 @@ def check(config: Config, state: CheckState, payload: bytes | None) -> tuple[Che
 _state = functools.partial(tuple.__new__, CheckState)
 _NONEWDATA, _ERROR, _INITIAL, _REPEATED = Status.NONEWDATA, Status.ERROR, Status.INITIAL, Status.REPEATED
 _WRONGSEQUENCE, _SYNC, _OK, _OKSOMELOST = Status.WRONGSEQUENCE, Status.SYNC, Status.OK, Status.OKSOMELOST
+_NIBBLE = DataIdMode.NIBBLE
 
 
 def _sequence(config: Config, state: CheckState, max_delta: int, received: int,
