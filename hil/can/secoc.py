@@ -138,33 +138,25 @@ def rebuild_freshness(last: int, received: int) -> int:
 
 class _SharedCmac:
     """The AES-128 CMAC of one (key, data id), shared by every sender and receiver of that frame type in
-    a process, remembering the last message it authenticated.
+    a process, remembering the last frame a sender secured with it.
 
     The MAC is a pure function of the key and the message, and in lockstep the receivers of a frame
-    authenticate the very bytes its sender did: the sender's MAC is reused instead of computed again by
-    each receiver.  ``cryptography``'s keyed prototype is copied per computation (no AES key schedule
-    per frame; a new CMAC object costs 4x a copy, measured)."""
+    authenticate the very bytes its sender did: a receiver handed the sender's last frame (``sent``: the
+    secured frame, its freshness, its payload) at the sender's freshness accepts it without rebuilding the
+    message and computing its MAC again (`SecOcReceiver.verify`).  ``cryptography``'s keyed prototype is
+    copied per computation (no AES key schedule per frame; a new CMAC object costs 4x a copy, measured)."""
 
-    __slots__ = ("_proto", "_last", "sent")
+    __slots__ = ("_proto", "sent")
 
     def __init__(self, key: bytes) -> None:
         self._proto = cmac.CMAC(algorithms.AES(key))
-        self._last = (b"", b"")          # (message, its full 16-byte MAC), replaced as one reference
-        # the last frame a sender secured with it: (secured frame, its freshness, its payload).  A receiver
-        # handed these very bytes with this very freshness authenticates what the sender did: its MAC is
-        # the sender's, so it accepts without rebuilding the message and comparing the tags
         self.sent: tuple[bytes, int, bytes] = (b"", -1, b"")
 
     def tag(self, message: bytes) -> bytes:
         """The 16-byte CMAC of ``message``."""
-        last_message, last_tag = self._last
-        if message == last_message:
-            return last_tag
         mac = self._proto.copy()
         mac.update(message)
-        tag = mac.finalize()
-        self._last = (message, tag)
-        return tag
+        return mac.finalize()
 
 
 _SHARED: dict[tuple[bytes, int], _SharedCmac] = {}
