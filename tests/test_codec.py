@@ -416,3 +416,34 @@ def test_encode_error_is_not_what_cantools_would_raise() -> None:
     message = db.get_message_by_name("BECU1_PRESS_CMD")
     with pytest.raises(EncodeError):
         message.encode({**NOMINAL, "ValveCmd": 5.0}, strict=True)
+
+
+MAPPED_DBCS = {"train_brake.dbc", "abs.dbc", "floating_point.dbc", "motohawk.dbc", "multiplex_choices.dbc",
+               "signed.dbc"}   # ours; a multiplexed one (cantools' path); IEEE floats; big-endian; signed
+MAPPED_VALUES = [0.0, 1.0, -1.0, 0.5, 250_000.0, 1e9, -1e9, math.nan, math.inf, "x", None, 2**70, True]
+
+
+@PROPERTY
+@given(seed=st.integers(0, 2**64 - 1))
+@pytest.mark.parametrize("path", [p for p in LOADABLE if p.name in MAPPED_DBCS], ids=lambda p: p.name)
+def test_the_mapped_encoder_equals_encode_of_the_values_it_stands_for(path: Path, seed: int) -> None:
+    """FrameCodec.encoder(fields, counter)(outputs, count) is encode({signal: outputs.get(key, 0.0) for
+    fields} with the counter), bytes and saturation counts alike: for a random subset of each message's
+    signals mapped to output keys (some missing from the outputs), a random counter signal, and values in
+    range, out of range, non-finite and not numbers (the fast path and the cantools fallback)."""
+    rng = random.Random(seed)
+    db, codec = load(path)
+    _, twin = load(path)                      # counts its saturations on its own
+    for fc in codec:
+        names = list(fc.signal_names)
+        fields = [(name, f"out.{name}") for name in names if rng.random() < 0.7]
+        counter = rng.choice([None, *names])
+        outputs = {key: rng.choice(MAPPED_VALUES) for _, key in fields if rng.random() < 0.8}
+        count = rng.randrange(15)
+        values = {sig: outputs.get(key, 0.0) for sig, key in fields}
+        if counter is not None:
+            values[counter] = count
+        other = twin.by_name(fc.name)
+        before, other_before = fc.clamped, other.clamped
+        assert fc.encoder(fields, counter)(outputs, count) == other.encode(values), (fc.name, fields, outputs)
+        assert fc.clamped - before == other.clamped - other_before, fc.name

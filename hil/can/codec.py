@@ -55,9 +55,10 @@ import math
 import operator
 import os
 import struct
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from types import CodeType
 from typing import Any
 
 from cantools.database.can import Database, Message, Signal
@@ -342,9 +343,10 @@ def _decode_expr(p: _SignalPlan) -> str:
     return f"({expr}) * 1.0"
 
 
-def _encode_lines(i: int, p: _SignalPlan) -> list[str]:
-    """Statements that set r<i> to the signal's bits, unshifted, from the physical value v; a value
-    out of range, NaN or of an odd type goes to the plan's sanitize_bits() (``sat[i]``)."""
+def _encode_lines(i: int, p: _SignalPlan, value: str | None = None) -> list[str]:
+    """Statements that set r<i> to the signal's bits, unshifted, from the physical value v, read by the
+    expression `value` (default ``get('<signal>')``); a value out of range, NaN or of an odd type goes to
+    the plan's sanitize_bits() (``sat[i]``)."""
     sc, of = _literal(p.scale), _literal(p.offset)
     c = p.conversion
     v_of = "v" if p.offset == 0 else f"v - {of}"  # x - 0 is x for every float and int
@@ -367,7 +369,7 @@ def _encode_lines(i: int, p: _SignalPlan) -> list[str]:
     if p.signed and not p.is_float:
         in_range.append(f"r{i} &= {p.mask}")
     return [
-        f"v = get({p.name!r})",
+        f"v = {value or f'get({p.name!r})'}",
         "if v is None:",
         f"    r{i} = 0",
         f"elif {_literal(p.lo_check)} <= v <= {_literal(p.hi_check)}:",
@@ -391,12 +393,23 @@ def _generate(plans: tuple[_SignalPlan, ...], length: int) -> str:
     dec += [f"        {p.name!r}: {_decode_expr(p)}," for p in plans]
     dec.append("    }")
 
-    enc = ["def encode(values):", "    get = values.get", "    n = 0", "    try:"]
+    enc = ["def encode(values):", "    get = values.get"]
+    enc += _encode_body(plans, length, [None] * len(plans), "careful(values)")
+    return "\n".join(dec) + "\n\n" + "\n".join(enc) + "\n"
+
+
+def _encode_body(plans: tuple[_SignalPlan, ...], length: int, values: list[str | None], careful: str
+                 ) -> list[str]:
+    """An encoder's body after its first lines: each signal's bits from `values[i]` (`_encode_lines`),
+    `careful` called on an error, the saturated values counted, the payload returned."""
+    le = [(i, p) for i, p in enumerate(plans) if not p.big_endian]
+    be = [(i, p) for i, p in enumerate(plans) if p.big_endian]
+    enc = ["    n = 0", "    try:"]
     if not plans:
         enc.append("        pass")
     for i, p in enumerate(plans):
-        enc += ["        " + line for line in _encode_lines(i, p)]
-    enc += ["    except (TypeError, ValueError, OverflowError):", "        return careful(values)"]
+        enc += ["        " + line for line in _encode_lines(i, p, values[i])]
+    enc += ["    except (TypeError, ValueError, OverflowError):", f"        return {careful}"]
     enc += ["    if n:", "        owner.clamped += n"]
 
     def word(items: list[tuple[int, _SignalPlan]]) -> str:
@@ -411,7 +424,25 @@ def _generate(plans: tuple[_SignalPlan, ...], length: int) -> str:
         enc.append(f"    return ({word(be)}).to_bytes({length}, 'big')")
     else:
         enc.append(f"    return ({word(le)}).to_bytes({length}, 'little')")
-    return "\n".join(dec) + "\n\n" + "\n".join(enc) + "\n"
+    return enc
+
+
+def _generate_mapped(plans: tuple[_SignalPlan, ...], length: int, fields: tuple[tuple[str, str], ...],
+                     counter: str | None) -> str:
+    """`encode(values)` with values = {signal: outputs.get(key, 0.0) for signal, key in fields} and
+    values[counter] = count, as ``encode_mapped(outputs, count)``, reading the outputs directly."""
+    keys = dict(fields)
+    values = ["count" if p.name == counter else f"get({keys[p.name]!r}, 0.0)" if p.name in keys else "None"
+              for p in plans]
+    enc = ["def encode_mapped(outputs, count):", "    get = outputs.get"]
+    return "\n".join(enc + _encode_body(plans, length, values, "careful(mapped(outputs, count))")) + "\n"
+
+
+@functools.lru_cache(maxsize=4096)
+def _compiled(source: str, filename: str) -> CodeType:
+    """Generated source compiled, once per process: a new Codec of the same DBC (every run builds one)
+    runs the code objects it compiled before in its own namespace instead of compiling them again."""
+    return compile(source, filename, "exec")
 
 
 # --- the public classes ---------------------------------------------------------------------------
@@ -463,7 +494,15 @@ class FrameCodec:
             return
         plans = tuple(self._plans.values())
         source = _generate(plans, self.length)
-        namespace: dict[str, Any] = {
+        namespace = self._namespace(plans)
+        exec(_compiled(source, f"<railhil codec {self.name}>"), namespace)  # noqa: S102
+        self.encode = namespace["encode"]  # type: ignore[method-assign]
+        self.decode = namespace["decode"]  # type: ignore[method-assign]
+        self._source = source
+
+    def _namespace(self, plans: tuple[_SignalPlan, ...]) -> dict[str, Any]:
+        """The names generated code uses."""
+        return {
             "from_bytes": int.from_bytes,
             "fix": self._fix_length,
             "careful": self._encode_careful,
@@ -474,10 +513,29 @@ class FrameCodec:
             "_f32_to_bits": _f32_to_bits,
             "_f64_to_bits": _f64_to_bits,
         }
-        exec(compile(source, f"<railhil codec {self.name}>", "exec"), namespace)  # noqa: S102
-        self.encode = namespace["encode"]  # type: ignore[method-assign]
-        self.decode = namespace["decode"]  # type: ignore[method-assign]
-        self._source = source
+
+    def encoder(self, fields: Iterable[tuple[str, str]], counter: str | None = None
+                ) -> Callable[[Mapping[str, float], int], bytes]:
+        """A sending node's encoder of this message: ``encoder(fields, counter)(outputs, count)`` is
+        ``encode(values)`` for values = {signal: outputs.get(key, 0.0) for signal, key in fields}, with
+        values[counter] = count when `counter` names a signal, generated to read `outputs` directly
+        instead of building `values` for every frame (the cantools fallback builds it)."""
+        fields = tuple(fields)
+
+        def mapped(outputs: Mapping[str, float], count: int) -> dict[str, float]:
+            values = {sig: outputs.get(key, 0.0) for sig, key in fields}
+            if counter is not None:
+                values[counter] = count
+            return values
+
+        self._build()
+        if self.fallback_reason is not None:
+            return lambda outputs, count: self.encode(mapped(outputs, count))
+        plans = tuple(self._plans.values())
+        namespace = self._namespace(plans) | {"mapped": mapped}
+        source = _generate_mapped(plans, self.length, fields, counter)
+        exec(_compiled(source, f"<railhil codec {self.name}, mapped>"), namespace)  # noqa: S102
+        return namespace["encode_mapped"]
 
     def __repr__(self) -> str:
         path = "fast" if self.fallback_reason is None else f"cantools: {self.fallback_reason}"

@@ -115,6 +115,13 @@ class TxFrame:
     secoc: secoc.SecOcSender | None = None
     authentic: int = 8                     # bytes before the SecOC trailer
     stuck: list[StuckSignal] = field(default_factory=list)   # injected sender faults (hil.safety.injection)
+    # encode(outputs, count): the codec's encode of {signal: outputs.get(key, 0.0) for fields} and the
+    # counter, reading the outputs directly (FrameCodec.encoder)
+    encode: Callable[[Mapping[str, float], int], bytes] | None = None
+
+    def __post_init__(self) -> None:
+        if self.encode is None:
+            self.encode = self.codec.encoder(self.fields, E2E_COUNTER if self.counter else None)
 
 
 def _attribute(msg, name: str):
@@ -498,15 +505,17 @@ class Node:
 
     def _frame(self, tx: TxFrame, outputs: Mapping[str, float], now_us: int) -> bytes:
         """The payload of one due frame: the outputs encoded, then E2E-protected and secured."""
-        values = {sig: outputs.get(key, 0.0) for sig, key in tx.fields}
-        if tx.counter:
-            values[E2E_COUNTER] = tx.count % E2E_COUNTER_MODULO
-        if tx.stuck:
-            for stuck in tx.stuck:
-                stuck.apply(values, now_us)
         codec = tx.codec
         clamped = codec.clamped
-        data = codec.encode(values)
+        if tx.stuck:                             # a stuck signal changes the values before they are encoded
+            values = {sig: outputs.get(key, 0.0) for sig, key in tx.fields}
+            if tx.counter:
+                values[E2E_COUNTER] = tx.count % E2E_COUNTER_MODULO
+            for stuck in tx.stuck:
+                stuck.apply(values, now_us)
+            data = codec.encode(values)
+        else:
+            data = tx.encode(outputs, tx.count % E2E_COUNTER_MODULO)
         if codec.clamped != clamped:             # the codec saturated an out-of-range value
             self.stats.clamped_outputs += codec.clamped - clamped
         if tx.secoc is not None:
