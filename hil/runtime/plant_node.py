@@ -199,7 +199,9 @@ class PlantController:
         if self.lag:
             self.truth.max_slip_mps = plant.max_slip_mps     # the plant's running max (a live view)
         self._rx_version = -1
-        # _failsafe: until _quiet_until_us [µs] no command can be stale, if rx has not changed since
+        # _failsafe: until _quiet_until_us [µs] no command can be stale, while rx is the same table and has
+        # not changed since (version _quiet_version).  Once every car has been commanded (_quiet_version
+        # None) a change cannot make it wrong: a command received only makes its car's command fresher
         self._quiet_until_us, self._quiet_rx, self._quiet_version = -1, None, -1
         self._valve = np.zeros(n_cars)
         self._wsp = np.zeros(n_cars, dtype=np.int64)
@@ -252,13 +254,15 @@ class PlantController:
         """Cars whose command went stale hold their cylinder, then apply the brake (class docstring)."""
         dt = 0 if self._last_us is None else now_us - self._last_us
         self._last_us = now_us
-        if now_us <= self._quiet_until_us and rx is self._quiet_rx and rx.version == self._quiet_version:
-            return                            # no command received since, and none can be stale yet
+        if self._quiet(now_us, rx):
+            return                            # none can be stale yet
         quiet_until_us = 1 << 62
+        commanded = 0
         for k, key in enumerate(self.valve_keys):
             age = rx.age_us(key, now_us)
             if age is not None:               # stale once age > failsafe_after_us
                 quiet_until_us = min(quiet_until_us, now_us - age + self.failsafe_after_us)
+                commanded += 1
             if age is not None and age > self.failsafe_after_us:
                 if age > self.fill_after_us:     # held as long as allowed: the brake applies
                     self._valve[k] = 1.0
@@ -271,7 +275,13 @@ class PlantController:
                     self._wsp[k] = WSP_HOLD
                 self.failsafe_us[k] += dt
                 self._rx_version = -1          # recompute from rx as soon as commands return
-        self._quiet_until_us, self._quiet_rx, self._quiet_version = quiet_until_us, rx, rx.version
+        self._quiet_until_us, self._quiet_rx = quiet_until_us, rx
+        self._quiet_version = None if commanded == self.n else rx.version
+
+    def _quiet(self, now_us: int, rx) -> bool:
+        """No command can be stale at `now_us` (the quick case of `_failsafe`)."""
+        return now_us <= self._quiet_until_us and rx is self._quiet_rx and (
+            self._quiet_version is None or rx.version == self._quiet_version)
 
     def step(self, now_us: int, rx) -> dict[str, float]:
         out: dict[str, float] = {}
@@ -296,8 +306,9 @@ class PlantController:
             self.next_truth_us += TRUTH_PERIOD_US
         if rx.version != self._rx_version:
             self._actuators(rx)
-        if now_us <= self._quiet_until_us and rx is self._quiet_rx and rx.version == self._quiet_version:
-            self._last_us = now_us               # _failsafe's quick case, inlined: no command can be stale
+        if now_us <= self._quiet_until_us and rx is self._quiet_rx and (
+                self._quiet_version is None or rx.version == self._quiet_version):
+            self._last_us = now_us               # _failsafe's quick case (_quiet), inlined
         else:
             self._failsafe(now_us, rx)
         if self.lag:
