@@ -4,6 +4,7 @@ the plant's ground truth, from which the KPIs are computed."""
 from __future__ import annotations
 
 import math
+import operator
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -177,6 +178,7 @@ class PlantController:
         self.set_keys = ([f"BECU{i}_PRESS_CMD.CylPressureSet" for i in range(1, n_cars + 1)] if self.lag
                          else [])
         self.inputs = tuple(self.valve_keys + self.wsp_keys + self.set_keys)
+        self._commands = operator.itemgetter(*self.inputs)      # every command of a table, in one call
         self._pset = np.zeros(n_cars)
         self.outputs = tuple(f"PLANT_CAR{i}_SENSORS.{sig}" for i in range(1, n_cars + 1)
                              for sig, _ in SENSOR_FIELDS + (("SensorCounter", ""),))
@@ -241,8 +243,17 @@ class PlantController:
         if rx.version == self._rx_version:
             return
         self._rx_version = rx.version
-        isfinite = math.isfinite
         latest = getattr(rx, "latest", rx)        # an RxTable's dict, else the mapping itself
+        commands = self._commands(latest)
+        total = sum(commands)
+        if total - total == 0.0:                  # every command received and finite: as they are
+            n = self.n
+            self._valve[:] = commands[:n]
+            self._wsp[:] = commands[n:2 * n]      # a WSP state's float (0..3, a 2-bit signal) to its int
+            if self.set_keys:
+                self._pset[:] = commands[2 * n:]
+            return
+        isfinite = math.isfinite
         valve = [latest[vk] for vk in self.valve_keys]
         wsp = [latest[wk] for wk in self.wsp_keys]
         self._valve[:] = [v if isfinite(v) else 0.0 for v in valve]        # nothing received yet: closed
