@@ -447,3 +447,34 @@ def test_the_mapped_encoder_equals_encode_of_the_values_it_stands_for(path: Path
         before, other_before = fc.clamped, other.clamped
         assert fc.encoder(fields, counter)(outputs, count) == other.encode(values), (fc.name, fields, outputs)
         assert fc.clamped - before == other.clamped - other_before, fc.name
+
+
+@PROPERTY
+@given(seed=st.integers(0, 2**64 - 1), payload=st.binary(min_size=MAX_LEN, max_size=MAX_LEN))
+@pytest.mark.parametrize("path", [p for p in LOADABLE if p.name in MAPPED_DBCS], ids=lambda p: p.name)
+def test_the_storer_sets_what_decode_gives_for_the_pairs_it_stands_for(path: Path, seed: int,
+                                                                        payload: bytes) -> None:
+    """FrameCodec.storer(pairs)(data, values, times, t) sets values[key] = decode(data)[signal] and
+    times[key] = t for each (signal, key) of a random subset of each message's signals, and nothing else
+    (the fast path and the cantools fallback, which sets only the multiplexed signals the frame carries);
+    on a short payload it raises FrameError as decode does."""
+    rng = random.Random(seed)
+    _, codec = load(path)
+    for fc in codec:
+        pairs = [(name, f"in.{name}") for name in fc.signal_names if rng.random() < 0.6]
+        data = payload[:fc.length]
+        try:
+            decoded = fc.decode(data)
+        except FrameError:                    # a multiplexer value the DBC does not define
+            with pytest.raises(FrameError):
+                fc.storer(pairs)(data, {}, {}, 7)
+            continue
+        values, times = {"other": 1.0}, {"other": 3}
+        fc.storer(pairs)(data, values, times, 7)
+        carried = [(sig, key) for sig, key in pairs if sig in decoded]   # all but another mux branch's
+        assert same(values, {"other": 1.0, **{key: decoded[sig] for sig, key in carried}}), fc.name
+        assert all(type(values[key]) is float for _, key in carried), fc.name
+        assert times == {"other": 3, **{key: 7 for _, key in carried}}, fc.name
+        if fc.length:
+            with pytest.raises(FrameError):
+                fc.storer(pairs)(data[:-1], {}, {}, 7)

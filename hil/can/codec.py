@@ -438,6 +438,21 @@ def _generate_mapped(plans: tuple[_SignalPlan, ...], length: int, fields: tuple[
     return "\n".join(enc + _encode_body(plans, length, values, "careful(mapped(outputs, count))")) + "\n"
 
 
+def _generate_store(plans: Mapping[str, _SignalPlan], length: int, pairs: tuple[tuple[str, str], ...]) -> str:
+    """``store(data, values, times, t)``: values[key] = decode(data)[signal] and times[key] = t for each
+    (signal, key) of `pairs`, decoding only those signals."""
+    used = [plans[sig] for sig, _ in pairs]
+    lines = ["def store(data, values, times, t):",
+             f"    if len(data) != {length}:", "        data = fix(data)"]
+    if any(not p.big_endian for p in used):
+        lines.append("    x = from_bytes(data, 'little')")
+    if any(p.big_endian for p in used):
+        lines.append("    y = from_bytes(data, 'big')")
+    for (_, key), p in zip(pairs, used, strict=True):
+        lines += [f"    values[{key!r}] = {_decode_expr(p)}", f"    times[{key!r}] = t"]
+    return "\n".join(lines) + "\n"
+
+
 @functools.lru_cache(maxsize=4096)
 def _compiled(source: str, filename: str) -> CodeType:
     """Generated source compiled, once per process: a new Codec of the same DBC (every run builds one)
@@ -536,6 +551,26 @@ class FrameCodec:
         source = _generate_mapped(plans, self.length, fields, counter)
         exec(_compiled(source, f"<railhil codec {self.name}, mapped>"), namespace)  # noqa: S102
         return namespace["encode_mapped"]
+
+    def storer(self, pairs: Iterable[tuple[str, str]]) -> Callable[[bytes, dict, dict, int], None]:
+        """A receiving node's decoder of this message: ``storer(pairs)(data, values, times, t)`` sets
+        values[key] = decode(data)[signal] and times[key] = t for each (signal, key) of `pairs`, generated
+        to decode only those signals, straight into the node's tables (the cantools fallback decodes all,
+        and sets only the multiplexed signals the frame carries).  Raises FrameError where decode does."""
+        pairs = tuple(pairs)
+        self._build()
+        if self.fallback_reason is not None:
+            def store(data: bytes, values: dict, times: dict, t: int) -> None:
+                decoded = self.decode(data)
+                for sig, key in pairs:
+                    if sig in decoded:            # a multiplexed signal that this frame carries
+                        values[key] = decoded[sig]
+                        times[key] = t
+            return store
+        namespace = self._namespace(tuple(self._plans.values()))
+        source = _generate_store(self._plans, self.length, pairs)
+        exec(_compiled(source, f"<railhil codec {self.name}, store>"), namespace)  # noqa: S102
+        return namespace["store"]
 
     def __repr__(self) -> str:
         path = "fast" if self.fallback_reason is None else f"cantools: {self.fallback_reason}"

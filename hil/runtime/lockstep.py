@@ -56,7 +56,7 @@ class RawFrame(NamedTuple):
 
 
 class LockstepBus:
-    """In-process delivery: decodes each frame once and hands the values to every subscribed node."""
+    """In-process delivery: hands each frame to every subscribed node (Node.receive_frame)."""
 
     def __init__(self, nodes: list[Node], writer: can.Listener | None) -> None:
         self.writer = writer
@@ -78,10 +78,9 @@ class LockstepBus:
                 data=data, dlc=len(data), channel=0, check=False))
         subs = self.subscribers.get(fc.frame_id)
         if subs:
-            values = fc.decode(data)
             t_us = t_ns // 1000
-            for node in subs:
-                node.receive_values(fc.frame_id, values, t_us, data)
+            for node in subs:                    # each decodes the signals it reads, once its checks pass
+                node.receive_frame(fc.frame_id, data, t_us)
 
 
 def bus_bitrate(scenario: Scenario, db: Database) -> int:

@@ -73,6 +73,12 @@ class RxTable(Mapping[str, float]):
             times[key] = t_us
         self.version += 1
 
+    def take(self, store: Callable[[bytes, dict, dict, int], None], data: bytes, t_us: int) -> None:
+        """`update` from a frame's payload: `store` (FrameCodec.storer of the pairs) decodes them into the
+        table."""
+        store(data, self._values, self._times, t_us)
+        self.version += 1
+
 
 @dataclass
 class StuckSignal:
@@ -295,6 +301,8 @@ class Node:
         self.rx = RxTable(binding.inputs)
         self._rx_map = binding.rx
         self._rx_codecs = {fid: codec[fid] for fid in binding.rx}
+        # fid -> the codec's decoder of the signals this node reads, into its table (receive_frame)
+        self._rx_stores = {fid: fc.storer(binding.rx[fid]) for fid, fc in self._rx_codecs.items()}
         self.safe = dict(safe_outputs or {})
         self.outputs: dict[str, float] = {}
         self.tx: list[TxFrame] = []
@@ -317,7 +325,8 @@ class Node:
                 cycle_us = int(msg.cycle_time or 0) * 1000 or period_us
                 self._checks[fid] = RxCheck(msg.name, protection, e2e.CheckState(), cycle_us, offset_us)
         self.stats = NodeStats(e2e_status={} if self._checks else None, e2e_events=[])
-        # fid -> (rx pairs, SecOC verifier or None, E2E check or None, grace µs): one lookup per frame
+        # fid -> (rx pairs, SecOC verifier or None, E2E check or None, grace µs, decoder into the table):
+        # one lookup per frame
         self._rx_plan: dict[int, tuple] = {}
         # a lower bound of the earliest time a cycle without a frame is due to an E2E check (so that
         # cycle() skips the checks until then; a 1 ms plant cycle would otherwise look at six of them)
@@ -346,7 +355,8 @@ class Node:
         self._rx_plan = {}
         for fid, pairs in self._rx_map.items():
             chk = self._checks.get(fid)
-            self._rx_plan[fid] = (pairs, self._verifiers.get(fid), chk, 0 if chk is None else chk.grace_us)
+            self._rx_plan[fid] = (pairs, self._verifiers.get(fid), chk, 0 if chk is None else chk.grace_us,
+                                  self._rx_stores[fid])
         self._next_due_us = min((tx.next_due_us for tx in self.tx), default=1 << 62)
 
     def stick(self, message: str, stuck: StuckSignal) -> bool:
@@ -383,14 +393,24 @@ class Node:
 
     def receive_values(self, frame_id: int, values: Mapping[str, float], t_us: int,
                        data: bytes | None = None) -> None:
+        """A frame received, decoded (`values`, every signal of it) by the caller: its checks, then the
+        signals this node reads into its table."""
         plan = self._rx_plan.get(frame_id)
-        if plan is None:
-            return
-        pairs, verifier, chk, grace_us = plan
+        if plan is not None and self._passes(frame_id, plan, b"" if data is None else data, t_us):
+            self.rx.update(plan[0], values, t_us)
+
+    def receive_frame(self, frame_id: int, data: bytes, t_us: int) -> None:
+        """A frame received as it is on the bus (the lockstep bus: its length is its message's): its
+        checks, then the signals this node reads decoded straight into its table."""
+        plan = self._rx_plan.get(frame_id)
+        if plan is not None and self._passes(frame_id, plan, data, t_us):
+            self.rx.take(plan[4], data, t_us)
+
+    def _passes(self, frame_id: int, plan: tuple, data: bytes, t_us: int) -> bool:
+        """A received frame's SecOC and E2E checks, counted: may its signals be used?"""
+        _, verifier, chk, grace_us, _ = plan
         stats = self.stats
         stats.frames_received += 1
-        if data is None:
-            data = b""
         if verifier is not None:                 # authentication first: a forged frame is dropped
             verdict = verifier.verify(data)
             if not verdict.accepted:
@@ -399,7 +419,7 @@ class Node:
                 events = stats.e2e_events
                 if events is not None and len(events) < 10_000:
                     events.append((t_us, msg_name_of(self._db, frame_id), "SECOC_" + verdict.reason.name))
-                return
+                return False
             data = verdict.payload
         if chk is not None:
             chk.state, status = e2e.check(chk.config, chk.state, data)
@@ -409,8 +429,8 @@ class Node:
             self._count_e2e(chk, status, t_us)
             if not status.usable:
                 stats.e2e_discarded += 1
-                return
-        self.rx.update(pairs, values, t_us)
+                return False
+        return True
 
     def _count_e2e(self, chk: RxCheck, status: e2e.Status, t_us: int) -> None:
         self.rx.e2e[chk.name] = status
