@@ -469,6 +469,7 @@ def run_train(rail, scenario, ext=None, writer=None):
             return [(codec[fid], data) for fid, data in frames]
 
         node.receive_values = lambda frame_id, values, t_us, data=None: ours.receive(frame_id, data, t_us)
+        node.receive_frame = lambda frame_id, data, t_us: ours.receive(frame_id, data, t_us)
         node.cycle = cycle
     return setup, run_lockstep(scenario, rail.db, rail.codec, writer, setup=setup), ours
 

@@ -461,10 +461,13 @@ class _Watch:
         for obj in self.hooked:
             vars(obj).pop("on_release", None)
             vars(obj).pop("receive_values", None)
+            vars(obj).pop("receive_frame", None)
         self.hooked = []
 
     def _wrap(self, node) -> None:
-        receive = node.receive_values
+        """Watch what `node` accepts of the watched messages, by either way a frame reaches it
+        (the lockstep bus: receive_frame; a decoded frame: receive_values)."""
+        receive, receive_frame = node.receive_values, node.receive_frame
 
         def receive_values(frame_id, values, t_us, data=None):
             if frame_id not in self.msgs:
@@ -475,7 +478,17 @@ class _Watch:
                 self._accepted(node.name, frame_id, values, t_us)
             return None
 
+        def receive_frame_watched(frame_id, data, t_us):
+            if frame_id not in self.msgs:
+                return receive_frame(frame_id, data, t_us)
+            before = node.rx.version
+            receive_frame(frame_id, data, t_us)
+            if node.rx.version != before:
+                self._accepted(node.name, frame_id, self.codec[frame_id].decode(data), t_us)
+            return None
+
         node.receive_values = receive_values
+        node.receive_frame = receive_frame_watched
 
     def _accepted(self, node: str, frame_id: int, values, t_us: int) -> None:
         t_ns = t_us * 1000
