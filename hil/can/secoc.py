@@ -261,14 +261,11 @@ class SecOcReceiver:
         if freshness - last > self.window or freshness > FV_MAX:
             return self._drop(Reason.STALE_FRESHNESS, freshness)
         sent, sent_freshness, payload = self._mac.sent
-        if freshness == sent_freshness and frame == sent:    # the sender's own frame: its MAC holds
-            self.last = freshness
-            self.counts[_ACCEPTED] += 1
-            return _verdict((True, _ACCEPTED, freshness, payload))
-        payload = bytes(frame[:end])
-        tag = self._mac.tag(self._id_bytes + payload + freshness.to_bytes(8, "big"))   # data_to_authenticate
-        if not hmac.compare_digest(tag[:MAC_TX_BYTES], bytes(frame[end + 1:])):
-            return self._drop(Reason.MAC_MISMATCH, freshness)
+        if freshness != sent_freshness or frame != sent:     # not the sender's own frame: check its MAC
+            payload = bytes(frame[:end])
+            message = self._id_bytes + payload + freshness.to_bytes(8, "big")      # data_to_authenticate
+            if not hmac.compare_digest(self._mac.tag(message)[:MAC_TX_BYTES], bytes(frame[end + 1:])):
+                return self._drop(Reason.MAC_MISMATCH, freshness)
         self.last = freshness
         self.counts[_ACCEPTED] += 1
         return _verdict((True, _ACCEPTED, freshness, payload))
