@@ -507,17 +507,17 @@ class FrameCodec:
             self.decode = self._decode_cantools  # type: ignore[method-assign]
             self._source = ""
             return
-        plans = tuple(self._plans.values())
-        source = _generate(plans, self.length)
-        namespace = self._namespace(plans)
-        exec(_compiled(source, f"<railhil codec {self.name}>"), namespace)  # noqa: S102
+        source = _generate(tuple(self._plans.values()), self.length)
+        namespace = self._run(source, "")
         self.encode = namespace["encode"]  # type: ignore[method-assign]
         self.decode = namespace["decode"]  # type: ignore[method-assign]
         self._source = source
 
-    def _namespace(self, plans: tuple[_SignalPlan, ...]) -> dict[str, Any]:
-        """The names generated code uses."""
-        return {
+    def _run(self, source: str, kind: str, **names: Any) -> dict[str, Any]:
+        """Run generated `source` (compiled once a process) in a namespace of the names it uses, plus
+        `names`; `kind` tells its functions apart in tracebacks and profiles."""
+        plans = tuple(self._plans.values())
+        namespace = {
             "from_bytes": int.from_bytes,
             "fix": self._fix_length,
             "careful": self._encode_careful,
@@ -527,7 +527,10 @@ class FrameCodec:
             "_bits_to_f64": _bits_to_f64,
             "_f32_to_bits": _f32_to_bits,
             "_f64_to_bits": _f64_to_bits,
+            **names,
         }
+        exec(_compiled(source, f"<railhil codec {self.name}{kind}>"), namespace)  # noqa: S102
+        return namespace
 
     def encoder(self, fields: Iterable[tuple[str, str]], counter: str | None = None
                 ) -> Callable[[Mapping[str, float], int], bytes]:
@@ -546,11 +549,8 @@ class FrameCodec:
         self._build()
         if self.fallback_reason is not None:
             return lambda outputs, count: self.encode(mapped(outputs, count))
-        plans = tuple(self._plans.values())
-        namespace = self._namespace(plans) | {"mapped": mapped}
-        source = _generate_mapped(plans, self.length, fields, counter)
-        exec(_compiled(source, f"<railhil codec {self.name}, mapped>"), namespace)  # noqa: S102
-        return namespace["encode_mapped"]
+        source = _generate_mapped(tuple(self._plans.values()), self.length, fields, counter)
+        return self._run(source, ", mapped", mapped=mapped)["encode_mapped"]
 
     def storer(self, pairs: Iterable[tuple[str, str]]) -> Callable[[bytes, dict, dict, int], None]:
         """A receiving node's decoder of this message: ``storer(pairs)(data, values, times, t)`` sets
@@ -567,10 +567,7 @@ class FrameCodec:
                         values[key] = decoded[sig]
                         times[key] = t
             return store
-        namespace = self._namespace(tuple(self._plans.values()))
-        source = _generate_store(self._plans, self.length, pairs)
-        exec(_compiled(source, f"<railhil codec {self.name}, store>"), namespace)  # noqa: S102
-        return namespace["store"]
+        return self._run(_generate_store(self._plans, self.length, pairs), ", store")["store"]
 
     def __repr__(self) -> str:
         path = "fast" if self.fallback_reason is None else f"cantools: {self.fallback_reason}"

@@ -470,22 +470,16 @@ class _Watch:
         receive, receive_frame = node.receive_values, node.receive_frame
 
         def receive_values(frame_id, values, t_us, data=None):
-            if frame_id not in self.msgs:
-                return receive(frame_id, values, t_us, data)
             before = node.rx.version
             receive(frame_id, values, t_us, data)
-            if node.rx.version != before:
+            if frame_id in self.msgs and node.rx.version != before:
                 self._accepted(node.name, frame_id, values, t_us)
-            return None
 
         def receive_frame_watched(frame_id, data, t_us):
-            if frame_id not in self.msgs:
-                return receive_frame(frame_id, data, t_us)
             before = node.rx.version
             receive_frame(frame_id, data, t_us)
-            if node.rx.version != before:
+            if frame_id in self.msgs and node.rx.version != before:
                 self._accepted(node.name, frame_id, self.codec[frame_id].decode(data), t_us)
-            return None
 
         node.receive_values = receive_values
         node.receive_frame = receive_frame_watched
