@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test test-slow fuzz bench soak lint docs lock vcan clean
+.PHONY: run test test-slow fuzz bench profile soak lint docs lock vcan clean
 
 # the versions CI tested come from constraints.txt (make lock writes it)
 $(STAMP): pyproject.toml constraints.txt
@@ -47,6 +47,14 @@ fuzz: $(STAMP)
 ## 30 s each), BENCH_ONLY=bench_realtime,bench_bus runs only those
 bench: $(STAMP)
 	$(PY) bench/run_all.py
+
+## make profile: where the default lockstep run's wall goes, per component (controllers, node dispatch, event
+## loop, bus, codec, E2E, SecOC, plant, trace writer): py-spy samples bench_lockstep's traced run; installs
+## py-spy (the profile extra) first. PROFILE_RUNS=N runs counted (default 8)
+PROFILE_RUNS ?= 8
+profile: $(STAMP)
+	$(PY) -m pip install --quiet -c constraints.txt -e '.[test,docs,profile]'
+	$(PY) bench/profile_lockstep.py --runs $(PROFILE_RUNS)
 
 ## make soak: 10 consecutive real-time runs of the default scenario (about 6 minutes), each judged against
 ## the [realtime.deadline] budget; the count held and each run's misses (SOAK_RUNS=N for another count)
