@@ -1,4 +1,4 @@
-"""AUTOSAR E2E Profile 1 and Profile 2 protection of CAN payloads: pure functions, no I/O, no clock.
+"""AUTOSAR E2E Profiles 1, 2, 5 and 11 protection of CAN payloads: pure functions, no I/O, no clock.
 
 Reference: AUTOSAR "E2E Protocol Specification" (PRS_E2EProtocol, R20-11; the functional part of the
 former "Specification of SW-C End-to-End Communication Protection Library", SWS_E2ELibrary),
@@ -26,6 +26,26 @@ Profile 2 (``P02Config``)
 CRCs are computed by ``fastcrc`` (Rust, maintained): 134 ns per 9-byte CRC against 448 ns for a
 256-entry table in Python and 270 ns for crcmod's C extension (measured on the 2-core dev machine).
 
+Profile 5 (``P05Config``) and Profile 11 (``P11Config``): a device's own frames
+    Supplier ECUs ("devices") bring their own CAN matrix and protect their frames with the newer
+    profiles.  Their CRC and layout come from the PyPI package autosar-e2e (C, by python-can's
+    maintainer; its top-level package is also named ``e2e``, hence the ``_autosar_p05`` /
+    ``_autosar_p11`` aliases below).  Profile 5: CRC-16 (Crc_CalculateCRC16: CCITT-FALSE, poly
+    0x1021, init 0xFFFF) over the protected bytes but the CRC, then the data id's low and high byte;
+    the CRC little-endian at ``offset``, an 8-bit counter in the byte after it.  Profile 11: CRC-8
+    SAE J1850 as Profile 1 (data id BOTH or NIBBLE), a 4-bit counter 0..14; CRC byte at ``offset``,
+    counter in the low nibble of the next byte, the data-id nibble (NIBBLE) in its high nibble.
+    Both senders write the counter, then increment it (the first frame carries 0).
+    Their receiver, E2E_P05Check / E2E_P11Check (``counter_check``), is simpler than Profile 1's: no
+    INITIAL, no SYNC, no timeout counting; the counter delta alone decides, and a first frame is
+    judged against the counter E2E_P0xCheckInit leaves, one step before 0.
+
+Dispatch
+    ``protect`` and ``check`` run Profiles 1 and 2 inline (the lockstep run calls them ~60,000 times)
+    and hand any other configuration to its own ``protect(state, payload)`` / ``check(state,
+    payload)`` (``ProtectionConfig``): P05Config, P11Config and hil.can.checksums'
+    CounterChecksumConfig.  A Node carries any of them where it carries a P01Config.
+
 Sender and receiver
     ``protect(config, state, payload) -> bytes`` fills counter (and data-id nibble) and CRC and
     advances ``state`` (a mutable ``ProtectState``: a sender must never resend a counter by
@@ -39,6 +59,9 @@ Sender and receiver
 Statuses (``Status``): the spec's E2E_P01CheckStatusType / E2E_P02CheckStatusType.  WRONGCRC is
 called ``ERROR`` here (the issue's name): a CRC mismatch, a wrong data-id nibble, a payload of the
 wrong length, or a P01 counter of 15 (where the spec returns E2E_E_INPUTERR_WRONG without a status).
+Profiles 5 and 11 give a subset (E2E_P05CheckStatusType / E2E_P11CheckStatusType): OK, OKSOMELOST,
+REPEATED, WRONGSEQUENCE, NONEWDATA and ERROR (a wrong CRC, length, data-id nibble or a P11 counter
+of 15), never INITIAL or SYNC.
 An ERROR frame changes only MaxDeltaCounter (the one step every cycle takes); unlike a missing frame
 it does not count towards MaxNoNewOrRepeatedData.
 ``Status.usable`` says whether the payload may be used, per E2E_P0xMapStatusToSM with the current
@@ -57,12 +80,18 @@ from __future__ import annotations
 
 import enum
 import functools
+import importlib
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
 import fastcrc
 
 from hil.errors import RailhilError
+
+# The PyPI package autosar-e2e installs a top-level package named ``e2e`` -- not this module
+# (hil.can.e2e): its profile modules are imported by their full names, under names that say whose.
+_autosar_p05 = importlib.import_module("e2e.p05")
+_autosar_p11 = importlib.import_module("e2e.p11")
 
 __all__ = [
     "CheckState",
@@ -70,10 +99,14 @@ __all__ = [
     "E2EConfigError",
     "P01Config",
     "P02Config",
+    "P05Config",
+    "P11Config",
     "PCheckStatus",
     "ProtectState",
+    "ProtectionConfig",
     "Status",
     "check",
+    "counter_check",
     "counter_flip_collisions",
     "crc8_h2f",
     "crc8_sae_j1850",
@@ -91,6 +124,11 @@ P02_MAX_LENGTH = 256              # bytes; Profile 2 DataLength is at most 2048 
 NO_NEW_COUNTER_CAP = 14           # the spec's NoNewOrRepeatedDataCounter saturates at 14
 P01_MAX_DELTA_CAP = 14            # MaxDeltaCounter saturates at the largest possible counter delta
 P02_MAX_DELTA_CAP = 15
+P05_COUNTER_MODULO = 256          # Profile 5: 8-bit counter 0..255
+P05_HEADER = 3                    # bytes: CRC (2, little-endian), then the counter
+P05_MAX_LENGTH = 4096             # bytes; Profile 5 DataLength is 3*8..4096*8 bits
+P11_COUNTER_MODULO = 15           # Profile 11: 4-bit counter 0..14, 15 is invalid (as Profile 1)
+P11_MAX_LENGTH = 30               # bytes; Profile 11 DataLength is at most 240 bits (as Profile 1)
 
 
 class E2EConfigError(RailhilError, ValueError):
@@ -237,6 +275,10 @@ class P01Config:
         object.__setattr__(self, "_crc_even", _J1850(bytes(even), initial=0xFF))
         object.__setattr__(self, "_crc_odd", _J1850(bytes(odd), initial=0xFF))
 
+    def describe(self) -> str:
+        """One line for reports, e.g. "AUTOSAR E2E P01, data id 0x123 (BOTH)"."""
+        return f"AUTOSAR E2E P01, data id 0x{self.data_id:X} ({self.data_id_mode.name})"
+
 
 @dataclass(frozen=True, slots=True)
 class P02Config:
@@ -267,13 +309,33 @@ class P02Config:
         _check_int(w, "sync_counter_init", self.sync_counter_init, 0, P02_MAX_DELTA_CAP)
         object.__setattr__(self, "_ids", tuple(bytes((v,)) for v in ids))
 
+    def describe(self) -> str:
+        """One line for reports: the profile and its DataIDList as hex."""
+        return f"AUTOSAR E2E P02, DataIDList {bytes(self.data_id_list).hex()}"
 
-Config = P01Config | P02Config
+
+class ProtectionConfig(Protocol):
+    """A frame protection that protects and checks with its own methods: P05Config, P11Config and
+    hil.can.checksums.CounterChecksumConfig.  ``protect`` and ``check`` hand it any configuration
+    but a P01Config or P02Config; its methods have their contracts."""
+
+    length: int                                    # bytes protected
+    name: str                                      # frame name, used in error messages only
+
+    def protect(self, state: ProtectState, payload: bytes) -> bytes: ...
+
+    def check(self, state: CheckState, payload: bytes | None) -> tuple[CheckState, Status]: ...
+
+    def describe(self) -> str: ...
+
+
+Config = P01Config | P02Config | ProtectionConfig
 
 
 @dataclass(slots=True)
 class ProtectState:
-    """Sender state (E2E_P0xProtectStateType): the counter the next ``protect`` starts from."""
+    """Sender state (E2E_P0xProtectStateType): the counter the next ``protect`` starts from
+    (P01, P11: 0..14; P02: 0..15; P05: 0..255; a counter/checksum: 0..counter_modulo-1)."""
 
     counter: int = 0
 
@@ -284,6 +346,12 @@ class CheckState(NamedTuple):
 
     Immutable (a NamedTuple: built in 0.3 µs against 1.1 µs for a frozen dataclass, and ``check``
     builds one per frame); ``state._replace(...)`` derives a changed copy.
+
+    Profiles 5 and 11 and the plain counter (``counter_check``) use three fields: E2E_P05/P11
+    CheckStateType's Counter is ``last_valid_counter`` (the counter of the last frame whose CRC was
+    right), ``wait_for_first_data`` True stands for E2E_P0xCheckInit's Counter (the modulo - 1) until
+    such a frame comes, and ``lost_data`` counts the frames lost before the last OK/OKSOMELOST one;
+    the other three stay 0.
     """
 
     last_valid_counter: int = 0
@@ -329,7 +397,8 @@ def _with_nibble(data: bytearray, offset: int, value: int) -> None:
 
 def protect(config: Config, state: ProtectState, payload: bytes) -> bytes:
     """E2E_P01Protect / E2E_P02Protect: ``payload`` with its counter (and, in P01 NIBBLE mode, the
-    data-id nibble) and CRC filled in; advances ``state.counter``.
+    data-id nibble) and CRC filled in; advances ``state.counter``.  Any other configuration
+    (``ProtectionConfig``) protects by its own ``config.protect(state, payload)``.
 
     ``payload`` has ``config.length`` bytes (or more: bytes past the protected length are returned
     unchanged); the CHECKSUM/COUNTER fields' old contents are ignored.  A payload that is too short
@@ -338,8 +407,8 @@ def protect(config: Config, state: ProtectState, payload: bytes) -> bytes:
     n = len(payload)
     if n < config.length:
         raise E2EConfigError(f"{config.name}: payload of {n} bytes, expected {config.length}")
-    data = bytearray(payload)
     if config.__class__ is P01Config or isinstance(config, P01Config):
+        data = bytearray(payload)
         counter = state.counter
         if not 0 <= counter < P01_COUNTER_MODULO:
             raise E2EConfigError(f"{config.name}: sender counter {counter!r}, expected 0..14")
@@ -350,6 +419,9 @@ def protect(config: Config, state: ProtectState, payload: bytes) -> bytes:
         data[config.crc_offset >> 3] = _p01_crc(config, data, counter)
         state.counter = (counter + 1) % P01_COUNTER_MODULO
         return bytes(data)
+    if config.__class__ is not P02Config and not isinstance(config, P02Config):
+        return config.protect(state, payload)
+    data = bytearray(payload)
     if not 0 <= state.counter < P02_COUNTER_MODULO:
         raise E2EConfigError(f"{config.name}: sender counter {state.counter!r}, expected 0..15")
     counter = state.counter = (state.counter + 1) % P02_COUNTER_MODULO
@@ -365,9 +437,15 @@ def check(config: Config, state: CheckState, payload: bytes | None) -> tuple[Che
 
     ``payload`` is the newest frame received since the last call, or ``None`` when nothing arrived
     (the spec's NewDataAvailable = FALSE).  Never raises on the payload's length or contents.
+    Any other configuration (``ProtectionConfig``) checks by its own ``config.check(state, payload)``.
     """
     p01 = config.__class__ is P01Config or isinstance(config, P01Config)
-    cap = P01_MAX_DELTA_CAP if p01 else P02_MAX_DELTA_CAP
+    if p01:
+        cap = P01_MAX_DELTA_CAP
+    elif config.__class__ is P02Config or isinstance(config, P02Config):
+        cap = P02_MAX_DELTA_CAP
+    else:
+        return config.check(state, payload)
     max_delta = state[1] + 1                     # min(state[1] + 1, cap), without the builtin's call
     if max_delta > cap:
         max_delta = cap
@@ -444,3 +522,165 @@ def counter_flip_collisions(config: P02Config) -> tuple[tuple[int, int], ...]:
                 found.append((counter, bit))
             zero[1] = counter
     return tuple(found)
+
+
+# --- Profiles 5 and 11: configurations that protect and check themselves -----------------------------
+
+def counter_check(state: CheckState, received: int, modulo: int,
+                  max_delta_counter: int) -> tuple[CheckState, Status]:
+    """The counter part of E2E_P05Check / E2E_P11Check (PRS_E2EProtocol, "Do checks"), for a frame
+    whose CRC (or checksum) is right: the delta from the last received counter, modulo ``modulo``,
+    gives REPEATED (0), OK (1), OKSOMELOST (2..max_delta_counter) or WRONGSEQUENCE (more).  The
+    received counter becomes the last one in each case: a wrong sequence re-anchors the count.
+
+    First frame: a state still waiting for its first data stands for the counter E2E_P05CheckInit
+    and E2E_P11CheckInit leave, the modulo - 1 (0xFF: SWS_E2E_00451; 0x0E for Profile 11), one step
+    before 0.  A first frame with counter 0 is therefore OK (usable: these profiles have no
+    INITIAL), with counter c in 1..max_delta_counter-1 OKSOMELOST, with a larger one WRONGSEQUENCE,
+    and with counter modulo - 1 REPEATED.
+    """
+    last = modulo - 1 if state[2] else state[0]
+    delta = (received - last) % modulo
+    if delta == 1:
+        return _state((received, 0, False, 0, 0, 0)), _OK
+    if delta == 0:
+        return _state((received, 0, False, state[3], 0, 0)), _REPEATED
+    if delta <= max_delta_counter:
+        return _state((received, 0, False, delta - 1, 0, 0)), _OKSOMELOST
+    return _state((received, 0, False, state[3], 0, 0)), _WRONGSEQUENCE
+
+
+def _sender_copy(config: ProtectionConfig, payload: bytes) -> bytearray:
+    """A writable copy of a payload to protect, which must hold the protected length (as ``protect``)."""
+    if len(payload) < config.length:
+        raise E2EConfigError(f"{config.name}: payload of {len(payload)} bytes, expected {config.length}")
+    return bytearray(payload)
+
+
+@dataclass(frozen=True, slots=True)
+class P05Config:
+    """Profile 5 configuration of one protected frame (E2E_P05ConfigType), computed by autosar-e2e.
+
+    A 3-byte header at ``offset``: the CRC-16's low byte, its high byte, then the 8-bit counter.  The
+    CRC covers every protected byte but its own two (the counter included), then the data id's low
+    and high byte (implicit: the data id is not sent).
+    """
+
+    data_id: int                                   # 16-bit data id
+    length: int = 8                                # payload bytes protected (DataLength / 8), header included
+    offset: int = 0                                # bits, multiple of 8: where the header starts
+    max_delta_counter: int = 1                     # counter steps allowed between two valid frames
+    name: str = "E2E profile 5"                    # frame name, used in error messages only
+    _header: int = field(init=False, repr=False, compare=False)   # offset in bytes
+
+    def __post_init__(self) -> None:
+        w = self.name
+        _check_int(w, "data_id", self.data_id, 0, 0xFFFF)
+        _check_int(w, "length", self.length, P05_HEADER, P05_MAX_LENGTH, " bytes")
+        _check_int(w, "offset", self.offset, 0, (self.length - P05_HEADER) * 8, " bits")
+        if self.offset % 8:
+            raise E2EConfigError(f"{w}: offset = {self.offset}, expected a multiple of 8 bits")
+        _check_int(w, "max_delta_counter", self.max_delta_counter, 1, P05_COUNTER_MODULO - 1)
+        object.__setattr__(self, "_header", self.offset >> 3)
+
+    def describe(self) -> str:
+        """One line for reports, e.g. "AUTOSAR E2E P05, data id 0x1234"."""
+        return f"AUTOSAR E2E P05, data id 0x{self.data_id:X}"
+
+    def protect(self, state: ProtectState, payload: bytes) -> bytes:
+        """E2E_P05Protect: ``payload`` with the counter ``state.counter`` and the CRC written, then
+        the counter advanced (255 -> 0).  Errors of the sender as ``protect``."""
+        data = _sender_copy(self, payload)
+        counter = state.counter
+        if not 0 <= counter < P05_COUNTER_MODULO:
+            raise E2EConfigError(f"{self.name}: sender counter {counter!r}, expected 0..255")
+        data[self._header + 2] = counter
+        _autosar_p05.e2e_p05_protect(data, self.data_id, length=self.length, offset=self._header,
+                                     increment_counter=False)
+        state.counter = (counter + 1) % P05_COUNTER_MODULO
+        return bytes(data)
+
+    def check(self, state: CheckState, payload: bytes | None) -> tuple[CheckState, Status]:
+        """E2E_P05Check as a pure function, as ``check``: NONEWDATA for ``None``; ERROR for a wrong
+        length or CRC (the state unchanged); else ``counter_check``.  Never raises on the payload."""
+        if payload is None:
+            return state, _NONEWDATA
+        if len(payload) != self.length or not _autosar_p05.e2e_p05_check(
+                payload, self.data_id, length=self.length, offset=self._header):
+            return state, _ERROR
+        return counter_check(state, payload[self._header + 2], P05_COUNTER_MODULO, self.max_delta_counter)
+
+
+_P11_MODES = {DataIdMode.BOTH: _autosar_p11.E2E_P11_DATAID_BOTH,
+              DataIdMode.NIBBLE: _autosar_p11.E2E_P11_DATAID_NIBBLE}
+
+
+@dataclass(frozen=True, slots=True)
+class P11Config:
+    """Profile 11 configuration of one protected frame (E2E_P11ConfigType), computed by autosar-e2e.
+
+    CRC-8 SAE J1850 over the data id (BOTH: low byte, high byte; NIBBLE: low byte, then a zero byte)
+    and every protected byte but the CRC byte.  The layout is autosar-e2e's: the CRC byte at
+    ``offset``, the counter in the low nibble of the next byte and, in NIBBLE mode, the low nibble of
+    the data id's high byte in its high nibble (the spec's CRCOffset, CounterOffset and
+    DataIDNibbleOffset at offset, offset + 8 and offset + 12).
+    """
+
+    data_id: int                                   # 16-bit data id (12-bit in NIBBLE mode)
+    data_id_mode: DataIdMode = DataIdMode.BOTH     # BOTH or NIBBLE
+    length: int = 8                                # payload bytes protected (DataLength / 8)
+    offset: int = 0                                # bits, multiple of 8: the CRC byte
+    max_delta_counter: int = 1                     # counter steps allowed between two valid frames
+    name: str = "E2E profile 11"                   # frame name, used in error messages only
+    _header: int = field(init=False, repr=False, compare=False)   # offset in bytes
+    _mode: int = field(init=False, repr=False, compare=False)     # autosar-e2e's data id mode
+
+    def __post_init__(self) -> None:
+        w = self.name
+        if not isinstance(self.data_id_mode, DataIdMode) or self.data_id_mode not in _P11_MODES:
+            raise E2EConfigError(f"{w}: data_id_mode = {self.data_id_mode!r}, expected BOTH or NIBBLE")
+        nibble = self.data_id_mode is DataIdMode.NIBBLE
+        _check_int(w, "data_id", self.data_id, 0, 0x0FFF if nibble else 0xFFFF,
+                   " (12 bits in NIBBLE mode)" if nibble else "")
+        _check_int(w, "length", self.length, 2, P11_MAX_LENGTH, " bytes")
+        _check_int(w, "offset", self.offset, 0, (self.length - 2) * 8, " bits")
+        if self.offset % 8:
+            raise E2EConfigError(f"{w}: offset = {self.offset}, expected a multiple of 8 bits")
+        _check_int(w, "max_delta_counter", self.max_delta_counter, 1, P11_COUNTER_MODULO - 1)
+        object.__setattr__(self, "_header", self.offset >> 3)
+        object.__setattr__(self, "_mode", _P11_MODES[self.data_id_mode])
+
+    def describe(self) -> str:
+        """One line for reports, e.g. "AUTOSAR E2E P11, data id 0x123 (NIBBLE)"."""
+        return f"AUTOSAR E2E P11, data id 0x{self.data_id:X} ({self.data_id_mode.name})"
+
+    def protect(self, state: ProtectState, payload: bytes) -> bytes:
+        """E2E_P11Protect: ``payload`` with the counter ``state.counter`` (and, in NIBBLE mode, the
+        data-id nibble) and the CRC written, then the counter advanced (14 -> 0).  Errors of the
+        sender as ``protect``."""
+        data = _sender_copy(self, payload)
+        counter = state.counter
+        if not 0 <= counter < P11_COUNTER_MODULO:
+            raise E2EConfigError(f"{self.name}: sender counter {counter!r}, expected 0..14")
+        i = self._header + 1
+        data[i] = (data[i] & 0xF0) | counter
+        _autosar_p11.e2e_p11_protect(data, self.data_id, data_id_mode=self._mode, length=self.length,
+                                     offset=self._header, increment_counter=False)
+        state.counter = (counter + 1) % P11_COUNTER_MODULO
+        return bytes(data)
+
+    def check(self, state: CheckState, payload: bytes | None) -> tuple[CheckState, Status]:
+        """E2E_P11Check as a pure function, as ``check``: NONEWDATA for ``None``; ERROR for a wrong
+        length, CRC or data-id nibble or a counter of 15 (the state unchanged); else
+        ``counter_check``.  Never raises on the payload."""
+        if payload is None:
+            return state, _NONEWDATA
+        if len(payload) != self.length:
+            return state, _ERROR
+        received = payload[self._header + 1] & 0x0F
+        # e2e.p11's check asks for a writable buffer (it writes nothing): hence the copy
+        if received == 0x0F or not _autosar_p11.e2e_p11_check(
+                bytearray(payload), self.data_id, data_id_mode=self._mode, length=self.length,
+                offset=self._header):
+            return state, _ERROR
+        return counter_check(state, received, P11_COUNTER_MODULO, self.max_delta_counter)

@@ -30,6 +30,7 @@ from hil.can.dbc import closest
 from hil.errors import BindingError, DbcError
 
 NAN = float("nan")
+NEVER_US = 1 << 62               # µs: a frame that is never due on the schedule
 _E2E_OK = e2e.Status.OK
 E2E_COUNTER = "COUNTER"
 E2E_COUNTER_MODULO = 15          # AUTOSAR E2E profile 1 alive counter runs 0..14
@@ -121,6 +122,9 @@ class TxFrame:
     secoc: secoc.SecOcSender | None = None
     authentic: int = 8                     # bytes before the SecOC trailer
     stuck: list[StuckSignal] = field(default_factory=list)   # injected sender faults (hil.safety.injection)
+    # a multiplexed message whose multiplexer no output sets: (multiplexer signal, its values), one page a
+    # frame in turn (multiplexer_pages)
+    mux: tuple[str, tuple[int, ...]] | None = None
     # encode(outputs, count): the codec's encode of {signal: outputs.get(key, 0.0) for fields} and the
     # counter, reading the outputs directly (FrameCodec.encoder)
     encode: Callable[[Mapping[str, float], int], bytes] | None = None
@@ -190,6 +194,31 @@ def secoc_data_id(msg) -> int | None:
 def authentic_length(msg) -> int:
     """Bytes of the frame before a SecOC trailer (freshness byte + 3 MAC bytes), all without one."""
     return msg.length - secoc.AUTH_BYTES if secoc_data_id(msg) else msg.length
+
+
+def bench_filled_signals(msg) -> set[str]:
+    """The signals of a message that its sending node fills itself, not its controller: the E2E CRC and
+    counter (CHECKSUM, COUNTER), the alive counter of a message without E2E (COUNTER), the SecOC trailer
+    (SecOCFreshness, SecOCMAC)."""
+    names = {s.name for s in msg.signals}
+    filled = names & {"CHECKSUM", E2E_COUNTER} if e2e_config(msg) is not None else names & {E2E_COUNTER}
+    if secoc_data_id(msg):
+        filled |= names & {"SecOCFreshness", "SecOCMAC"}
+    return filled
+
+
+def multiplexer_pages(msg, fields: Iterable[tuple[str, str]]) -> tuple[str, tuple[int, ...]] | None:
+    """(multiplexer signal, its values in the DBC's order) of a multiplexed message whose multiplexer is not
+    among the signals a node sets (`fields`): the node sends one page a frame, in turn (a status frame
+    that pages through its contents).  None for any other message."""
+    if not msg.is_multiplexed():
+        return None
+    set_by_node = {sig for sig, _ in fields}
+    for item in msg.signal_tree:
+        if isinstance(item, dict):
+            (mux, pages), = item.items()
+            return None if mux in set_by_node else (mux, tuple(int(v) for v in pages))
+    return None
 
 
 @dataclass
@@ -292,8 +321,13 @@ class Node:
     """A controller bound to the DBC: `receive()` frames, `cycle(now_us)` returns frames to send."""
 
     def __init__(self, name: str, controller, binding: Binding, codec: Codec, db: Database,
-                 period_us: int, offset_us: int = 0, safe_outputs: Mapping[str, float] | None = None) -> None:
+                 period_us: int, offset_us: int = 0, safe_outputs: Mapping[str, float] | None = None,
+                 protection: Callable = e2e_config, routed: Iterable[str] = ()) -> None:
+        """`protection(message)`: the E2E configuration of a message (default: the DBC's E2EProfile
+        attributes; a device's own DBC: hil.devices); `routed`: messages sent only when `send_now` is
+        called (a gateway's, at once on the frame they translate), not on the cyclic schedule."""
         self.name = name
+        self.binding = binding
         self.controller = controller
         self.codec = codec
         self.period_us = period_us
@@ -306,24 +340,27 @@ class Node:
         self.safe = dict(safe_outputs or {})
         self.outputs: dict[str, float] = {}
         self.tx: list[TxFrame] = []
+        routed = frozenset(routed)
         for msg_name, fields in binding.tx:
             msg = db.get_message_by_name(msg_name)
             cycle_us = int(msg.cycle_time or 0) * 1000
-            if cycle_us <= 0:
+            if cycle_us <= 0 and msg_name not in routed:
                 continue                  # event frames are not sent cyclically by v1 nodes
-            protection = e2e_config(msg)
-            has_counter = protection is None and any(s.name == E2E_COUNTER for s in msg.signals) and \
+            config = protection(msg)
+            has_counter = config is None and any(s.name == E2E_COUNTER for s in msg.signals) and \
                 all(sig != E2E_COUNTER for sig, _ in fields)
             self.tx.append(TxFrame(codec.by_name(msg_name), cycle_us, fields, has_counter,
-                                   next_due_us=offset_us, e2e=protection,
-                                   e2e_state=e2e.ProtectState() if protection else None))
+                                   next_due_us=NEVER_US if msg_name in routed else offset_us, e2e=config,
+                                   e2e_state=e2e.ProtectState() if config else None,
+                                   mux=multiplexer_pages(msg, fields)))
+        self._tx_by_name = {tx.codec.name: tx for tx in self.tx}
         self._checks: dict[int, RxCheck] = {}
         for fid in binding.rx:
             msg = db.get_message_by_frame_id(fid)
-            protection = e2e_config(msg)
-            if protection is not None:
+            config = protection(msg)
+            if config is not None:
                 cycle_us = int(msg.cycle_time or 0) * 1000 or period_us
-                self._checks[fid] = RxCheck(msg.name, protection, e2e.CheckState(), cycle_us, offset_us)
+                self._checks[fid] = RxCheck(msg.name, config, e2e.CheckState(), cycle_us, offset_us)
         self.stats = NodeStats(e2e_status={} if self._checks else None, e2e_events=[])
         # fid -> (rx pairs, SecOC verifier or None, E2E check or None, grace µs, decoder into the table):
         # one lookup per frame
@@ -357,7 +394,7 @@ class Node:
             chk = self._checks.get(fid)
             self._rx_plan[fid] = (pairs, self._verifiers.get(fid), chk, 0 if chk is None else chk.grace_us,
                                   self._rx_stores[fid])
-        self._next_due_us = min((tx.next_due_us for tx in self.tx), default=1 << 62)
+        self._next_due_us = min((tx.next_due_us for tx in self.tx), default=NEVER_US)
 
     def stick(self, message: str, stuck: StuckSignal) -> bool:
         """Make a signal of a frame this node sends cyclically stuck (hil.safety.injection); False: the node
@@ -368,6 +405,15 @@ class Node:
                 tx.stuck.append(stuck)
                 return True
         return False
+
+    def send_now(self, message: str, now_us: int) -> tuple[FrameCodec, bytes]:
+        """One frame of `message` (a routed one: see __init__) from the current outputs, protected and
+        counted as a cyclic frame is: (codec, payload)."""
+        tx = self._tx_by_name[message]
+        data = self._frame(tx, self.outputs, now_us)
+        tx.count += 1
+        self.stats.frames_sent += 1
+        return tx.codec, data
 
     @property
     def next_frame_due_us(self) -> int:
@@ -527,10 +573,13 @@ class Node:
         """The payload of one due frame: the outputs encoded, then E2E-protected and secured."""
         codec = tx.codec
         clamped = codec.clamped
-        if tx.stuck:                             # a stuck signal changes the values before they are encoded
-            values = {sig: outputs.get(key, 0.0) for sig, key in tx.fields}
+        if tx.stuck or tx.mux is not None:       # values changed before they are encoded (a stuck signal,
+            values = {sig: outputs.get(key, 0.0) for sig, key in tx.fields}   # a multiplexed one's page)
             if tx.counter:
                 values[E2E_COUNTER] = tx.count % E2E_COUNTER_MODULO
+            if tx.mux is not None:
+                mux, pages = tx.mux
+                values[mux] = pages[tx.count % len(pages)]
             for stuck in tx.stuck:
                 stuck.apply(values, now_us)
             data = codec.encode(values)
