@@ -9,7 +9,6 @@ Every vector names its source.
 
 from __future__ import annotations
 
-import inspect
 import random
 
 import cantools
@@ -20,7 +19,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import hil.runtime.node as node_module
 from hil.can.checksums import CounterChecksumConfig, checksum_sum, checksum_xor
 from hil.can.codec import Codec
 from hil.can.e2e import (
@@ -552,16 +550,13 @@ class Sink:
 
 
 def device_node(monkeypatch, name, controller, db, config, inputs=(), outputs=(), rx=(), tx=()):
-    """A Node whose protection of DEV_STATUS is ``config``: by Node's ``protection`` argument where it has
-    one (hil.devices' way in), else by the module's ``e2e_config`` (the DBC's attributes) replaced."""
+    """A Node whose protection of DEV_STATUS is ``config``, by Node's ``protection`` hook (hil.devices'
+    way in)."""
     def protection(msg):
         return config if msg.name == "DEV_STATUS" else None
 
     binding = Binding.build(db, name, inputs, outputs, rx, tx)
-    if "protection" in inspect.signature(Node).parameters:
-        return Node(name, controller, binding, Codec(db), db, 10_000, protection=protection)
-    monkeypatch.setattr(node_module, "e2e_config", protection)
-    return Node(name, controller, binding, Codec(db), db, 10_000)
+    return Node(name, controller, binding, Codec(db), db, 10_000, protection=protection)
 
 
 @pytest.mark.parametrize("kind", sorted(DEVICE_PROTECTIONS))
