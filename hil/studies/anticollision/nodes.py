@@ -53,6 +53,7 @@ from hil.studies.anticollision.scenario import (
     RadioSpec,
     acd_params,
     aspect_at,
+    centre_keys,
     geometry,
     gps_params,
     leader_motion,
@@ -149,9 +150,11 @@ class TcpCentre:
     """The real control centre (hil.links.control_centre: its own process, its SQLite file) over TCP, for
     real-time runs: one TrainClient per train (reports acknowledged, resent after a reconnection, so a
     restart of the centre loses none), on an asyncio loop in a thread of the PLANT process.  Radio
-    latency and loss are the centre's own (`railhil control-centre --latency-ms --loss`)."""
+    latency and loss are the centre's own (`railhil control-centre --latency-ms --loss`).  With `keys`
+    (train -> key, [acd] control_centre_keys) each client signs its train's hello and reports and takes
+    only what the centre signed with that key (a centre run with --keys); without, the open protocol."""
 
-    def __init__(self, address: str, trains: list[str]) -> None:
+    def __init__(self, address: str, trains: list[str], keys: Mapping[str, bytes] | None = None) -> None:
         import asyncio
         import threading
 
@@ -161,7 +164,8 @@ class TcpCentre:
         self.loop = asyncio.new_event_loop()
         self.thread = threading.Thread(target=self.loop.run_forever, name="acd-radio", daemon=True)
         self.thread.start()
-        self.clients = {t: TrainClient(t, host, int(port)) for t in trains}
+        self.clients = {t: TrainClient(t, host, int(port), key=None if keys is None else keys[t])
+                        for t in trains}
         self._seen = {t: 0 for t in trains}
 
         async def start() -> None:
@@ -256,7 +260,7 @@ class World:
         t_s = now_us / 1e6
         if self.spec.control_centre is not None and self.tcp is None:
             trains = [self.me] + ([self.leader_name] if self.motion is not None else [])
-            self.tcp = TcpCentre(self.spec.control_centre, trains)
+            self.tcp = TcpCentre(self.spec.control_centre, trains, centre_keys(self.spec))
         if now_us >= self.next_report_us:
             self.next_report_us += self.period_us
             if self.motion is not None:

@@ -13,12 +13,13 @@ from __future__ import annotations
 
 import functools
 import zlib
+from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 
 from firmware_py.acd import AcdParams, Aspect
-from hil.errors import RailhilError
+from hil.errors import RailhilError, ScenarioError
 from hil.scenario.base import Strict
 from plant_sim.geo import TrackGeometry, polyline_from_legs
 from plant_sim.gps import GpsParams
@@ -151,6 +152,10 @@ class AcdSpec(Strict):
                                                  "this [m]")] = 100.0
     control_centre: str | None = Field(None, description="HOST:PORT of a running control centre (real time); "
                                        "default: the in-process model of hil.studies.anticollision.nodes")
+    control_centre_keys: str | None = Field(
+        None, description="key file of a control centre run with --keys (TOML, [trains] U1 = \"<64 hex "
+                          "digits>\"), relative to the scenario file: the bench signs both trains' "
+                          "reports and checks what the centre sends; default: the open protocol")
     track: GeoTrackSpec = Field(default_factory=GeoTrackSpec)
     leader: LeaderSpec | None = Field(default_factory=LeaderSpec, description="U1, the leading train")
     signals: list[SignalSpec] = Field(default_factory=list)
@@ -246,6 +251,39 @@ def gps_params(g: GpsSpec) -> GpsParams:
     if not g.random_dropouts:
         kw["dropout_rate_per_h"] = 0.0
     return GpsParams(**kw)
+
+
+def centre_keys(spec: AcdSpec) -> dict[str, bytes] | None:
+    """The keys of the run's trains (U<train_id> and U<leader.train_id>) from [acd] control_centre_keys,
+    None without; a bad file, or a train of the run without a key in it, is one error line naming the
+    file and the train."""
+    if spec.control_centre_keys is None:
+        return None
+    from hil.links.control_centre import read_keys
+
+    keys = read_keys(spec.control_centre_keys, "[acd] control_centre_keys")
+    trains = [f"U{spec.train_id}"] + ([] if spec.leader is None else [f"U{spec.leader.train_id}"])
+    missing = [t for t in trains if t not in keys]
+    if missing:
+        raise AcdStudyError(f"control-centre key file {spec.control_centre_keys} (from [acd] "
+                            f"control_centre_keys): no key for train {missing[0]} (the run reports as "
+                            f"{' and '.join(trains)}; it has {', '.join(sorted(keys))})")
+    return {t: keys[t] for t in trains}
+
+
+def resolve_paths(scenario: Scenario, base: Path) -> Scenario:
+    """The scenario with [acd] control_centre_keys resolved beside the scenario file (as [secoc] key_file
+    is), its keys checked when a control centre is named: a bad key file is one line at load."""
+    spec = scenario.acd
+    if spec is None or spec.control_centre_keys is None:
+        return scenario
+    spec = spec.model_copy(update={"control_centre_keys": str((base / spec.control_centre_keys).resolve())})
+    if spec.control_centre is not None:
+        try:
+            centre_keys(spec)
+        except RailhilError as exc:
+            raise ScenarioError(str(exc)) from None
+    return scenario.model_copy(update={"acd": spec})
 
 
 def bcu_params(scenario: Scenario, kw: dict) -> None:
