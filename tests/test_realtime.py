@@ -373,7 +373,7 @@ def test_socketcan_vcan0_when_the_kernel_has_it(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "hil", "run", str(scen), "--realtime", "--interface",
                            "socketcan", "--channel", "vcan0", "--out", str(tmp_path / "o"), "-q"],
                           cwd=ROOT, capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0, proc.stderr
+    assert proc.returncode in (0, 1), proc.stderr              # 1: a verdict that failed, not an error
     with can.LogReader(str(tmp_path / "o" / "trace.blf")) as reader:
         assert len({m.arbitration_id for m in reader}) > 10
     assert np.isfinite(json.loads((tmp_path / "o" / "kpis.json").read_text())["stopping_distance_m"])

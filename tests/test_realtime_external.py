@@ -77,7 +77,7 @@ def test_an_external_becu_written_without_railhil_brakes_car_3(tmp_path, realtim
             becu.send_signal(signal.SIGTERM)
             becu_out, _ = becu.communicate(timeout=30)
             kill_all(becu)
-        assert run.returncode == 0, stderr
+        assert run.returncode in (0, 1), stderr       # 1: a verdict that failed, judged below
         if realtime_held(out):
             break
     kpis = json.loads((out / "kpis.json").read_text())
@@ -115,7 +115,7 @@ def test_a_killed_external_becu_is_reported_silent_and_its_car_brakes_fail_safe(
         finally:
             kill_all(becu)
             kill_all(run)
-        assert run.returncode == 0, stderr
+        assert run.returncode == 1, stderr            # BECU3 fell silent: its timing FAIL gates
         if realtime_held(out):
             break
     kpis = json.loads((out / "kpis.json").read_text())

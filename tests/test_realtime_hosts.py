@@ -74,7 +74,7 @@ def test_plant_and_ecus_on_two_hosts_give_the_same_verdicts(tmp_path, two_hosts,
             ecus_out, ecus_err = ecus.communicate(timeout=60)
         finally:
             kill_all(ecus)
-        assert plant.returncode == 0, plant.stderr
+        assert plant.returncode in (0, 1), plant.stderr      # 1: a verdict that failed, judged below
         assert ecus.returncode == 0, ecus_err
         if realtime_held(out):
             break

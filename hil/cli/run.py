@@ -1,4 +1,8 @@
-"""`railhil run SCENARIO` — run a brake scenario in lockstep or as a real-time HIL; leave a run folder."""
+"""`railhil run SCENARIO` — run a brake scenario in lockstep or as a real-time HIL; leave a run folder.
+
+Exits 1 when a verdict that gates the exit code failed (hil.report.gate: real time held, each external
+node PASS, each study's checks), after the summary and the run folder; `--exit-zero` exits 0 all the
+same.  An interrupted run exits 130; errors exit with their RailhilError's code (hil.cli.main)."""
 
 from __future__ import annotations
 
@@ -10,6 +14,7 @@ from pathlib import Path
 import can.cli
 
 from hil.errors import BusError
+from hil.report.gate import gates
 from hil.scenario import load_scenario
 
 BUS_KEYS = ("channel", "interface", "bitrate", "fd", "data_bitrate", "can_filters", "timing", "bus_kwargs")
@@ -55,6 +60,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=None,
                    help="run folder (default runs/<scenario>-<mode>-<YYYYmmdd-HHMMSS>)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress line")
+    p.add_argument("--exit-zero", action="store_true",
+                   help="exploratory runs: exit 0 even when a verdict failed (the summary still says FAIL); "
+                        "by default a failed verdict (real time not held, an external node not PASS, a "
+                        "study's check) exits 1")
     can.cli.add_bus_arguments(p, group_title="bus arguments (real-time mode; python-can's flags)")
     p.set_defaults(func=run, mode="lockstep")
 
@@ -135,6 +144,9 @@ def run(args: argparse.Namespace) -> int:
             report = run_scenario_lockstep(scenario, out, progress=progress)
         finally:
             progress.close()
-    for line in report.summary():
+    for line in report.summary():                # its last line: the verdict (hil.report.gate)
         print(line)
-    return 130 if report.outcome.reason == "interrupted" else 0
+    if report.outcome.reason == "interrupted":
+        return 130
+    failed = [g for g in gates(report.kpis) if not g.passed]
+    return 1 if failed and not args.exit_zero else 0

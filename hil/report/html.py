@@ -53,9 +53,9 @@ import numpy as np
 
 from hil.errors import RailhilError
 from hil.report import kpi_info
+from hil.report.gate import external_gates, study_checks
 from hil.report.kpi_info import Kpi
 from hil.report.summary import host_stalls_text
-from hil.scenario import registry
 
 REPORT_NAME = "report.html"
 #: distributions whose versions go into run.json (and the report): what a reproduction needs to match
@@ -168,7 +168,12 @@ def run_verdicts(kpis: dict, meta: dict) -> list[Verdict]:
     * E2E / SecOC: without injected faults, nothing reported by the receivers; with faults, the
       detections are listed (informational); NONEWDATA (a frame 1.5 of its cycles late) is a verdict of
       its own: none in lockstep, informational in real time;
-    * each study's own checks (hil/studies/<name>/kpis.py `verdicts`), e.g. the governor's slip bound."""
+    * each external node (a device under test) on the bus: timing PASS, E2E / SecOC clean
+      (hil.report.conduct);
+    * each study's own checks (hil/studies/<name>/kpis.py `verdicts`), e.g. the governor's slip bound.
+
+    Real time held, the external nodes and the studies' checks also gate `railhil run`'s exit code
+    (hil.report.gate); the others are informational there."""
     out = [Verdict("run ended by itself", str(kpis.get("end_reason")), "standstill or max_duration",
                    kpis.get("end_reason") in ("standstill", "max_duration")),
            Verdict("train stopped", str(kpis.get("stopped")), "standstill before the run ended",
@@ -202,6 +207,9 @@ def run_verdicts(kpis: dict, meta: dict) -> list[Verdict]:
                                 f"{(m.get('worst_stall_us') or 0) / 1e3:.1f} ms" if "error" not in m
                                 else f"no probe: {m['error']}") + (f"; {seen}" if seen else ""),
                                "(informational: the host, not the bench)", None))
+            out += [Verdict(f"{g.what} on the bus", g.figure, "timing PASS (each cyclic message at its DBC "
+                            "cycle time), E2E / SecOC clean (nothing but NONEWDATA reported)", g.passed)
+                    for g in external_gates(rt.get("conduct") or {})]
         elif rt:                                  # a run folder of an earlier release
             out.append(Verdict("real time held", str(rt.get("worst_node")), "(earlier release's verdict)",
                                rt.get("held")))
@@ -223,10 +231,7 @@ def run_verdicts(kpis: dict, meta: dict) -> list[Verdict]:
         if late_frames:
             detected = ", ".join(f"{k} {v}" for k, v in events.items())
         out.append(Verdict("E2E / SecOC errors reported", detected, "(faults injected: informational)", None))
-    for study in registry.studies():              # each study's own checks of its KPIs
-        hook = getattr(study.part("kpis"), "verdicts", None) if study.name in kpis else None
-        if hook is not None:
-            out += [Verdict(*v) for v in hook(kpis[study.name])]
+    out += [Verdict(*v) for _, v in study_checks(kpis)]    # each study's own checks of its KPIs
     return out
 
 

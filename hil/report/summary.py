@@ -1,11 +1,13 @@
 """The summary a run prints: the foundation's lines, then each study's (hil/studies/<name>/kpis.py
-`summary_lines(k)` on its kpis.json entry)."""
+`summary_lines(k)` on its kpis.json entry), the files written, and last the verdict of the checks that
+gate `railhil run`'s exit code (hil.report.gate)."""
 
 from __future__ import annotations
 
 from collections.abc import Iterable
 from pathlib import Path
 
+from hil.report.gate import gates, verdict_line
 from hil.scenario import registry
 
 
@@ -51,6 +53,7 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
         lines += realtime_lines(rt)
         lines += external_lines(rt.get("conduct") or {})
     lines.append("files: " + ", ".join(str(f) for f in files))
+    lines.append(verdict_line(gates(kpis)))
     return lines
 
 
