@@ -232,10 +232,13 @@ def test_a_frame_python_can_refuses(tmp_path, threads):
 
 @pytest.mark.parametrize("name", ["trace.blf", "TRACE.BLF"])
 def test_open_writer_blf(tmp_path, name):
+    """A trace of simulated time (start 0.0) keeps its times, its first frame 0.5 s in included: python-can
+    counts a BLF from its first frame's ms and stores no start before 1990, which would read 0.5 back as 0.0
+    (a device's own bus in lockstep, whose first frame comes a few ms in, read back that early)."""
     with open_writer(tmp_path / name, start_time_s=0.0) as writer:
         assert isinstance(writer, BlfWriter) and callable(getattr(writer, "write_frame", None))
         writer.write_frame(0.5, 0x123, False, b"\x01\x02")
-    assert read_back(tmp_path / name) == [(0.0, 0x123, False, False, False, False, 2, b"\x01\x02", 0)]
+    assert read_back(tmp_path / name) == [(0.5, 0x123, False, False, False, False, 2, b"\x01\x02", 0)]
 
 
 def test_open_writer_other_suffixes(tmp_path):

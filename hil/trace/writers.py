@@ -286,11 +286,17 @@ def open_writer(path: str | Path, start_time_s: float | None = None) -> can.List
     """A trace writer for `path`, by its suffix (python-can's choice; MF4: `Mf4Writer`; BLF: `BlfWriter`,
     which has `write_frame`).  `start_time_s`: the epoch of the frames' timestamps (0.0 for a lockstep
     run's simulated time; None: python-can's default, the time the file is opened, for wall-clock
-    timestamps); MF4 only: a BLF file counts from its first frame, as python-can's does."""
+    timestamps; a BLF file then counts from its first frame's ms, as python-can's does)."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix in MF4_SUFFIXES:
         return Mf4Writer(str(path), start_time_s=start_time_s)
     if suffix in BLF_SUFFIXES:
-        return BlfWriter(str(path), compress_threads=BLF_COMPRESS_THREADS)
+        writer = BlfWriter(str(path), compress_threads=BLF_COMPRESS_THREADS)
+        if start_time_s is not None:
+            # the file's start at the epoch (to the ms below, as python-can's): python-can counts a BLF from
+            # its first frame's ms and stores no start before 1990, so a trace of simulated time whose
+            # first frame comes after 1 ms would read back that many ms early
+            writer.start_timestamp = int(start_time_s * 1000) / 1000
+        return writer
     return can.Logger(str(path))
