@@ -352,7 +352,8 @@ SEQUENCE_TABLE = [
     # name, steps, expected statuses -- MaxDeltaCounter 2 everywhere
     ("first frame, counter 0", [0], [S.OK]),
     ("first frame, counter 1: one lost before it", [1], [S.OKSOMELOST]),
-    ("first frame, counter 2: more than MaxDeltaCounter", [2], [S.WRONGSEQUENCE]),
+    # a sender that counted before the receiver listened: its first frame anchors the count, not used
+    ("first frame, counter 2: more than MaxDeltaCounter", [2, 3], [S.INITIAL, S.OK]),
     ("consecutive", [0, 1, 2], [S.OK, S.OK, S.OK]),
     ("repeated frame", [0, 1, 1], [S.OK, S.OK, S.REPEATED]),
     ("one lost", [0, 1, 3], [S.OK, S.OK, S.OKSOMELOST]),
@@ -391,12 +392,14 @@ def test_a_counter_alone_does_not_see_a_data_bit_flip():
 
 @pytest.mark.parametrize(("profile", "modulo"),
                          [("P05", 256), ("P11", 15), ("counter+XOR", 16), ("counter", 15)])
-def test_counter_wraps_and_a_first_frame_at_the_top_is_repeated(profile, modulo):
+def test_counter_wraps_and_a_first_frame_at_the_top_is_initial(profile, modulo):
     """E2E_P05CheckInit / E2E_P11CheckInit leave the counter at modulo - 1 (0xFF, 0x0E): a first frame
-    carrying it is REPEATED; modulo - 1 -> 0 is one step."""
+    carrying it, or one further on, follows nothing the receiver knew: INITIAL (the PRS: REPEATED,
+    WRONGSEQUENCE), not used; modulo - 1 -> 0 is one step."""
     statuses, state = _run(PROFILES[profile], [modulo - 2, modulo - 1, 0, 1])
-    assert statuses == [S.WRONGSEQUENCE, S.OK, S.OK, S.OK] and state.last_valid_counter == 1
-    assert _run(PROFILES[profile], [modulo - 1])[0] == [S.REPEATED]
+    assert statuses == [S.INITIAL, S.OK, S.OK, S.OK] and state.last_valid_counter == 1
+    assert _run(PROFILES[profile], [modulo - 1])[0] == [S.INITIAL]
+    assert not S.INITIAL.usable
 
 
 def test_state_fields_used():

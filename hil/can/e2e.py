@@ -37,8 +37,9 @@ Profile 5 (``P05Config``) and Profile 11 (``P11Config``): a device's own frames
     counter in the low nibble of the next byte, the data-id nibble (NIBBLE) in its high nibble.
     Both senders write the counter, then increment it (the first frame carries 0).
     Their receiver, E2E_P05Check / E2E_P11Check (``counter_check``), is simpler than Profile 1's: no
-    INITIAL, no SYNC, no timeout counting; the counter delta alone decides, and a first frame is
-    judged against the counter E2E_P0xCheckInit leaves, one step before 0.
+    SYNC, no timeout counting; the counter delta alone decides, and a first frame is judged against
+    the counter E2E_P0xCheckInit leaves, one step before 0 (one that does not follow it is INITIAL
+    here: ``counter_check``).
 
 Dispatch
     ``protect`` and ``check`` run Profiles 1 and 2 inline (the lockstep run calls them ~60,000 times)
@@ -61,7 +62,7 @@ called ``ERROR`` here (the issue's name): a CRC mismatch, a wrong data-id nibble
 wrong length, or a P01 counter of 15 (where the spec returns E2E_E_INPUTERR_WRONG without a status).
 Profiles 5 and 11 give a subset (E2E_P05CheckStatusType / E2E_P11CheckStatusType): OK, OKSOMELOST,
 REPEATED, WRONGSEQUENCE, NONEWDATA and ERROR (a wrong CRC, length, data-id nibble or a P11 counter
-of 15), never INITIAL or SYNC.
+of 15), never SYNC; and INITIAL for a first frame whose counter follows nothing (``counter_check``).
 An ERROR frame changes only MaxDeltaCounter (the one step every cycle takes); unlike a missing frame
 it does not count towards MaxNoNewOrRepeatedData.
 ``Status.usable`` says whether the payload may be used, per E2E_P0xMapStatusToSM with the current
@@ -536,17 +537,22 @@ def counter_check(state: CheckState, received: int, modulo: int,
     First frame: a state still waiting for its first data stands for the counter E2E_P05CheckInit
     and E2E_P11CheckInit leave, the modulo - 1 (0xFF: SWS_E2E_00451; 0x0E for Profile 11), one step
     before 0.  A first frame with counter 0 is therefore OK (usable: these profiles have no
-    INITIAL), with counter c in 1..max_delta_counter-1 OKSOMELOST, with a larger one WRONGSEQUENCE,
-    and with counter modulo - 1 REPEATED.
+    INITIAL), with counter c in 1..max_delta_counter OKSOMELOST.  A first frame whose counter
+    follows nothing the receiver knew (any other: the sender counted before the receiver listened, a
+    device started before the bench) is reported INITIAL, not the PRS's WRONGSEQUENCE or REPEATED:
+    either way it is not used, and it anchors the count; the E2E state machine above the check
+    (E2E_SMCheck) does not count a start-up's first frame as an error either.
     """
     last = modulo - 1 if state[2] else state[0]
     delta = (received - last) % modulo
     if delta == 1:
         return _state((received, 0, False, 0, 0, 0)), _OK
+    if 0 < delta <= max_delta_counter:
+        return _state((received, 0, False, delta - 1, 0, 0)), _OKSOMELOST
+    if state[2]:
+        return _state((received, 0, False, 0, 0, 0)), _INITIAL
     if delta == 0:
         return _state((received, 0, False, state[3], 0, 0)), _REPEATED
-    if delta <= max_delta_counter:
-        return _state((received, 0, False, delta - 1, 0, 0)), _OKSOMELOST
     return _state((received, 0, False, state[3], 0, 0)), _WRONGSEQUENCE
 
 
