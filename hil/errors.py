@@ -27,6 +27,11 @@ class BindingError(RailhilError, KeyError):
         return str(self.args[0]) if self.args else ""
 
 
+class DeviceError(RailhilError, ValueError):
+    """A device description (hil.devices: the device file, its DBC, its map) that cannot be used: names the
+    file and the key, and what was expected."""
+
+
 class BusError(RailhilError, OSError):
     """A python-can bus that cannot be opened or used."""
 

@@ -51,6 +51,12 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                         "bus: a device under test, or `railhil node NODE SCENARIO` on this or another host, "
                         "started before the run (repeatable; also [nodes.NODE] external = true). The run "
                         "judges its frames like any node's")
+    p.add_argument("--device", action="append", default=[], metavar="[NODE=]FILE",
+                   help="a device on its own CAN matrix takes NODE's place (e.g. "
+                        "BECU3=devices/acme_becu.toml; NODE defaults to the file's `replaces`): its device "
+                        "file names its DBC, its bus and the map onto the bench (docs/devices.md). Lockstep "
+                        "runs the device's model behind the gateway; --realtime bridges the bench's bus and "
+                        "the device's. Repeatable; also [devices.NODE] file = ... in the scenario")
     p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="override one scenario value (repeatable): a dotted key as in the TOML file and a "
@@ -103,10 +109,40 @@ class Progress:
             self.bar.close()
 
 
+def with_devices(scenario, given: list[str]):
+    """The scenario with the devices of `--device [NODE=]FILE` in their nodes' places (a path from the
+    current directory; NODE: the file's `replaces`); a DeviceError naming the option for a file that
+    does not read, names another node, or a node given a device twice."""
+    from hil.devices.description import read_device_file
+    from hil.errors import DeviceError
+    from hil.runtime.assembly import check_devices
+    from hil.scenario.model import DeviceRef
+
+    devices = dict(scenario.devices)
+    from_cli: set[str] = set()
+    for item in given:
+        node, sep, file = item.rpartition("=")
+        path = Path(file).resolve()
+        spec = read_device_file(path)
+        node = node.strip() if sep else spec.replaces
+        if spec.replaces != node:
+            raise DeviceError(f"--device {item}: the device file replaces {spec.replaces}, not {node} (its "
+                              "key 'replaces')")
+        if node in devices:
+            where = ("--device gives it twice" if node in from_cli else
+                     f"the scenario's [devices.{node}] already puts {devices[node].file} there")
+            raise DeviceError(f"--device {item}: two devices for node {node}: {where}; one device per node")
+        devices[node] = DeviceRef(file=str(path))
+        from_cli.add(node)
+    scenario = scenario.model_copy(update={"devices": devices})
+    check_devices(scenario)
+    return scenario
+
+
 def run(args: argparse.Namespace) -> int:
     overrides = {"seed": args.seed} if args.seed is not None else None
     sets = list(args.sets) + ([f"realtime.hosting={args.hosting}"] if args.hosting else [])
-    scenario = load_scenario(args.scenario, overrides, sets)
+    scenario = with_devices(load_scenario(args.scenario, overrides, sets), args.device)
     mode = args.mode
     if args.external and mode != "realtime":
         from hil.errors import ScenarioError

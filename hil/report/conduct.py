@@ -85,3 +85,18 @@ def node_conduct(decoded: DecodedTrace, db, nodes: list[str], node_stats: dict[s
             "protection_clean": not (set(protection) - {"NONEWDATA"}),
         }
     return out
+
+
+def silence_reported(decoded: DecodedTrace, db, node: str, last_s: float | None, t0_s: float = 0.0,
+                     speed: float = 1.0) -> float | None:
+    """When the BCU first reported car n silent (BCU_STATUS CarsSilent bit n−1) after BECUn's last frame at
+    `last_s` [s, simulated]; None: not a BECU, never silent, or never reported."""
+    if last_s is None or not (node.startswith("BECU") and node[4:].isdigit()):
+        return None
+    table = decoded.table("BCU_STATUS")
+    bits = table.columns.get("CarsSilent")
+    if bits is None:
+        return None
+    t = (table.t - t0_s) * speed
+    k = np.flatnonzero((t > last_s) & (bits.astype(np.int64) >> (int(node[4:]) - 1) & 1 == 1))
+    return round(float(t[k[0]]), 4) if k.size else None

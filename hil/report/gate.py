@@ -9,6 +9,9 @@ A run exits 1 when one of these failed (`railhil run --exit-zero` turns that off
   `realtime.conduct.NAME`, hil.report.conduct): its timing PASS (each cyclic message it sent at its DBC
   cycle time, none stopped) and its protection clean (no E2E / SecOC status but NONEWDATA reported about
   its frames);
+* each device on its own CAN matrix PASS (hil.devices, `railhil run --device`: kpis.json `devices.NAME`,
+  hil.report.devices): its frames' timing against its own DBC, their protection clean, and the gateway's
+  frames on the bench PASS;
 * each study's own PASS / FAIL checks (hil/studies/<name>/kpis.py `verdicts(k)`, e.g. the governor's slip
   bound, no collision with the train ahead); a check without a verdict (None) does not gate.
 
@@ -44,6 +47,7 @@ def gates(kpis: dict) -> list[Gate]:
     rt = kpis.get("realtime") or {}
     out = [realtime_gate(rt)] if "held" in rt else []
     out += external_gates(rt.get("conduct") or {})
+    out += device_gates(kpis.get("devices") or {})
     out += [Gate("study check", f"{study}: {check}", passed,
                  "PASS" if passed else f"FAIL ({value}; expected {criterion})")
             for study, (check, value, criterion, passed) in study_checks(kpis) if passed is not None]
@@ -76,6 +80,21 @@ def external_gates(conduct: dict) -> list[Gate]:
     return out
 
 
+def device_gates(devices: dict) -> list[Gate]:
+    """Each device PASS: its own frames' timing PASS and protection clean, the gateway's bench frames'
+    timing PASS (hil.report.devices)."""
+    out = []
+    for name, d in devices.items():
+        own, bench = d["device"], d["bench"]
+        bad = {k: v for k, v in own["protection"].items() if k != "NONEWDATA"}
+        failed = ([f"its frames' timing {own['timing']}"] if own["timing"] != "PASS" else [])
+        failed += ["its protection " + ", ".join(f"{k} {v}" for k, v in bad.items())] if bad else []
+        if bench["timing"] != "PASS":
+            failed.append(f"the gateway's bench frames' timing {bench['timing']}")
+        out.append(Gate("device", f"device {name}", not failed, ", ".join(failed) or "PASS"))
+    return out
+
+
 def study_checks(kpis: dict) -> list[tuple[str, tuple]]:
     """(study, (check, value, criterion, passed)) for each check of each study in the run, in registry
     order: the study's `verdicts(k)` on its kpis.json entry (a study without checks has none)."""
@@ -94,7 +113,7 @@ def verdict_line(checks: list[Gate]) -> str:
     if failed:
         return "verdict: FAIL — " + "; ".join(f"{g.what} {g.figure}" for g in failed)
     if not checks:
-        return "verdict: PASS (no real-time, external-node or study check in this run)"
+        return "verdict: PASS (no real-time, external-node, device or study check in this run)"
     by_kind: dict[str, list[Gate]] = {}
     for g in checks:
         by_kind.setdefault(g.kind, []).append(g)

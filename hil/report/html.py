@@ -53,7 +53,7 @@ import numpy as np
 
 from hil.errors import RailhilError
 from hil.report import kpi_info
-from hil.report.gate import external_gates, study_checks
+from hil.report.gate import device_gates, external_gates, study_checks
 from hil.report.kpi_info import Kpi
 from hil.report.summary import host_stalls_text
 
@@ -231,6 +231,9 @@ def run_verdicts(kpis: dict, meta: dict) -> list[Verdict]:
         if late_frames:
             detected = ", ".join(f"{k} {v}" for k, v in events.items())
         out.append(Verdict("E2E / SecOC errors reported", detected, "(faults injected: informational)", None))
+    out += [Verdict(g.what, g.figure, "its frames' timing PASS against its own DBC, its protection clean, "
+                    "the gateway's bench frames' timing PASS", g.passed)
+            for g in device_gates(kpis.get("devices") or {})]      # each device on its own CAN matrix
     out += [Verdict(*v) for _, v in study_checks(kpis)]    # each study's own checks of its KPIs
     return out
 
@@ -582,6 +585,60 @@ def _timing_section(meta: dict, kpis: dict | None = None) -> str:
     return "".join(parts) or "<p class=info>no timing data in run.json</p>"
 
 
+def _ms(value) -> str:
+    return "—" if value is None else f"{float(value):.3f}"
+
+
+def _counts(counts: dict, none: str) -> str:
+    """`{"ERROR": 2, ...}` as "ERROR 2, ..." (`none` when empty)."""
+    return ", ".join(f"{k} {v}" for k, v in counts.items()) or none
+
+
+def _devices_section(kpis: dict) -> str:
+    """Each device on its own CAN matrix (kpis.json devices, hil.report.devices): its frames against its own
+    DBC and what the gateway's checks reported, the gateway's latency per message, its frames on the
+    bench, what the translation substituted."""
+    parts = []
+    period_columns = ["message", "cycle [ms]", "frames", "mean period [ms]", "max period [ms]", "missed"]
+    for name, d in (kpis.get("devices") or {}).items():
+        own, bench, lat = d["device"], d["bench"], d["latency"]
+        mode = "its model (lockstep)" if d["mode"] == "model" else "the device (real time)"
+        parts.append(f"<h3>{_e(name)}: {_e(d['node'])} of {_e(Path(d['dbc']).name)}, {_e(mode)} — "
+                     f"{_e(d['verdict'])}</h3><p class=info>device file {_e(d['file'])}; its bus's frames in "
+                     f"{_e(d['trace'])}; heard {_e(_fmt(own['first_s']))}–{_e(_fmt(own['last_s']))} s</p>")
+        prot = d.get("protection") or {}
+        rows = [[m, v["cycle_ms"], v["frames"], _ms(v["mean_ms"]), _ms(v["max_ms"]), v["missed"],
+                 prot.get(m, "—"), v["verdict"]] for m, v in own["messages"].items()]
+        rows += [[f"{m} (the gateway's)", v["cycle_ms"], v["frames"], _ms(v["mean_ms"]), _ms(v["max_ms"]),
+                  v["missed"], prot.get(m, "—"), v["verdict"]] for m, v in (d.get("to_device") or {}).items()]
+        parts.append("<p>the frames on the device's bus, against its own DBC's cycle times: the device's "
+                     "(their protection checked by the gateway, which reported "
+                     f"{_e(_counts(own['protection'], 'nothing but OK'))}), then the gateway's to it</p>"
+                     + _table([*period_columns, "protection", "timing"], rows, {1, 2, 3, 4, 5}))
+        rows = [[m, v["kind"], v["from"], "device → bench" if v["to"] == "bench" else "bench → device",
+                 v["frames"], _us(v["p50_us"]), _us(v["p99_us"]), _us(v["max_us"])]
+                for m, v in lat["messages"].items()]
+        parts.append("<p>the gateway: a routed message goes out on each usable frame of the message it is "
+                     "sent from (its latency: from that frame on one bus to this one on the other, by the "
+                     "two traces); a cyclic one at its own cycle time (the age of its source's frame when "
+                     "it went out)</p>"
+                     + _table(["message", "sent", "from", "way", "frames", "p50 [µs]", "p99 [µs]",
+                               "max [µs]"], rows, {4, 5, 6, 7}))
+        rows = [[m, v["cycle_ms"], v["frames"], _ms(v["mean_ms"]), _ms(v["max_ms"]), v["missed"],
+                 v["verdict"]] for m, v in bench["messages"].items()]
+        parts.append(f"<p>the gateway's frames on the bench in {_e(name)}'s place, against the bench's DBC; "
+                     f"E2E / SecOC reported by the bench's receivers: "
+                     f"{_e(_counts(bench['protection'], 'nothing'))}</p>"
+                     + _table([*period_columns, "timing"], rows, {1, 2, 3, 4, 5}))
+        sub = d.get("substituted") or {}
+        substituted = {k: v for way in ("to_device", "to_bench") for kind in ("stale", "unmapped")
+                       for k, v in (sub.get(way) or {}).get(kind, {}).items()}
+        parts.append("<p>substituted by the translation (a source stale or not yet received: the target's "
+                     "default or last value; a source value outside its value-table mapping): "
+                     f"{_e(_counts(substituted, 'nothing'))}</p>")
+    return "".join(parts)
+
+
 def _faults_section(kpis: dict, meta: dict) -> str:
     rows = [["faults injected", kpis.get("faults_injected", "none")],
             ["E2E / SecOC reported by receivers", kpis.get("protection_events") or "nothing"],
@@ -640,16 +697,18 @@ def render_run_report(run_dir: Path, interactive: bool = True) -> str:
         signals, plotly = (f"<p class=info>no interactive figure in this page (a campaign point's page "
                            f"keeps the static figures below); <code>railhil report {_e(run_dir)}</code> "
                            f"writes it with the zoomable signals</p>"), False
-    sections = [("verdicts", "Verdicts"), ("kpis", "KPIs"), ("signals", "Signals"),
-                ("figures", "Static figures"), ("timing", "Timing"), ("faults", "Faults"),
-                ("reproduce", "Reproduce"), ("scenario", "Scenario")]
+    devices = _devices_section(kpis)
+    sections = [("verdicts", "Verdicts"), ("kpis", "KPIs"), *([("devices", "Devices")] if devices else []),
+                ("signals", "Signals"), ("figures", "Static figures"), ("timing", "Timing"),
+                ("faults", "Faults"), ("reproduce", "Reproduce"), ("scenario", "Scenario")]
     body = (f"<h1>{_e(title)}</h1><p>{_e(scenario.get('description', ''))}</p>{banner}"
             f"<p class=info>folder {_e(run_dir.resolve())}; ended by {_e(kpis.get('end_reason'))} after "
             f"{_e(_fmt(kpis.get('simulated_s')))} s simulated</p>{_nav(sections)}"
             f"<h2 id=verdicts>Verdicts</h2><table><thead><tr><th>check</th><th>value</th><th>criterion</th>"
             f"<th>verdict</th></tr></thead><tbody>{vrows}</tbody></table>"
             f"<h2 id=kpis>KPIs</h2>{_kpi_section(kpis)}"
-            f"<h2 id=signals>Signals</h2>{signals}"
+            + (f"<h2 id=devices>Devices</h2>{devices}" if devices else "")
+            + f"<h2 id=signals>Signals</h2>{signals}"
             f"<h2 id=figures>Static figures</h2>{_images(sorted(run_dir.glob('*.png')))}"
             f"<h2 id=timing>Timing</h2>{_timing_section(meta, kpis)}"
             f"<h2 id=faults>Faults</h2>{_faults_section(kpis, meta)}"

@@ -155,6 +155,9 @@ FOUNDATION: dict[str, tuple] = {
 
 #: the foundation's groups of KPIs (a dict in kpis.json) and their titles
 GROUPS = {"bus": "CAN bus (bit-timed lockstep bus)", "realtime": "Real time"}
+#: kpis.json keys the report shows in a section of their own, not in the KPI tables: each device on its own
+#: CAN matrix (hil.report.devices; report.html's "Devices")
+OWN_SECTION = ("devices",)
 
 
 def info_of(entry: tuple | None) -> KpiInfo | None:
@@ -198,7 +201,8 @@ def groups(kpis: dict) -> list[Group]:
     """kpis.json as the report's tables: the foundation's top level, then `bus`, `realtime`, then each study
     (registry order), then any other group; each KPI with its entry (None when there is none)."""
     top = [k for k in _ordered(kpis, {k: v for k, v in FOUNDATION.items() if "." not in k})
-           if not (isinstance(kpis[k], dict) and (k in GROUPS or study_info(k) is not None))]
+           if k not in OWN_SECTION
+           and not (isinstance(kpis[k], dict) and (k in GROUPS or study_info(k) is not None))]
     out = [Group("", "Train and run", [Kpi(k, k, kpis[k], info_of(FOUNDATION.get(k))) for k in top])]
     for key, title in GROUPS.items():
         if isinstance(kpis.get(key), dict):

@@ -52,6 +52,7 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
     if rt and "budget" in rt:
         lines += realtime_lines(rt)
         lines += external_lines(rt.get("conduct") or {})
+    lines += device_lines(kpis.get("devices") or {})
     lines.append("files: " + ", ".join(str(f) for f in files))
     lines.append(verdict_line(gates(kpis)))
     return lines
@@ -114,6 +115,39 @@ def _judged(v: dict) -> str:
     if v.get("judged_in") == "wakes":
         return f"{v['cycles']} wakes at most {v['period_us'] / 1e3:g} ms apart"
     return f"{v['cycles']} cycles of {v['period_us'] / 1e3:g} ms"
+
+
+def _way(f: dict) -> str:
+    if not f["frames"]:
+        return "no frame"
+    return f"p50 {f['p50_us']:.0f} / p99 {f['p99_us']:.0f} / max {f['max_us']:.0f} us"
+
+
+def device_lines(devices: dict) -> list[str]:
+    """Two lines per device on its own CAN matrix (hil.report.devices): its frames against its own DBC
+    and their protection, when it was heard; the gateway's latency each way and its frames on the
+    bench."""
+    lines = []
+    for name, d in devices.items():
+        own, bench = d["device"], d["bench"]
+        judged = [v for v in own["messages"].values() if v["verdict"] != "MISSING"]
+        passed = sum(v["verdict"] == "PASS" for v in judged)
+        bad = {k: v for k, v in own["protection"].items() if k != "NONEWDATA"}
+        prot = ("protection clean" if not bad else
+                "protection " + ", ".join(f"{k} {v}" for k, v in bad.items()))
+        heard = f"heard {own['first_s']:.2f}–{own['last_s']:.2f} s" if own["frames"] else "never heard"
+        silent = (f"; the BCU reported it silent at {bench['reported_silent_s']:.2f} s"
+                  if bench.get("reported_silent_s") is not None else "")
+        lines.append(f"device {name:<16} {d['node']} ({Path(d['dbc']).name}, {d['mode']}): {own['frames']} "
+                     f"frames, timing {own['timing']} ({passed} of {len(judged)} messages), {prot}; "
+                     f"{heard}{silent}")
+        lat = d["latency"]
+        b_judged = [v for v in bench["messages"].values() if v["verdict"] != "MISSING"]
+        b_passed = sum(v["verdict"] == "PASS" for v in b_judged)
+        lines.append(f"  gateway               device→bench {_way(lat['device_to_bench'])}, bench→device "
+                     f"{_way(lat['bench_to_device'])}; on the bench {bench['frames']} frames, timing "
+                     f"{bench['timing']} ({b_passed} of {len(b_judged)} messages)")
+    return lines
 
 
 def external_lines(conduct: dict) -> list[str]:

@@ -25,7 +25,9 @@ from cantools.database.can import Database
 from firmware_py.bcu import Bcu, BcuMode
 from firmware_py.becu import Becu
 from hil.can.codec import Codec
-from hil.errors import BindingError
+from hil.devices.device import ReplacedNode, load_device
+from hil.devices.gateway import Gateway
+from hil.errors import BindingError, ScenarioError
 from hil.runtime.desk import DeskScript
 from hil.runtime.node import Binding, Node
 from hil.runtime.plant_node import PlantController
@@ -90,11 +92,51 @@ def for_realtime() -> Iterator[None]:
 
 
 def build_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_name: str = "DBC") -> Node:
+    """Node `name` of the scenario: a study's, else the foundation's; where a device takes its place
+    ([devices.NAME]), the bench side of the device's gateway, with that node's binding and cycle (its
+    `gateway` attribute is the hil.devices.gateway.Gateway)."""
+    node = None
     for study in registry.active(scenario):
         node = study.part("nodes").build_node(name, scenario, db, codec, dbc_name)
         if node is not None:
-            return node
-    return build_foundation_node(name, scenario, db, codec, dbc_name)
+            break
+    if node is None:
+        node = build_foundation_node(name, scenario, db, codec, dbc_name)
+    ref = scenario.devices.get(name)
+    if ref is None:
+        return node
+    return device_gateway(ref.file, node, scenario, db, codec, dbc_name).bench
+
+
+def replaced_node(node: Node, db: Database) -> ReplacedNode:
+    """What the node a device replaces received and sent, and its cycle (hil.devices.device)."""
+    name = node.name
+    car = int(name[4:]) if name.startswith("BECU") and name[4:].isdigit() else None
+    return ReplacedNode(name, tuple(db.get_message_by_frame_id(fid).name for fid in node.binding.rx),
+                        tuple(msg for msg, _ in node.binding.tx), node.period_us, node.offset_us, car)
+
+
+def check_devices(scenario: Scenario) -> None:
+    """Each [devices.NAME] names a node of the scenario that a device may take the place of (not the PLANT,
+    whose truth the KPIs come from): a ScenarioError naming the first that does not."""
+    names = node_names(scenario)
+    for name, ref in scenario.devices.items():
+        if name == "PLANT":
+            raise ScenarioError(f"devices.PLANT (file {ref.file}): the PLANT cannot be a device: the run's "
+                                "KPIs come from its ground truth")
+        if name not in names:
+            raise ScenarioError(f"{ref.file}: key 'replaces' = {name!r}: scenario {scenario.name!r} has no "
+                                f"node {name!r} (its nodes are {', '.join(names)})")
+
+
+def device_gateway(path: str, node: Node, scenario: Scenario, db: Database, codec: Codec,
+                   dbc_name: str = "DBC") -> Gateway:
+    """The gateway of the device file at `path` in the place of `node` (checked against both DBCs)."""
+    replaced = replaced_node(node, db)
+    device = load_device(path, db, replaced, dbc_name, tuple(node_names(scenario)))
+    gateway = Gateway(device, replaced, db, codec, dbc_name)
+    gateway.bench.gateway = gateway
+    return gateway
 
 
 def build_foundation_node(name: str, scenario: Scenario, db: Database, codec: Codec,

@@ -383,8 +383,12 @@ class Host:
 
     def __init__(self, nodes: list, releases: list, codec, bus: can.BusABC, t0_ns: int, *, speed: float = 1.0,
                  margin_ns: int = 0, plant_wake: str = "frames", end: PlantEnd | None = None,
-                 orphaned: Callable[[], bool] | None = None) -> None:
+                 orphaned: Callable[[], bool] | None = None,
+                 publish: Callable[[object], None] | None = None) -> None:
+        """`publish(plant controller)`: called after each wake's plant steps (a device's truth quantities,
+        hil.runtime.gateway_host.SharedTruth)."""
         self.nodes, self.releases, self.bus = nodes, releases, bus
+        self.publish = publish
         self.t0_ns, self.speed, self.margin_ns = t0_ns, speed, margin_ns
         self.epoch_t0 = time.time() + (t0_ns - time.monotonic_ns()) / 1e9   # t0 on the wall clock [s]
         self._scale = 1e6 * speed                  # bus seconds to µs of simulated time
@@ -552,6 +556,8 @@ class Host:
                     self.reason = self.end.reason
                     timing.ended(t0, watch.cycle_ended(), watch.cpu_ns, watch.delay_ns)
                     return
+            if self.publish is not None:
+                self.publish(node.controller)
             timing.ended(t0, watch.cycle_ended(), watch.cpu_ns, watch.delay_ns)
             behind_us = self.now_us() - (slot[i] + slip_ns) // 1000
             timing.cycles_to_skip(behind_us, slot[i] // 1000)

@@ -14,6 +14,12 @@ Event order at equal times: frame deliveries first (a node running at that insta
 then node cycles in the node order of `assembly.node_names` (PLANT first, so the plant integrates
 with the commands received up to that instant), then delayed releases, then arbitration (so every
 frame released at an instant competes in the arbitration that starts then).
+
+A device in a node's place (hil.devices: [devices.NAME]) has a bus of its own (`DeviceBus`): the
+gateway's device side and the device's model on a bit-timed bus at the device's bit rate, whose events
+share the run's schedule after the bench's at equal times, its frames in a trace of their own.  A frame
+that a gateway translates at once (a routed one) enters the other bus's transmit queue the instant the
+frame it translates is delivered.
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ from __future__ import annotations
 import heapq
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import can
@@ -30,13 +36,14 @@ from cantools.database.can import Database
 from hil.can.busload import declared_bitrate
 from hil.can.bustiming import BitTimedBus, Pending
 from hil.can.codec import Codec, FrameCodec
-from hil.errors import ScenarioError
-from hil.runtime.assembly import build_node, node_names
+from hil.devices.model import build_model_node
+from hil.errors import DeviceError, ScenarioError
+from hil.runtime.assembly import build_node, check_devices, node_names
 from hil.runtime.gctune import loop_gc
 from hil.runtime.node import Node
 from hil.runtime.outcome import RunOutcome
 from hil.runtime.plant_node import PlantController
-from hil.runtime.release import message_delays, node_releases
+from hil.runtime.release import NodeRelease, message_delays, node_releases
 from hil.safety.injection import ROGUE, build_injector
 from hil.scenario import Scenario
 from hil.scenario.params import secoc_keys
@@ -44,6 +51,7 @@ from hil.scenario.params import secoc_keys
 Message = can.Message
 DEFAULT_BITRATE = 500_000   # bit/s, when neither the scenario nor the DBC gives one
 DELIVER, CYCLE, RELEASE, ARBITRATE, BABBLE = 0, 1, 2, 3, 4   # event phases: their order at equal times
+DEVICE_DELIVER, DEVICE_CYCLE, DEVICE_ARBITRATE = 5, 6, 7      # ... then a device bus's (DeviceBus)
 NEVER = 1 << 63             # ns: no such event scheduled
 
 
@@ -106,6 +114,81 @@ def bus_report(bus: BitTimedBus, db: Database, end_ns: int) -> dict:
             "messages": messages}
 
 
+class DeviceBus:
+    """A device's own bus in a lockstep run: the gateway's device side (sender 0) and the device's model
+    (sender 1) on a bit-timed bus of their own (the bench's `[bus]` timing and stuffing, the device's bit
+    rate), on exact 1 ms-grid releases of their own cycles; its frames go to `writer` (the run folder's
+    device-NAME trace).  Its events live in the run's heap (phases DEVICE_*); `bench_index` is the gateway's
+    bench side among the run's nodes, the sender of what it routes onto the bench's bus."""
+
+    def __init__(self, bench_index: int, gateway, model: Node, scenario: Scenario,
+                 bench_bitrate: int) -> None:
+        self.bench_index, self.gateway, self.model = bench_index, gateway, model
+        self.name = gateway.bench.name
+        self.nodes = [gateway.device_side, model]
+        self.releases = [NodeRelease(n.name, n.period_us, n.offset_us, seed=scenario.seed)
+                         for n in self.nodes]
+        device = gateway.device
+        self.bus: BitTimedBus | None = None
+        if scenario.bus.timing == "bit":
+            deadlines = {m.frame_id: int(m.cycle_time) * 1_000_000
+                         for m in device.db.messages if m.cycle_time}
+            self.bus = BitTimedBus(device.bitrate() or bench_bitrate, len(self.nodes), scenario.bus.stuffing,
+                                   deadlines)
+        self.delivery = LockstepBus(self.nodes, None)
+        self.arbitrating = False            # an arbitration is scheduled
+        self.end_ns = 0
+
+    def open(self, writer: can.Listener | None) -> None:
+        """Its frames go to `writer` (None: nowhere)."""
+        self.delivery = LockstepBus(self.nodes, writer)
+
+    def start(self, push: Callable[[int, int, tuple], None]) -> None:
+        for j, release in enumerate(self.releases):
+            t_ns, nominal, _ = release.next()
+            push(t_ns, DEVICE_CYCLE, (self, j, nominal))
+
+    def send(self, now: int, j: int, fc: FrameCodec, data: bytes, push) -> None:
+        """Node `j`'s frame into its transmit queue at `now` (the ideal bus: delivered at once)."""
+        if self.bus is None:
+            self.delivery.send(now, fc, data)
+            return
+        self.bus.enqueue(Pending(j, fc.frame_id, fc.is_extended_id, data, now, now, fc))
+        if not self.arbitrating:
+            self.arbitrating = True
+            push(max(now, self.bus.idle_at_ns), DEVICE_ARBITRATE, (self,))
+
+    def handle(self, now: int, phase: int, item: tuple, push) -> None:
+        """One of its events, at `now`."""
+        self.end_ns = now
+        if phase == DEVICE_DELIVER:
+            pending = item[1]
+            self.delivery.send(now, pending.item, pending.data)
+        elif phase == DEVICE_CYCLE:
+            _, j, nominal = item
+            for fc, data in self.nodes[j].cycle(now // 1000, nominal):
+                self.send(now, j, fc, data, push)
+            t_ns, nominal, _ = self.releases[j].next()
+            push(t_ns, DEVICE_CYCLE, (self, j, nominal))
+        else:                                           # DEVICE_ARBITRATE
+            self.arbitrating = False
+            started = self.bus.arbitrate(now)
+            if started is not None:
+                pending, deliver_ns, idle_ns = started
+                push(deliver_ns, DEVICE_DELIVER, (self, pending))
+                if self.bus.pending():
+                    self.arbitrating = True
+                    push(idle_ns, DEVICE_ARBITRATE, (self,))
+
+    def report(self) -> dict:
+        """What the device bus carried and what the gateway and the model did (RunOutcome.devices)."""
+        return {**self.gateway.describe(), "mode": "model",
+                "bus": None if self.bus is None else bus_report(self.bus, self.gateway.device.db,
+                                                                self.end_ns),
+                "gateway": self.gateway.stats(),
+                "model": vars(self.model.stats).copy()}
+
+
 @dataclass
 class LockstepSetup:
     """The nodes of a lockstep run, built and checked against the DBC before anything is written."""
@@ -114,11 +197,13 @@ class LockstepSetup:
     injector: object | None
     releases: list
     delays: dict
+    devices: list[DeviceBus] = field(default_factory=list)
 
 
 def prepare_lockstep(scenario: Scenario, db: Database, codec: Codec, dbc_name: str = "DBC") -> LockstepSetup:
     """Build every node, the fault injector, the release schedules and the message delays: a scenario the
     DBC cannot carry fails here, with one line (RailhilError), before a run folder or trace exists."""
+    check_devices(scenario)
     nodes = [build_node(name, scenario, db, codec, dbc_name) for name in node_names(scenario)]
     keys = secoc_keys(scenario)
     for node in nodes:
@@ -126,19 +211,37 @@ def prepare_lockstep(scenario: Scenario, db: Database, codec: Codec, dbc_name: s
     injector = build_injector(scenario, db, codec, [n.name for n in nodes])
     if injector is not None:
         injector.attach(nodes)              # stuck signals and failed sensors live in the nodes
-    return LockstepSetup(nodes, injector, node_releases(scenario, db, nodes), message_delays(scenario, db))
+    devices = []
+    for k, node in enumerate(nodes):
+        gateway = getattr(node, "gateway", None)
+        if gateway is None:
+            continue
+        device = gateway.device
+        if device.spec.model is None:
+            raise DeviceError(f"{device.path}: no key 'model': a lockstep run needs the device's model "
+                              f"(model = \"module:Class\"), or run --realtime with the device on its bus")
+        plant = nodes[0].controller.plant
+        gateway.to_device.truth = lambda field, car, plant=plant: getattr(plant.snapshot(), field)[car]
+        model = build_model_node(device, f"{node.name}.device", node.offset_us)
+        devices.append(DeviceBus(k, gateway, model, scenario, bus_bitrate(scenario, db)))
+    return LockstepSetup(nodes, injector, node_releases(scenario, db, nodes), message_delays(scenario, db),
+                         devices)
 
 
 def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Listener | None,
                  progress: Callable[[int, dict], None] | None = None, dbc_name: str = "DBC",
-                 setup: LockstepSetup | None = None) -> RunOutcome:
-    """Run `scenario` to its end in simulated time; `setup` from prepare_lockstep (built here if None)."""
+                 setup: LockstepSetup | None = None,
+                 device_writers: dict[str, can.Listener] | None = None) -> RunOutcome:
+    """Run `scenario` to its end in simulated time; `setup` from prepare_lockstep (built here if None);
+    `device_writers`: the trace of each device's own bus, by the node it replaces."""
     wall0 = time.perf_counter()
     setup = setup or prepare_lockstep(scenario, db, codec, dbc_name)
     nodes, injector, releases, delays = setup.nodes, setup.injector, setup.releases, setup.delays
+    devices = setup.devices
     plant_node = nodes[0]
     plant: PlantController = plant_node.controller
     delivery = LockstepBus(nodes, writer)
+    deliver = delivery.send
     timed = scenario.bus.timing == "bit"
     rogue = len(nodes)                   # the transmit queue of an attacker's frames (hil.safety.injection)
     bus = None
@@ -201,7 +304,7 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                     heapq.heappush(heap, (t_out, RELEASE, seq, (sender, fc, d_out, window_ns, False)))
             return
         if not timed:
-            delivery.send(t_ns, fc, data)
+            deliver(t_ns, fc, data)
             return
         bus.enqueue(Pending(k, fc.frame_id, fc.is_extended_id, data, t_ns, window_ns, fc))
         if arbitration_at == NEVER:
@@ -209,6 +312,30 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
 
     fast_release = timed and injector is None      # a frame goes straight into its transmit queue
     heappop, heappush = heapq.heappop, heapq.heappush
+
+    def push(t_ns: int, phase: int, item: tuple) -> None:    # a device bus's event
+        nonlocal seq
+        seq += 1
+        heappush(heap, (t_ns, phase, seq, item))
+
+    def route(now: int) -> None:
+        """What the gateways translated at once, onto the bus each frame goes to."""
+        for dev in devices:
+            if dev.gateway.outbox:
+                for side, fc, data in dev.gateway.take():
+                    if side == "device":
+                        dev.send(now, 0, fc, data, push)
+                    else:
+                        release(now, dev.bench_index, fc, data, now)
+
+    if devices:
+        def deliver(t_ns: int, fc: FrameCodec, data: bytes) -> None:    # noqa: F811 - the bench bus, routed
+            delivery.send(t_ns, fc, data)
+            route(t_ns)
+
+        for dev in devices:
+            dev.open((device_writers or {}).get(dev.name))
+            dev.start(push)
     with loop_gc():
         while True:
             if heap:
@@ -223,7 +350,7 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                 if now > max_ns:
                     break                                              # not run: still in flight
                 frame, on_wire, deliver_at = on_wire, None, NEVER
-                delivery.send(now, frame.item, frame.data)
+                deliver(now, frame.item, frame.data)
                 continue
             if plant_at <= t_top and plant_at <= arbitration_at and plant_at != NEVER:   # the plant's cycle
                 now, k = plant_at, 0
@@ -247,6 +374,11 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                     break
                 if phase == RELEASE:
                     release(now, *item)
+                    continue
+                if phase > BABBLE:                     # a device bus's event
+                    item[0].handle(now, phase, item, push)
+                    if phase == DEVICE_DELIVER:
+                        route(now)
                     continue
                 if phase == BABBLE:
                     end_ns, node_k, fc = item
@@ -290,7 +422,7 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                 if progress is not None and now >= next_progress:
                     progress(now // 1000, plant.glance())
                     next_progress += 500_000_000
-    release = None     # it calls itself: drop the cycle, so a finished run is freed at once, not at a GC
+    release = route = deliver = push = None   # they call each other: freed at once, not at a GC
     in_flight = (sum(1 for e in heap if e[1] == RELEASE) + (on_wire is not None)
                  + (bus.waiting() if bus else 0))
     overwritten = sum(s.overwritten for s in bus.stats.values()) if bus else 0
@@ -302,4 +434,5 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                       frames_in_flight=in_flight, frames_overwritten=overwritten,
                       frames_faulted=faulted,
                       faults=None if injector is None else {"counts": injector.log.counts,
-                                                            "events": injector.log.events})
+                                                            "events": injector.log.events},
+                      devices={dev.name: dev.report() for dev in devices})

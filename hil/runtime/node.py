@@ -69,9 +69,15 @@ class RxTable(Mapping[str, float]):
 
     def update(self, pairs: Sequence[tuple[str, str]], values: Mapping[str, float], t_us: int) -> None:
         store, times = self._values, self._times
-        for signal, key in pairs:
-            store[key] = values[signal]
-            times[key] = t_us
+        try:
+            for signal, key in pairs:
+                store[key] = values[signal]
+                times[key] = t_us
+        except KeyError:                 # a multiplexed frame carries only its page's signals
+            for signal, key in pairs:
+                if signal in values:
+                    store[key] = values[signal]
+                    times[key] = t_us
         self.version += 1
 
     def take(self, store: Callable[[bytes, dict, dict, int], None], data: bytes, t_us: int) -> None:

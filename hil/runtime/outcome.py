@@ -35,6 +35,7 @@ class RunOutcome:
     faults: dict | None = None                # what the fault injector did: counts and events
     lateness_us: dict = field(default_factory=dict)   # real time: node -> each cycle's release lateness [µs]
     realtime: dict | None = None              # real time: hosting, OS set-up, calibration, probe, cycles
+    devices: dict = field(default_factory=dict)   # by replaced node: its bus, gateway, device (hil.devices)
 
 
 #: the edges of the lateness histograms in kpis.json [µs] (the last bin is everything above 100 ms)

@@ -33,7 +33,9 @@ the run with a NodeDied error naming its nodes, after the others ran on for OBSE
 from __future__ import annotations
 
 import bisect
+import functools
 import gc
+import math
 import multiprocessing as mp
 import os
 import queue
@@ -57,6 +59,7 @@ from hil.runtime.outcome import RunOutcome
 from hil.runtime.plant_node import TruthLog
 from hil.runtime.probe import HOST_SEEN
 from hil.runtime.rtos import (
+    GATEWAY_PRIORITY,
     NODE_PRIORITY,
     RECORDER_PRIORITY,
     CpuLatencyHold,
@@ -261,7 +264,7 @@ def _report_failure(results, name: str, exc: BaseException) -> None:
 
 
 def _host_process(host: str, names: tuple[str, ...], scenario_json: str, dbc_path: str, cfg: dict,
-                  shared: Shared, results, progress, cpus) -> None:
+                  shared: Shared, results, progress, cpus, truth=None) -> None:
     """One host: the nodes `names` on one bus connection (hil.runtime.host.Host)."""
     from hil.runtime.host import Host, PlantEnd
 
@@ -279,9 +282,14 @@ def _host_process(host: str, names: tuple[str, ...], scenario_json: str, dbc_pat
         if "PLANT" in names:
             end = PlantEnd(round(scenario.end_after_standstill_s * 1e6), round(scenario.max_duration_s * 1e6),
                            shared.end_at_us, progress)
+        publish = None
+        if truth is not None and "PLANT" in names:         # a device's map reads the plant's truth
+            from hil.runtime.gateway_host import SharedTruth
+
+            publish = SharedTruth(truth, scenario.train.cars).write
         runner = Host(nodes, releases, codec, bus, shared.t0_ns.value, speed=scenario.realtime.speed,
                       margin_ns=shared.margin_ns.value, plant_wake=scenario.realtime.plant_wake, end=end,
-                      orphaned=orphaned)
+                      orphaned=orphaned, publish=publish)
         runner.run(shared.stop)
         if runner.reason == "orphaned":          # nobody reads the results: a large put would block the exit
             return
@@ -301,7 +309,63 @@ def _host_process(host: str, names: tuple[str, ...], scenario_json: str, dbc_pat
             bus.shutdown()
 
 
-def _recorder_process(trace_path: str, cfg: dict, go, stop, results) -> None:
+def device_bus_config(scenario: Scenario, node: str, bench_cfg: dict) -> dict:
+    """The python-can bus of the device in `node`'s place: the scenario's [devices.NODE] bus, else its device
+    file's [bus] ("bench": the bench's own bus); a DeviceError naming both when neither gives one."""
+    from hil.devices.description import read_device_file
+    from hil.errors import DeviceError
+
+    ref = scenario.devices[node]
+    spec = read_device_file(ref.file)
+    cfg = dict(ref.bus) if ref.bus else dict(spec.bus)
+    if not cfg or "interface" not in cfg:
+        raise DeviceError(f"{ref.file}: no [bus] interface for the device's own bus (or [devices.{node}] bus "
+                          "in the scenario): a real-time run needs it, e.g. interface = \"udp_multicast\", "
+                          "channel = \"239.74.163.7\"")
+    if all(cfg.get(k) == bench_cfg.get(k) for k in ("interface", "channel", "port")):
+        raise DeviceError(f"{ref.file}: the device's bus {describe_bus(cfg)} is the bench's; give it a bus "
+                          "of its own")
+    return cfg
+
+
+def _gateway_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, device_cfg: dict,
+                     shared: Shared, results, cpus, truth=None) -> None:
+    """The gateway of the device in node `name`'s place, between the bench's bus and the device's
+    (hil.runtime.gateway_host)."""
+    from hil.runtime.gateway_host import GatewayHost, SharedTruth
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    buses = []
+    try:
+        scenario = Scenario.model_validate_json(scenario_json)
+        _, (node,), _ = hosted_nodes((name,), scenario, dbc_path)
+        if truth is not None:                    # the plant's truth, as its host writes it
+            node.gateway.to_device.truth = SharedTruth(truth, scenario.train.cars).read
+        buses = [open_bus(cfg), open_bus(device_cfg)]
+        for bus in buses:
+            enlarge_receive_buffer(bus)
+        rt = os_setup(scenario, GATEWAY_PRIORITY, cpus)
+        if not _ready_to_go(name, shared, results, rt):
+            return
+        host = GatewayHost(node.gateway, *buses, shared.t0_ns.value, speed=scenario.realtime.speed,
+                           orphaned=orphaned)
+        host.run(shared.stop)
+        if host.reason == "orphaned":
+            return
+        payload = host.payload()
+        payload["stats"]["host"] = name
+        results.put(("result", name, payload))
+        results.put(("host", name, {"frames_received": sum(host.frames_received.values()),
+                                    "timestamps_untrusted": host.timestamps_untrusted,
+                                    "cpu_s": cpu_seconds()}))
+    except BaseException as exc:  # report, then exit non-zero: the parent names the gateway
+        _report_failure(results, name, exc)
+    finally:
+        for bus in buses:
+            bus.shutdown()
+
+
+def _recorder_process(trace_path: str, cfg: dict, go, stop, results, name: str = "RECORDER") -> None:
     """Every frame of the bus into the trace (python-can's writer for the suffix), taken from the socket
     every RECORDER_BATCH_S (its receive buffer enlarged), so that the recorder does not wake for each;
     plain data frames taken without a can.Message (hil.can.frame_io) go to the BLF writer's write_frame,
@@ -313,7 +377,7 @@ def _recorder_process(trace_path: str, cfg: dict, go, stop, results) -> None:
         enlarge_receive_buffer(bus)
         rt = make_realtime(RECORDER_PRIORITY)
         writer = open_writer(trace_path)          # wall-clock timestamps: the writer's own epoch
-        results.put(("ready", "RECORDER", rt.as_dict()))
+        results.put(("ready", name, rt.as_dict()))
         frames = 0
         lost_runner = False
         next_check = time.monotonic() + PARENT_CHECK_S
@@ -344,10 +408,10 @@ def _recorder_process(trace_path: str, cfg: dict, go, stop, results) -> None:
         finally:
             writer.stop()                         # flushed and closed
         if not lost_runner:
-            results.put(("result", "RECORDER", {"stats": {"frames_recorded": frames}}))
-            results.put(("host", "RECORDER", {"cpu_s": cpu_seconds()}))
+            results.put(("result", name, {"stats": {"frames_recorded": frames}}))
+            results.put(("host", name, {"cpu_s": cpu_seconds()}))
     except BaseException as exc:
-        results.put(("error", "RECORDER", " ".join(str(exc).split())))
+        results.put(("error", name, " ".join(str(exc).split())))
         raise SystemExit(1) from None
     finally:
         if bus is not None:
@@ -400,6 +464,25 @@ def external_nodes(scenario: Scenario, cli: list[str] | tuple[str, ...] = ()) ->
     return external
 
 
+@functools.cache
+def _device_cached(path: str, mtime_ns: int, dbc_path: str, scenario_json: str, node: str):
+    from hil.can.codec import loaded_dbc
+    from hil.runtime.assembly import build_node
+
+    scenario = Scenario.model_validate_json(scenario_json)
+    db, codec = loaded_dbc(Path(dbc_path))
+    return build_node(node, scenario, db, codec, dbc_path).gateway.device
+
+
+def _device_of(scenario: Scenario, node: str):
+    """The device in `node`'s place (hil.devices.device.Device), loaded once."""
+    from hil.runtime.run import dbc_path_of
+
+    file = scenario.devices[node].file
+    return _device_cached(file, Path(file).stat().st_mtime_ns, str(dbc_path_of(scenario)),
+                          scenario.model_dump_json(), node)
+
+
 def _external_ids(db, external: list[str]) -> dict[str, set[int]]:
     """The frame ids each external node sends (the DBC's senders)."""
     return {name: {m.frame_id for m in db.messages if name in m.senders} for name in external}
@@ -407,9 +490,11 @@ def _external_ids(db, external: list[str]) -> dict[str, set[int]]:
 
 def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                  progress: Callable[[int, dict], None] | None = None,
-                 external: list[str] | tuple[str, ...] = ()) -> tuple[RunOutcome, float, str | None]:
-    """Run the simulated nodes in their hosts, the recorder and the probe; returns the outcome, the trace's
-    epoch at t0 and the failure (None: none)."""
+                 external: list[str] | tuple[str, ...] = (),
+                 device_traces: dict[str, Path] | None = None) -> tuple[RunOutcome, float, str | None]:
+    """Run the simulated nodes in their hosts, the recorder and the probe, and for each device in a node's
+    place ([devices.NODE]) its gateway and a recorder of its own bus (into `device_traces[NODE]`); returns
+    the outcome, the trace's epoch at t0 and the failure (None: none)."""
     from hil.can.codec import loaded_dbc
     from hil.report.kpis import check_out_dir
     from hil.runtime.assembly import node_names
@@ -418,8 +503,20 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
 
     watch = open_bus(cfg)                       # fail early, in the parent, with one clear line
     names = node_names(scenario)
-    simulated = [n for n in names if n not in external]
+    devices = [n for n in names if n in scenario.devices]
+    simulated = [n for n in names if n not in external and n not in devices]
     external_ids = _external_ids(loaded_dbc(Path(dbc_path))[0], list(external))
+    device_cfgs = {n: device_bus_config(scenario, n, cfg) for n in devices}
+    device_watch = {}                           # each device's bus, until its first frame came
+    try:
+        for n, dcfg in device_cfgs.items():
+            device_watch[n] = open_bus(dcfg)
+    except BaseException:
+        for bus in (watch, *device_watch.values()):
+            bus.shutdown()
+        raise
+    device_ids = {n: {m.frame_id for m in _device_of(scenario, n).db.messages
+                      if _device_of(scenario, n).node in m.senders} for n in devices}
     if not external:
         watch.shutdown()
         watch = None
@@ -445,12 +542,25 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                                         rt.calibration_s if k == 0 else 0.0))
     procs["RECORDER"] = ctx.Process(target=_recorder_process, name="railhil-RECORDER",
                                     args=(str(trace_path), cfg, shared.go, shared.stop, results), daemon=True)
+    truth = None                                # the plant's truth, where a device's map reads it
+    if any(_device_of(scenario, n).uses_truth for n in devices):
+        from hil.devices.device import TRUTH_FIELDS
+
+        truth = ctx.Array("d", [math.nan] * (len(TRUTH_FIELDS) * scenario.train.cars), lock=False)
+    for name in devices:                        # each device: its gateway, and a recorder of its own bus
+        procs[f"RECORDER-{name}"] = ctx.Process(
+            target=_recorder_process, name=f"railhil-RECORDER-{name}", daemon=True,
+            args=(str(device_traces[name]), device_cfgs[name], shared.go, shared.stop, results,
+                  f"RECORDER-{name}"))
+        procs[name] = ctx.Process(target=_gateway_process, name=f"railhil-GATEWAY-{name}", daemon=True,
+                                  args=(name, scenario_json, dbc_path, cfg, device_cfgs[name], shared,
+                                        results, None, truth))
     hosted = {name: (name,) for name in procs}
     for host, members in plan.items():
         hosted[host] = members
         procs[host] = ctx.Process(target=_host_process, name=f"railhil-{host}", daemon=True,
                                   args=(host, members, scenario_json, dbc_path, cfg, shared, results,
-                                        progress_q if "PLANT" in members else None, cpus.get(host)))
+                                        progress_q if "PLANT" in members else None, cpus.get(host), truth))
 
     old_term = signal.getsignal(signal.SIGTERM)
 
@@ -472,6 +582,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     epoch_t0 = 0.0
     failure: str | None = None
     external_seen: dict[str, float] = {}
+    device_seen: dict[str, float] = {}
     idle = idle_hold(scenario)          # for the whole run, before the probe calibrates the sleeps under it
     try:
         for p in procs.values():
@@ -515,6 +626,11 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                   f"bus (start {it} before the run, e.g. railhil node {','.join(external)} SCENARIO "
                   f"{bus_flags(cfg)}); waiting up to {rt.external_wait_s:g} s for "
                   f"{'its first frame' if one else 'their first frames'}", file=sys.stderr, flush=True)
+        for name in devices:
+            device = _device_of(scenario, name)
+            print(f"realtime: device {device.node} ({device.dbc_path.name}) in {name}'s place, on "
+                  f"{describe_bus(device_cfgs[name])} behind the gateway; waiting up to "
+                  f"{rt.external_wait_s:g} s for its first frame", file=sys.stderr, flush=True)
         limit = time.monotonic() + START_MARGIN_S + scenario.max_duration_s / rt.speed + 30.0
         wait_external_until = time.monotonic() + START_MARGIN_S + rt.external_wait_s
         death: str | None = None          # a node died: the others run on for OBSERVE_AFTER_DEATH_S
@@ -535,10 +651,19 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                                    f"{'them' if many else 'it'} before the run (railhil node "
                                    f"{','.join(silent)} SCENARIO {bus_flags(cfg)}, or the device on that "
                                    "bus)")
+            for name in list(device_watch):
+                _watch_external(device_watch[name], {name: device_ids[name]}, device_seen, epoch_t0)
+                if name in device_seen:
+                    device_watch.pop(name).shutdown()
+                elif time.monotonic() > wait_external_until:
+                    raise NodeDied(f"device {name} ({_device_of(scenario, name).node} of "
+                                   f"{Path(scenario.devices[name].file).name}) sent no frame within "
+                                   f"{rt.external_wait_s:g} s on {describe_bus(device_cfgs[name])}: start it "
+                                   "before the run, on that bus")
             if death is not None and time.monotonic() >= observe_until:
                 raise NodeDied(death)
             try:
-                kind, name, detail = results.get(timeout=0.05 if (death or watch) else 0.2)
+                kind, name, detail = results.get(timeout=0.05 if (death or watch or device_watch) else 0.2)
             except queue.Empty:
                 dead = [n for n, p in procs.items() if p.exitcode is not None and not n.startswith("PROBE")
                         and not all(m in payloads for m in hosted[n])]
@@ -578,6 +703,8 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         shared.go.set()
         if watch is not None:
             watch.shutdown()
+        for bus in device_watch.values():
+            bus.shutdown()
         end = time.monotonic() + JOIN_TIMEOUT_S
         want = len(procs) - len(plan) + len(simulated) - len(probe_errors)    # nodes, recorder, probes
         hosts_cpu = set(plan) | {"RECORDER"}        # each reports its CPU seconds after its results
@@ -613,7 +740,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     if failure is not None:
         reason = "failed"
     truth: TruthLog = payloads["PLANT"]["truth"]
-    nodes = [n for n in simulated if n in payloads]
+    nodes = [n for n in names if (n in simulated or n in devices) and n in payloads]
     probes = {n: payloads[n] for n in procs if n.startswith("PROBE") and n in payloads}
     for name, probe in probes.items():          # each process's CPU seconds side by side in run.json
         if "cpu_s" in probe:
@@ -629,7 +756,9 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         "precise_wait": rt.precise_wait,
         "margin_ns": shared.margin_ns.value, "probes": probes, "probe_errors": probe_errors,
         "external": list(external),
-        "external_first_frame_s": external_seen, "deadline": rt.deadline.model_dump(),
+        "external_first_frame_s": external_seen, "device_first_frame_s": device_seen,
+        "devices": {n: describe_bus(c) for n, c in device_cfgs.items()},
+        "deadline": rt.deadline.model_dump(),
         "cycles": {n: cycle_record(payloads[n], setups) for n in nodes},
         "host_frames": host_info,
     }
@@ -637,7 +766,8 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         mode="realtime", end_us=truth_end_us(truth), reason=reason, truth=truth,
         frames_by_node={n: payloads[n]["stats"]["frames_sent"] for n in nodes},
         node_stats={n: payloads[n]["stats"] for n in nodes}, wall_s=wall,
-        lateness_us={n: payloads[n]["lateness_us"] for n in nodes}, realtime=realtime)
+        lateness_us={n: payloads[n]["lateness_us"] for n in nodes}, realtime=realtime,
+        devices={n: payloads[n].pop("device") for n in devices if n in payloads})
     return outcome, epoch_t0, failure
 
 
@@ -722,7 +852,7 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
                           progress: Callable[[int, dict], None] | None = None,
                           external: tuple[str, ...] = ()):
     from hil.can.codec import loaded_dbc
-    from hil.runtime.run import dbc_path_of, finish_run, trace_name
+    from hil.runtime.run import dbc_path_of, device_trace_name, finish_run, trace_name
 
     if scenario.faults:                           # not silently dropped: say where they work
         kinds = ", ".join(sorted({f.kind for f in scenario.faults}))
@@ -737,17 +867,23 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
                             "ground truth; run the ECUs elsewhere instead (--external BCU ... here, railhil "
                             "node there)")
     cfg = resolve_bus_config(cli_bus_config, scenario, external=bool(external))
-    from hil.runtime.assembly import build_node, node_names
+    from hil.runtime.assembly import build_node, check_devices, node_names
     from hil.runtime.release import node_releases
 
+    check_devices(scenario)
+    clash = sorted(set(external) & set(scenario.devices))
+    if clash:
+        raise ScenarioError(f"--external {clash[0]}: a device already takes its place "
+                            f"([devices.{clash[0]}]); a node is either external or a device's")
     nodes = [build_node(name, scenario, db, codec, str(dbc_path)) for name in node_names(scenario)]
     node_releases(scenario, db, nodes)            # bad bindings or [nodes.*]: one line, before any process
     if scenario.messages:
         print("notice: [messages.*] extra delays apply to lockstep runs only; the real-time bus has its own",
               file=sys.stderr)
     trace = out_dir / trace_name(scenario)        # its folder is made once the bus opened
+    device_traces = {n: out_dir / device_trace_name(scenario, n) for n in scenario.devices}
     outcome, epoch_t0, failure = run_realtime(scenario, str(dbc_path), trace, cfg, progress=progress,
-                                              external=external)
+                                              external=external, device_traces=device_traces)
     report = finish_run(scenario, outcome, out_dir, db, codec, trace_t0_s=epoch_t0,
                         trace_speed=scenario.realtime.speed,
                         extra={"bus": {k: str(v) for k, v in cfg.items()}, "failure": failure})

@@ -30,6 +30,9 @@ NODE_PRIORITY = 50          # SCHED_FIFO priority of node and plant processes (1
 PROBE_PRIORITY = NODE_PRIORITY + 1   # the machine probe: one step above, so the bench's own CPU use is
 #                                      never taken for the machine's (hil.runtime.probe)
 RECORDER_PRIORITY = 40      # the recorder: below the nodes (its socket buffer absorbs a delay)
+# a device's gateway (hil.runtime.gateway_host): just below the nodes, so that its wakes on every frame do
+# not delay the bench's simulated nodes (their deadlines are the bench's verdict); above the recorders
+GATEWAY_PRIORITY = NODE_PRIORITY - 1
 REALTIME_NICE = -10         # the fallback where SCHED_FIFO is refused (needs CAP_SYS_NICE for < 0 too)
 TIMER_SLACK_NS = 1          # PR_SET_TIMERSLACK: the kernel may delay a normal thread's timer by 50 µs
 PR_SET_TIMERSLACK = 29      # <linux/prctl.h>

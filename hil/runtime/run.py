@@ -8,6 +8,7 @@ The trace is read back once (hil.report.kpis.read_run_trace) for everything the 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import platform
 import sys
@@ -20,7 +21,8 @@ import numpy as np
 
 from hil.can.codec import Codec, loaded_dbc
 from hil.can.dbc import DEFAULT_DBC
-from hil.report.conduct import frames_sent_by, node_conduct
+from hil.report.conduct import frames_sent_by, node_conduct, silence_reported
+from hil.report.devices import device_kpis
 from hil.report.html import REPORT_NAME, run_metadata, write_run_report
 from hil.report.kpis import (
     RunView,
@@ -49,6 +51,11 @@ def trace_name(scenario: Scenario) -> str:
     """The trace file of a run folder: trace.<format> ([trace] format; python-can picks its writer by
     the suffix)."""
     return f"trace.{scenario.trace.format}"
+
+
+def device_trace_name(scenario: Scenario, node: str) -> str:
+    """The trace of the own bus of the device in `node`'s place: device-<node>.<format>."""
+    return f"device-{node}.{scenario.trace.format}"
 
 
 @dataclass
@@ -96,21 +103,6 @@ def plausibility_events(trace: DecodedTrace | Path, db, codec: Codec, n_cars: in
     for _, _, kind, car, t in sorted(hits):
         flagged.setdefault(kind, {}).setdefault(car, round(t, 4))
     return flagged
-
-
-def silence_reported(decoded: DecodedTrace, db, node: str, last_s: float | None, t0_s: float = 0.0,
-                     speed: float = 1.0) -> float | None:
-    """When the BCU first reported car n silent (BCU_STATUS CarsSilent bit n−1) after BECUn's last frame at
-    `last_s` [s, simulated]; None: not a BECU, never silent, or never reported."""
-    if last_s is None or not (node.startswith("BECU") and node[4:].isdigit()):
-        return None
-    table = decoded.table("BCU_STATUS")
-    bits = table.columns.get("CarsSilent")
-    if bits is None:
-        return None
-    t = (table.t - t0_s) * speed
-    k = np.flatnonzero((t > last_s) & (bits.astype(np.int64) >> (int(node[4:]) - 1) & 1 == 1))
-    return round(float(t[k[0]]), 4) if k.size else None
 
 
 def _rows(decoded: DecodedTrace, message: str) -> np.ndarray:
@@ -181,6 +173,11 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
             conduct[name]["reported_silent_s"] = silence_reported(decoded, db, name, conduct[name]["last_s"],
                                                                   trace_t0_s, trace_speed)
         kpis["realtime"]["conduct"] = conduct
+    if outcome.devices:                         # each device on its own terms (hil.report.devices)
+        kpis["devices"] = {name: device_kpis(record, decoded, db, outcome.node_stats,
+                                             out_dir / device_trace_name(scenario, name), trace_t0_s,
+                                             trace_speed)
+                           for name, record in outcome.devices.items()}
     kpis["mode"] = outcome.mode
     kpis["seed"] = scenario.seed
     kpis["simulated_s"] = outcome.end_us / 1e6
@@ -202,6 +199,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
         "node_stats": outcome.node_stats,
         "bus_timing": outcome.bus,
         "faults": outcome.faults,
+        **({"devices": outcome.devices} if outcome.devices else {}),
         "wall_s": round(outcome.wall_s, 3),
         **({"realtime": realtime_meta(outcome.realtime)} if outcome.realtime else {}),
         **run_metadata(dbc_path_of(scenario), scenario.seed),   # versions, DBC SHA-256, git commit
@@ -210,7 +208,9 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     run_json = out_dir / "run.json"
     run_json.write_text(json.dumps(meta, indent=2, default=str) + "\n")
     report = [write_run_report(out_dir, interactive_report)] if plots else []   # one self-contained page
-    return RunReport(out_dir, outcome, kpis, [trace, truth_csv, kpis_json, *figures, run_json, *report])
+    devices = [out_dir / device_trace_name(scenario, name) for name in outcome.devices]
+    return RunReport(out_dir, outcome, kpis, [trace, *devices, truth_csv, kpis_json, *figures, run_json,
+                                              *report])
 
 
 def realtime_meta(rt: dict) -> dict:
@@ -267,8 +267,12 @@ def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None,
     db, codec = loaded_dbc(dbc_path)
     setup = prepare_lockstep(scenario, db, codec, str(dbc_path))   # bad input: no run folder is left
     out_dir = check_out_dir(out_dir)
-    with open_writer(out_dir / trace_name(scenario), start_time_s=0.0) as writer:   # simulated s from 0
+    with contextlib.ExitStack() as open_traces:                    # simulated s from 0
+        writer = open_traces.enter_context(open_writer(out_dir / trace_name(scenario), start_time_s=0.0))
+        device_writers = {dev.name: open_traces.enter_context(
+            open_writer(out_dir / device_trace_name(scenario, dev.name), start_time_s=0.0))
+            for dev in setup.devices}
         outcome = run_lockstep(scenario, db, codec, writer, progress=progress, dbc_name=str(dbc_path),
-                               setup=setup)
+                               setup=setup, device_writers=device_writers)
     return finish_run(scenario, outcome, out_dir, db, codec, interactive_report=interactive_report,
                       plots=plots)

@@ -277,6 +277,10 @@ def load_scenario(path: str | Path, overrides: dict | None = None,
         key_file = str((path.parent / scenario.secoc.key_file).resolve())
         secoc = scenario.secoc.model_copy(update={"key_file": key_file})
         scenario = scenario.model_copy(update={"secoc": secoc})
+    if scenario.devices:                              # device files named relative to the scenario
+        devices = {name: ref.model_copy(update={"file": str((path.parent / ref.file).resolve())})
+                   for name, ref in scenario.devices.items()}
+        scenario = scenario.model_copy(update={"devices": devices})
     for study in registry.active(scenario):           # a study's files named relative to the scenario
         resolve = getattr(study.part("scenario"), "resolve_paths", None)
         if resolve is not None:

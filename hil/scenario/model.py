@@ -371,6 +371,14 @@ def _check_key(text: str, name: str | None = None) -> None:
         raise ValueError(f"{what} must be 16 bytes as 32 hex digits (AES-128)")
 
 
+class DeviceRef(_Strict):
+    """A device that takes a node's place (hil.devices, docs/devices.md): its device file (a path beside the
+    scenario), and for real-time runs the python-can bus it sits on where that is not the file's [bus]."""
+
+    file: str
+    bus: dict[str, str | int | float | bool] | None = None
+
+
 class ScenarioBase(_Strict):
     """The foundation's part of a scenario.  `Scenario` (below) is this plus one optional section per
     study, from the registry (hil.scenario.registry): a study is part of a run when its section is
@@ -396,6 +404,7 @@ class ScenarioBase(_Strict):
     becu: BecuSpec = Field(default_factory=BecuSpec)
     faults: list[FaultSpec] = Field(default_factory=list)    # hil.scenario.faults; injected by hil.safety
     secoc: SecOcSpec = Field(default_factory=SecOcSpec)      # authentication keys
+    devices: dict[str, DeviceRef] = Field(default_factory=dict)   # by the node each replaces, e.g. BECU3
 
     @field_validator("desk")
     @classmethod

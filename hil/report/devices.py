@@ -1,0 +1,111 @@
+"""A device on its own CAN matrix, judged on its own terms (hil.devices), in either mode.
+
+From the run's two traces — the bench's and the device's own bus (device-NODE.<format>) — and what the
+gateway counted:
+
+* **the device**: each cyclic message it sends judged against its own DBC's cycle time, and what the
+  gateway's checks of its frames reported (hil.report.conduct, as for a node of the bench);
+* **the gateway on the bench**: the frames it sends in the replaced node's place, judged on the bench's
+  trace against the bench's DBC, as any node's; and its frames to the device, against the device's DBC
+  (`to_device`: informational, the bench's own timing);
+* **the gateway's latency**, per direction, as a bus analyser with both buses in view measures it: for
+  each frame of a message the gateway routes (sends on a frame it translates), the time from the last
+  frame of the trigger message on the other bus to it (each bus's trace timestamp: end of frame in
+  lockstep, the recorder's reception in real time); for a message sent at its own cycle, the age of its
+  first source's frame when it went out;
+* what the translation substituted: values sent while a source was stale, source values outside a
+  value-table mapping.
+
+The device is PASS when its frames' timing is PASS, its frames' protection clean (nothing but OK, and
+NONEWDATA: a frame late) and the gateway's bench frames' timing PASS.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from hil.can.codec import loaded_dbc
+from hil.report.conduct import node_conduct, silence_reported
+from hil.trace.decoded import DecodedTrace
+
+
+def _times(decoded: DecodedTrace, name: str) -> np.ndarray:
+    """The trace times [s] of the data frames of message `name`, in order."""
+    msg = decoded.db.get_message_by_name(name)
+    f = decoded.frames
+    k = ((np.asarray(f.arbitration_id) == msg.frame_id)
+         & (np.asarray(f.extended) == bool(msg.is_extended_frame))
+         & ~np.asarray(f.remote) & ~np.asarray(f.error))
+    return np.sort(np.asarray(f.t, dtype=np.float64)[k])
+
+
+def _figures(us: np.ndarray) -> dict:
+    if not us.size:
+        return {"frames": 0, "p50_us": None, "p99_us": None, "max_us": None}
+    return {"frames": int(us.size), "p50_us": round(float(np.percentile(us, 50)), 1),
+            "p99_us": round(float(np.percentile(us, 99)), 1), "max_us": round(float(us.max()), 1)}
+
+
+def gateway_latency(routes: list[dict], bench: DecodedTrace, device: DecodedTrace, t0_s: float = 0.0,
+                    speed: float = 1.0) -> dict:
+    """{"device_to_bench": figures, "bench_to_device": figures, "messages": {message: figures + kind}} of
+    the routed messages (their latency) and, per message, the cyclic ones (their source's age)."""
+    sides = {"bench": bench, "device": device}
+    pooled: dict[str, list[np.ndarray]] = {"device_to_bench": [], "bench_to_device": []}
+    messages = {}
+    for r in routes:
+        source_name = r["trigger"] or r.get("source")
+        if source_name is None:
+            continue
+        src = sides["device" if r["to"] == "bench" else "bench"]
+        dst = sides[r["to"]]
+        s, d = _times(src, source_name), _times(dst, r["message"])
+        d = d[d >= t0_s]
+        k = np.searchsorted(s, d, side="right") - 1
+        ok = k >= 0
+        us = (d[ok] - s[k[ok]]) * 1e6 * speed
+        messages[r["message"]] = {"to": r["to"], "from": source_name,
+                                  "kind": "routed" if r["trigger"] else "cyclic", **_figures(us)}
+        if r["trigger"]:
+            pooled["device_to_bench" if r["to"] == "bench" else "bench_to_device"].append(us)
+    out = {way: _figures(np.concatenate(parts) if parts else np.zeros(0)) for way, parts in pooled.items()}
+    out["messages"] = messages
+    return out
+
+
+def device_kpis(record: dict, bench: DecodedTrace, db, node_stats: dict, device_trace: Path,
+                t0_s: float = 0.0, speed: float = 1.0) -> dict:
+    """kpis.json's entry of one device (module docstring), from its record in RunOutcome.devices."""
+    ddb, dcodec = loaded_dbc(record["dbc"])
+    from hil.report.kpis import read_run_trace
+
+    dtrace = read_run_trace(device_trace, ddb, dcodec)
+    gw = record["gateway"]
+    own = node_conduct(dtrace, ddb, [record["node"]], {"gateway": gw["device_side"]}, [record["node"]],
+                       t0_s, speed)[record["node"]]
+    replaced = record["replaces"]
+    on_bench = node_conduct(bench, db, [replaced], {n: s for n, s in node_stats.items() if n != replaced},
+                            [replaced], t0_s, speed)[replaced]
+    on_bench["reported_silent_s"] = silence_reported(bench, db, replaced, on_bench["last_s"], t0_s, speed)
+    targets = {r["message"] for r in record["routes"]}
+    on_bench["messages"] = {m: v for m, v in on_bench["messages"].items() if m in targets}
+    # the gateway's frames to the device, against the device's DBC (informational: the bench's timing)
+    senders = sorted({s for m in record["receives"] for s in ddb.get_message_by_name(m).senders})
+    to_device = {m: v for s in senders for m, v in node_conduct(dtrace, ddb, [s], {}, [], t0_s, speed)[s]
+                 ["messages"].items() if m in record["receives"]}
+    latency = gateway_latency(record["routes"], bench, dtrace, t0_s, speed)
+    passed = (own["timing"] == "PASS" and own["protection_clean"] and on_bench["timing"] == "PASS")
+    return {
+        "file": record["file"], "dbc": record["dbc"], "node": record["node"], "replaces": replaced,
+        "mode": record["mode"], "trace": device_trace.name,
+        "verdict": "PASS" if passed else "FAIL",
+        "device": own, "bench": on_bench, "latency": latency, "to_device": to_device,
+        "protection": record["protection"],
+        "routed": gw["routed"],
+        "substituted": {"to_device": gw["to_device"], "to_bench": gw["to_bench"]},
+        **({"bus": record["bus"]} if record.get("bus") else {}),
+        # real time: what the gateway measured itself, from a frame's reception to its translation's send
+        **({"processing": record["processing"]} if record.get("processing") else {}),
+    }

@@ -1,0 +1,188 @@
+"""The real-time host of a device's gateway: the bench's python-can bus and the device's, in one process.
+
+The gateway (hil.devices.gateway) translates a frame the moment it arrives: the host waits on both buses'
+sockets at once (select(2) on python-can's `fileno()`; a bus without one is polled every POLL_NS) and
+takes every frame each holds as soon as one comes, so that a routed frame leaves within the time the
+machine takes to wake the process and translate it — a real rig's gateway forwards on reception, it does
+not wait for a cycle.  Between frames it keeps the two sides' cyclic schedules on absolute deadlines of
+the run's clock (t0, as every host: hil.runtime.host): the bench side's at the replaced node's cycle and
+phase (its frames sent at their own cycle, its E2E checks of frames that did not come), the device side's
+at the greatest common divisor of the device's cycle times.  The bench side's cycles are judged as any
+node's (`CycleTiming`: the real-time verdict), and each routed frame's time from its reception (the
+kernel's timestamp of the frame on its bus) to its send is kept, by the bus it went to.
+
+Frames are taken and sent through hil.can.frame_io (on udp_multicast without a can.Message per frame,
+python-can's wire format; the host's own frames filtered out of its sockets); a frame of the bench's
+bus that the gateway reads nothing of is dropped by the socket's filter, as a CAN controller's
+acceptance filter would.
+"""
+
+from __future__ import annotations
+
+import selectors
+import time
+from array import array
+from collections.abc import Callable
+
+import can
+import numpy as np
+
+from hil.can.frame_io import FrameIO
+from hil.devices.device import TRUTH_FIELDS
+from hil.runtime.host import PARENT_CHECK_US, TIMESTAMP_TRUST_US, CycleTiming
+from hil.runtime.release import NodeRelease
+
+POLL_NS = 500_000              # a bus without a file descriptor is polled this often [ns]
+
+
+class SharedTruth:
+    """The plant's truth quantities a device's map reads (hil.devices.device.TRUTH_QUANTITIES), shared between
+    processes: the plant's host writes them after each wake's steps (`write`), the gateway reads the
+    latest (`read`, a hil.devices.gateway.TruthReader); NaN until the plant's first step.  One double per
+    field and car in a multiprocessing array (aligned 8-byte stores: a reader sees a whole value)."""
+
+    def __init__(self, array, n_cars: int) -> None:
+        self.array, self.n = array, n_cars
+        self.index = {f: k * n_cars for k, f in enumerate(TRUTH_FIELDS)}
+
+    def write(self, plant_controller) -> None:
+        snap = plant_controller.plant.snapshot()
+        a, n = self.array, self.n
+        for field_name, base in self.index.items():
+            a[base:base + n] = getattr(snap, field_name)
+
+    def read(self, field_name: str, car: int) -> float:
+        return self.array[self.index[field_name] + car]
+
+
+def latency_figures(us) -> dict:
+    """p50 / p99 / max [µs] of routed frames' latencies, and their number."""
+    a = np.asarray(us, dtype=np.int64)
+    if not a.size:
+        return {"frames": 0, "p50_us": None, "p99_us": None, "max_us": None}
+    return {"frames": int(a.size), "p50_us": round(float(np.percentile(a, 50)), 1),
+            "p99_us": round(float(np.percentile(a, 99)), 1), "max_us": int(a.max())}
+
+
+class GatewayHost:
+    """A gateway between `bench_bus` and `device_bus`: `run(stop)` until `stop` is set or `orphaned()`."""
+
+    def __init__(self, gateway, bench_bus: can.BusABC, device_bus: can.BusABC, t0_ns: int, *,
+                 speed: float = 1.0, orphaned: Callable[[], bool] | None = None) -> None:
+        self.gateway = gateway
+        self.t0_ns, self.speed, self.orphaned = t0_ns, speed, orphaned
+        self.epoch_t0 = time.time() + (t0_ns - time.monotonic_ns()) / 1e9   # t0 on the wall clock [s]
+        self.sides = {"bench": gateway.bench, "device": gateway.device_side}
+        unread = [fc.frame_id for fc in gateway.bench.codec if fc.frame_id not in gateway.bench.rx_ids]
+        self.io = {"bench": FrameIO(bench_bus, drop_own=True, drop_ids=unread),
+                   "device": FrameIO(device_bus, drop_own=True)}
+        self.buses = {"bench": bench_bus, "device": device_bus}
+        self.releases = {side: NodeRelease(node.name, node.period_us, node.offset_us)
+                         for side, node in self.sides.items()}
+        self.timing = CycleTiming(gateway.bench.period_us)   # the bench side's cycles, judged as a node's
+        self.latency = {"bench": array("q"), "device": array("q")}   # routed: received -> sent [µs], by bus
+        self.frames_received = {"bench": 0, "device": 0}
+        self.timestamps_untrusted = 0
+        self.reason: str | None = None
+
+    def now_us(self) -> int:
+        return int((time.monotonic_ns() - self.t0_ns) * self.speed) // 1000
+
+    def _take(self, side: str) -> None:
+        """Every frame the bus of `side` holds, to that side of the gateway; what it routes, out at once."""
+        node, now_us = self.sides[side], self.now_us()
+        other = "device" if side == "bench" else "bench"
+
+        def on_frame(timestamp: float, frame_id: int, _extended: bool, data: bytes, msg) -> None:
+            if msg is not None and (msg.is_error_frame or msg.is_remote_frame):
+                return
+            t_us = int((timestamp - self.epoch_t0) * 1e6 * self.speed)
+            if not (now_us - TIMESTAMP_TRUST_US < t_us <= now_us + 1000):   # not this run's clock
+                t_us = now_us
+                self.timestamps_untrusted += 1
+            self.frames_received[side] += 1
+            node.receive(frame_id, data, t_us)
+            if self.gateway.outbox:
+                self._route(timestamp, other)
+
+        self.io[side].take(on_frame)
+
+    def _route(self, received_s: float, to: str) -> None:
+        """The frames the gateway translated from the frame received at `received_s`, onto their bus."""
+        for side, fc, data in self.gateway.take():
+            self.io[side].send(fc.frame_id, fc.is_extended_id, data)
+            if side == to:
+                self.latency[side].append(int((time.time() - received_s) * 1e6))
+
+    def _send(self, side: str, frames) -> None:
+        send = self.io[side].send
+        for fc, data in frames:
+            send(fc.frame_id, fc.is_extended_id, data)
+
+    def run(self, stop) -> None:
+        # select(2): its timeout in µs (epoll's and poll's are whole ms: a cycle up to 1 ms late)
+        selector = selectors.SelectSelector()
+        polled = []
+        for side, bus in self.buses.items():
+            try:
+                selector.register(bus.fileno(), selectors.EVENT_READ, side)
+            except (NotImplementedError, OSError, ValueError):
+                polled.append(side)              # no file descriptor (some adapters): polled
+        try:
+            self._loop(stop, selector, polled)
+        finally:
+            selector.close()
+            for io in self.io.values():
+                io.close()
+
+    def _loop(self, stop, selector, polled: list[str]) -> None:
+        t0, speed = self.t0_ns, self.speed
+        slot, nominal, deadline = {}, {}, {}
+        for side, release in self.releases.items():
+            slot[side], nominal[side], _ = release.next()
+            deadline[side] = t0 + round(slot[side] / speed)
+        next_check = time.monotonic_ns()
+        while not stop.is_set():
+            now = time.monotonic_ns()
+            due = min(deadline.values())
+            if now < due:
+                wait = due - now if not polled else min(due - now, POLL_NS)
+                for key, _ in selector.select(wait / 1e9):
+                    self._take(key.data)
+                for side in polled:
+                    self._take(side)
+                continue
+            for side in ("bench", "device"):
+                if deadline[side] > now:
+                    continue
+                node = self.sides[side]
+                for side_taken in self.sides:           # what came before the deadline, first
+                    self._take(side_taken)
+                if side == "bench":
+                    self.timing.released(deadline[side], t0, time.monotonic_ns())
+                self._send(side, node.cycle(slot[side] // 1000, nominal[side]))
+                if side == "bench":
+                    self.timing.ended(t0)
+                slot[side], nominal[side], _ = self.releases[side].next()
+                deadline[side] = t0 + round(slot[side] / speed)
+                if side == "bench":                    # far behind: skip to the next slot, counted
+                    late_us = (time.monotonic_ns() - deadline[side]) // 1000
+                    for _ in range(self.timing.cycles_to_skip(late_us, slot[side] // 1000)):
+                        slot[side], nominal[side], _ = self.releases[side].next()
+                        deadline[side] = t0 + round(slot[side] / speed)
+            if now >= next_check:
+                next_check = now + PARENT_CHECK_US * 1000
+                if self.orphaned is not None and self.orphaned():
+                    self.reason = "orphaned"
+                    return
+
+    def payload(self) -> dict:
+        """The bench side's result as a node's (its stats and cycle timing) and the device's record."""
+        bench = self.gateway.bench
+        out = self.timing.payload(bench)
+        out["stats"]["frames_received_by_bus"] = dict(self.frames_received)
+        out["device"] = {**self.gateway.describe(), "mode": "device", "gateway": self.gateway.stats(),
+                         "processing": {"to_device": latency_figures(self.latency["device"]),
+                                        "to_bench": latency_figures(self.latency["bench"])},
+                         "timestamps_untrusted": self.timestamps_untrusted}
+        return out
