@@ -19,6 +19,7 @@ exit code 2.
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import time
@@ -40,6 +41,9 @@ CYCLE_NS = 10_000_000          # the control cycle and EBC7_VALVE_CMD's GenMsgCy
 STATUS_EVERY = 2               # EBC7_STATUS every 2 cycles (its GenMsgCycleTime, 20 ms)
 CATCH_UP_CYCLES = 5            # up to this many cycles late: run them back to back; further: skip
 DEMAND_DATA_ID, VALVE_DATA_ID = 0x1027, 0x0A3      # E2E data ids (acme_becu.dbc's comments)
+# a real ECU has a CPU of its own; beside a bench on one machine it asks for real-time scheduling, one step
+# below the bench's processes (railhil's nodes run at SCHED_FIFO 50, its gateway 49), where the OS permits
+FIFO_PRIORITY = 45
 MAX_DELTA = 1                  # counter steps allowed between two frames
 
 
@@ -178,6 +182,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def realtime_scheduling() -> str:
+    """SCHED_FIFO at FIFO_PRIORITY where the OS permits it (root, or CAP_SYS_NICE); what it got."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
+    except (AttributeError, OSError):         # not Linux, or not permitted: the default scheduling
+        return "normal scheduling (SCHED_FIFO not permitted)"
+    return f"SCHED_FIFO priority {FIFO_PRIORITY}"
+
+
 def _fail(text: str) -> int:
     print(f"error: {text}", file=sys.stderr, flush=True)
     return 2
@@ -210,8 +223,8 @@ def run(bus: can.BusABC, ecu: Ebc7, args) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    print(f"EBC-7: on {bus.__class__.__name__} {bus.channel_info}, sending EBC7_VALVE_CMD, EBC7_STATUS",
-          flush=True)
+    print(f"EBC-7: on {bus.__class__.__name__} {bus.channel_info}, sending EBC7_VALVE_CMD, EBC7_STATUS; "
+          f"{realtime_scheduling()}", flush=True)
     t0 = time.monotonic_ns()
     end_ns = t0 + round(args.duration * 1e9) if args.duration else None
     deadline = t0

@@ -166,7 +166,10 @@ class Gateway:
             replaced.name, self.to_bench,
             Binding.build(bench_db, replaced.name, device.bench_sources, bench_out, bench_rx,
                           replaced.tx_messages, bench_dbc),
-            bench_codec, bench_db, period_us=replaced.period_us, offset_us=replaced.offset_us,
+            bench_codec, bench_db, offset_us=replaced.offset_us,
+            # its cycles: those of the frames it sends at their own cycle time (its deadlines; a routed
+            # frame has its latency instead), at the replaced node's phase
+            period_us=_gcd_us([r.cycle_ms for r in device.to_bench if r.trigger is None], replaced.period_us),
             routed=[r.message for r in device.to_bench], on_frame=self._from_bench,
             on_cycle=self._bench_cycle)
         ddb = device.db

@@ -82,6 +82,7 @@ class GatewayHost:
         self.timing = CycleTiming(gateway.bench.period_us)   # the bench side's cycles, judged as a node's
         self.latency = {"bench": array("q"), "device": array("q")}   # routed: received -> sent [µs], by bus
         self.frames_received = {"bench": 0, "device": 0}
+        self.frames_before_start = {"bench": 0, "device": 0}   # dropped: on the buses before t0
         self.timestamps_untrusted = 0
         self.reason: str | None = None
 
@@ -120,6 +121,10 @@ class GatewayHost:
             send(fc.frame_id, fc.is_extended_id, data)
 
     def run(self, stop) -> None:
+        # what the buses held before the run's start is not the run's: a device running before the bench
+        # (its frames piled up in the socket while the processes started) does not reach the bench late
+        for side, io in self.io.items():
+            self.frames_before_start[side] = io.take(lambda *frame: None)
         # select(2): its timeout in µs (epoll's and poll's are whole ms: a cycle up to 1 ms late)
         selector = selectors.SelectSelector()
         polled = []
@@ -181,6 +186,7 @@ class GatewayHost:
         bench = self.gateway.bench
         out = self.timing.payload(bench)
         out["stats"]["frames_received_by_bus"] = dict(self.frames_received)
+        out["stats"]["frames_before_start"] = dict(self.frames_before_start)
         out["device"] = {**self.gateway.describe(), "mode": "device", "gateway": self.gateway.stats(),
                          "processing": {"to_device": latency_figures(self.latency["device"]),
                                         "to_bench": latency_figures(self.latency["bench"])},
