@@ -261,7 +261,7 @@ def test_instability_episodes_are_dropped_by_hdop():
     """Instability episodes (plant_sim.gps: a valid fix off by tens of m, HDOP 4) fail the HDOP check."""
     spec = AcdSpec(leader=LEADER, gps={"rate_hz": 5.0})
     dev = AcdDevice(spec, seed=1)
-    dev.gps = GpsModel(GpsParams(rate_hz=5.0, instability_rate_per_h=600.0, instability_mean_s=2.0,
+    dev.receiver.gps = GpsModel(GpsParams(rate_hz=5.0, instability_rate_per_h=600.0, instability_mean_s=2.0,
                                  dropout_rate_per_h=0.0), 1)
     rx = RxTable(dev.inputs)
     keys = ("ACD_GNSS_TRUTH.TrackPos", "ACD_GNSS_TRUTH.Speed")

@@ -623,7 +623,7 @@ def test_the_scenario_keys_sign_the_real_time_radio_of_both_trains(tmp_path):
                     clients_["U2"].wait_for(lambda c: c.leader == "U1" and c.leader_reports, WAIT_S),
                     world.tcp.loop))
                 world.step(100_000, 102.0, 20.0)
-                assert world.leader_id == 1 and world.leader_rep["train"] == "U1"
+                assert world.leader.leader_id == 1 and world.leader.report["train"] == "U1"
                 assert all(not c.dropped for c in clients_.values())
             finally:
                 if world.tcp is not None:

@@ -114,6 +114,40 @@ class PtyLink:
         self.close()
 
 
+class ServedPty:
+    """A pseudo-terminal whose other end a program outside railhil opens (an external ACD reading its GPS
+    line): `device` is the GPS module's end (non-blocking writes), `port_name` the tty device to open.  The
+    slave is set raw (no echo, no CR/LF translation) and held open unread, so that the line exists from
+    the start and stays up while its reader reopens it.  Use as a context manager, or call `close()`."""
+
+    def __init__(self) -> None:
+        try:
+            master, slave = os.openpty()
+        except OSError as exc:
+            raise SerialLinkError(f"cannot create a pseudo-terminal pair: {exc.strerror or exc}") from None
+        try:
+            tty.setraw(slave)
+            self.port_name = os.ttyname(slave)
+        except BaseException:
+            os.close(master)
+            os.close(slave)
+            raise
+        self._slave = slave
+        self.device = PtyDevice(master)
+
+    def close(self) -> None:
+        self.device.close()
+        if self._slave is not None:
+            os.close(self._slave)
+            self._slave = None
+
+    def __enter__(self) -> ServedPty:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
 class GpsLinkWriter:
     """Writes GPS fixes onto a line as `protocol` ("nmea" or "binary"); `sink` is a pyserial port or a
     `PtyDevice`. Counts bytes written and bytes dropped because the line buffer was full."""

@@ -276,6 +276,9 @@ def _host_process(host: str, names: tuple[str, ...], scenario_json: str, dbc_pat
         bus = open_bus(cfg)
         enlarge_receive_buffer(bus)                       # frames wait there until the next deadline
         rt = os_setup(scenario, NODE_PRIORITY, cpus)
+        for node in nodes:                                # what a device needs to know first (a GPS pty)
+            for line in getattr(node.controller, "announce", lambda: [])():
+                results.put(("info", host, line))
         if not _ready_to_go(host, shared, results, rt):
             return
         end = None
@@ -483,6 +486,78 @@ def _device_of(scenario: Scenario, node: str):
                           scenario.model_dump_json(), node)
 
 
+def marked_external(scenario: Scenario, external) -> Scenario:
+    """The scenario as the run's processes get it: each external node marked `[nodes.NAME] external`, so
+    that a node built there knows which device is outside (the plant serves an external ACD's GPS line)."""
+    from hil.scenario.model import NodeTiming
+
+    if not external:
+        return scenario
+    nodes = dict(scenario.nodes)
+    for name in external:
+        nodes[name] = nodes.get(name, NodeTiming()).model_copy(update={"external": True})
+    return scenario.model_copy(update={"nodes": nodes})
+
+
+class ServedCentre:
+    """The control centre a run serves an external ACD (hil.links.control_centre, its own process): on a
+    port of this host, its database and the trains' keys (fresh, mode 0600) in the run folder; the run's
+    scenario names it ([acd] control_centre, control_centre_keys), so that the plant reports the leader to
+    it, and the device, with its train's key, reports itself and hears the leader."""
+
+    START_TIMEOUT_S = 30.0
+
+    def __init__(self, folder: Path, scenario: Scenario) -> None:
+        import subprocess
+
+        from hil.links.control_centre import make_keys
+
+        spec = scenario.acd
+        trains = [f"U{spec.train_id}"] + ([] if spec.leader is None else [f"U{spec.leader.train_id}"])
+        self.summary = ""
+        self.keys = folder / "centre-keys.toml"
+        self.db = folder / "centre.sqlite"
+        make_keys(self.keys, trains)
+        self.proc = subprocess.Popen([sys.executable, "-m", "hil.links.control_centre", "--db", str(self.db),
+                                      "--port", "0", "--keys", str(self.keys)],
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        line = _first_line(self.proc, self.START_TIMEOUT_S)
+        if not line.startswith("listening on "):
+            self.stop()
+            raise NodeDied(f"the control centre for the external ACD did not start: {line or self.summary}")
+        self.address = line.split()[2]
+        print(f"realtime: control centre on {self.address} (database {self.db.name}; each train's key in "
+              f"{self.keys}: the external ACD, train {trains[0]}, signs with its own)", file=sys.stderr,
+              flush=True)
+        acd = spec.model_copy(update={"control_centre": self.address, "control_centre_keys": str(self.keys)})
+        self.scenario = scenario.model_copy(update={"acd": acd})
+
+    def stop(self) -> None:
+        """SIGINT, then its summary line (reports, refusals)."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+        try:
+            out, err = self.proc.communicate(timeout=JOIN_TIMEOUT_S)
+        except Exception:
+            self.proc.kill()
+            out, err = self.proc.communicate()
+        lines = [ln for ln in (out + err).splitlines() if ln.strip()]
+        self.summary = lines[-1] if lines else ""
+
+    def record(self) -> dict:
+        return {"address": getattr(self, "address", None), "database": str(self.db), "keys": str(self.keys),
+                "summary": self.summary}
+
+
+def _first_line(proc, timeout_s: float) -> str:
+    """The first line `proc` prints on stdout, waiting at most `timeout_s` ('' if none came)."""
+    import selectors
+
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stdout, selectors.EVENT_READ)
+    return proc.stdout.readline().strip() if sel.select(timeout_s) else ""
+
+
 def _external_ids(db, external: list[str]) -> dict[str, set[int]]:
     """The frame ids each external node sends (the DBC's senders)."""
     return {name: {m.frame_id for m in db.messages if name in m.senders} for name in external}
@@ -521,6 +596,11 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         watch.shutdown()
         watch = None
     check_out_dir(trace_path.parent)            # only now: a bus that does not open leaves no folder
+    scenario = marked_external(scenario, external)
+    centre = None
+    if "ACD" in external and scenario.acd is not None and scenario.acd.control_centre is None:
+        centre = ServedCentre(trace_path.parent, scenario)   # the external ACD's radio: the bench serves it
+        scenario = centre.scenario
     ctx = mp.get_context("fork" if sys.platform.startswith("linux") else "spawn")
     shared = Shared(ctx.Event(), ctx.Event(), ctx.Value("q", 0), ctx.Value("q", 0),
                     ctx.Value("q", END_NEVER_US, lock=False))    # set by this process only: no lock needed
@@ -583,6 +663,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     failure: str | None = None
     external_seen: dict[str, float] = {}
     device_seen: dict[str, float] = {}
+    infos: list[str] = []
     idle = idle_hold(scenario)          # for the whole run, before the probe calibrates the sleeps under it
     try:
         for p in procs.values():
@@ -598,7 +679,10 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                                f"within {READY_TIMEOUT_S:.0f} s") from None
             if kind == "error":
                 raise NodeDied(f"node {name} failed at start: {detail}")
-            if kind == "probe_error":              # the run goes on without that probe, and says so
+            if kind == "info":                     # a host says what a device needs: print it now
+                print(f"realtime: {detail}", file=sys.stderr, flush=True)
+                infos.append(detail)
+            elif kind == "probe_error":            # the run goes on without that probe, and says so
                 probe_errors[name] = detail
                 ready.add(name)
             elif kind == "calibrated":
@@ -731,6 +815,8 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         signal.signal(signal.SIGTERM, old_term)
         signal.signal(signal.SIGINT, old_int)
         idle.release()
+        if centre is not None:
+            centre.stop()
     wall = time.perf_counter() - wall0
     if "PLANT" in external:
         raise NodeDied("the PLANT is external: its ground truth is on another host; run the plant here")
@@ -757,6 +843,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         "margin_ns": shared.margin_ns.value, "probes": probes, "probe_errors": probe_errors,
         "external": list(external),
         "external_first_frame_s": external_seen, "device_first_frame_s": device_seen,
+        "announced": infos, **({"control_centre": centre.record()} if centre is not None else {}),
         "devices": {n: describe_bus(c) for n, c in device_cfgs.items()},
         "deadline": rt.deadline.model_dump(),
         "cycles": {n: cycle_record(payloads[n], setups) for n in nodes},

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,7 +43,7 @@ from firmware_py.acd import (
     pair_on_sections,
 )
 from hil.can.codec import Codec
-from hil.links.gpsserial import GpsLinkReader, GpsLinkWriter, PtyLink, open_port
+from hil.links.gpsserial import GpsLinkReader, GpsLinkWriter, PtyLink, ServedPty, open_port
 from hil.links.nmea import DEFAULT_UTC0, ReceivedFix
 from hil.runtime.node import Binding, Node
 from hil.runtime.plant_node import PlantController
@@ -203,6 +203,79 @@ class TcpCentre:
         self.thread.join(timeout=5.0)
 
 
+class LeaderView:
+    """What a train's radio knows of its leader: the leader the control centre paired it with (step 5) and
+    that train's latest report (step 6); `take` reads a message of the centre's (hil.links.control_centre
+    or CentreModel: "pair", "leader_report")."""
+
+    def __init__(self) -> None:
+        self.leader_id = 0                     # 0: no leader on the section
+        self.report: dict | None = None
+
+    def take(self, msg: dict) -> bool:
+        """True when `msg` was the leader's report (a newer one, taken)."""
+        kind = msg["type"]
+        if kind == "pair":
+            self.leader_id = 0 if msg["leader"] is None else int(msg["leader"][1:])
+            if self.report is not None and self.report["train"] != msg["leader"]:
+                self.report = None                # a report of a train that is not our leader
+        elif kind == "leader_report" and self.leader_id and msg["train"] == f"U{self.leader_id}":
+            if self.report is None or msg["t"] >= self.report["t"]:
+                self.report = msg
+                return True
+        return False
+
+    def signals(self, out: dict[str, float], age_s: float) -> None:
+        """RADIO_LEADER_POS/INFO's signals into `out`, the report `age_s` old; LeaderId 0 without one."""
+        rep = self.report
+        if rep is not None and self.leader_id:
+            out["RADIO_LEADER_POS.Latitude"] = rep["lat"]
+            out["RADIO_LEADER_POS.Longitude"] = rep["lon"]
+            out["RADIO_LEADER_INFO.LeaderId"] = self.leader_id
+            out["RADIO_LEADER_INFO.RouteSection"] = rep["section"]
+            out["RADIO_LEADER_INFO.Speed"] = min(max(rep["speed"], 0.0), 655.35)
+            out["RADIO_LEADER_INFO.TrainLength"] = rep["length"]
+            out["RADIO_LEADER_INFO.AgeOfReport"] = min(age_s, AGE_MAX_S)
+        else:
+            out["RADIO_LEADER_INFO.LeaderId"] = 0
+
+
+class OwnRadio:
+    """The ACD's own radio link to the control centre ([acd] radio_link = "tcp", real time): it reports the
+    own train's GPS position every report_period_s (step 3) and takes the leader's reports (step 6) from
+    the centre over TCP (a TrainClient as its own train, hil.links.control_centre), as a device with its
+    own modem does.  The leader's report is aged on this process's clock: from its reception, plus the time
+    it spent at the centre (`age`), so that no clock is shared with the bench."""
+
+    def __init__(self, spec: AcdSpec, geo) -> None:
+        self.spec, self.geo = spec, geo
+        self.me = f"U{spec.train_id}"
+        keys = centre_keys(spec)
+        own_key = None if keys is None else {self.me: keys[self.me]}
+        self.tcp = TcpCentre(spec.control_centre, [self.me], own_key)
+        self.period_us = round(spec.radio.report_period_s * 1e6)
+        self.next_report_us = 0
+        self.leader = LeaderView()
+        self.received_us = 0                     # when the leader's report in hand came [µs, own clock]
+
+    def step(self, now_us: int, fix, own_s: float | None, out: dict[str, float]) -> None:
+        if now_us >= self.next_report_us and fix is not None and own_s is not None:
+            self.next_report_us = now_us + self.period_us
+            lat, lon, speed, _ = fix
+            self.tcp.report({"train": self.me, "t": now_us, "lat": lat, "lon": lon, "speed": speed,
+                             "heading": self.geo.at(own_s)[2], "section": section_of(self.spec, own_s),
+                             "length": 1.0})          # only a leader's length is used: the follower's is not
+        for msg in self.tcp.messages(self.me):
+            if self.leader.take(msg):
+                self.received_us = now_us
+        rep = self.leader.report
+        age_s = 0.0 if rep is None else (now_us - self.received_us) / 1e6 + float(rep.get("age") or 0.0)
+        self.leader.signals(out, age_s)
+
+    def close(self) -> None:
+        self.tcp.close()
+
+
 # ----------------------------------------------------------------------------------------- the world
 class World:
     """U1, the signals, the radio and the control centre, seen from the own train's radio box.
@@ -213,11 +286,14 @@ class World:
     position its ACD's GPS gives; here the truth: its error does not matter to the pairing).  The
     wayside sends the aspect of the next signal ahead of the own train on the same period."""
 
-    def __init__(self, spec: AcdSpec, seed: int) -> None:
+    def __init__(self, spec: AcdSpec, seed: int, own_reports: bool = True) -> None:
         self.spec = spec
         self.geo = geometry(spec)
         self.motion = leader_motion(spec)
         self.me = f"U{spec.train_id}"
+        # False: the own train's ACD holds its radio link itself (an external ACD, [acd] radio_link = "tcp"):
+        # the world reports the leader only and hears nothing for the own train
+        self.own_reports = own_reports
         self.leader_name = None if spec.leader is None else f"U{spec.leader.train_id}"
         self.up = RadioLink(spec.radio, sub_seed(seed, "radio-up"))
         self.down = RadioLink(spec.radio, sub_seed(seed, "radio-down"))
@@ -231,8 +307,7 @@ class World:
         self.next_report_us = 0
         self.signals = sorted(spec.signals, key=lambda s: s.position_m)
         # the radio box's state: what the own train last got
-        self.leader_id = 0
-        self.leader_rep: dict | None = None
+        self.leader = LeaderView()
         self.signal_msg: dict | None = None
         self.out: dict[str, float] = {k: 0.0 for k in RADIO_OUT + TRUTH_OUT}
 
@@ -259,7 +334,7 @@ class World:
     def step(self, now_us: int, front_m: float, speed_mps: float) -> dict[str, float]:
         t_s = now_us / 1e6
         if self.spec.control_centre is not None and self.tcp is None:
-            trains = [self.me] + ([self.leader_name] if self.motion is not None else [])
+            trains = ([self.me] if self.own_reports else []) + ([self.leader_name] if self.motion else [])
             self.tcp = TcpCentre(self.spec.control_centre, trains, centre_keys(self.spec))
         if now_us >= self.next_report_us:
             self.next_report_us += self.period_us
@@ -268,7 +343,8 @@ class World:
                 self._uplink(now_us, self._report(self.leader_name, now_us, s_l, v_l, self.motion.length_m,
                                                   True))
             own_len = 1.0   # only the leader's length is used (the follower's is not relayed to anyone)
-            self._uplink(now_us, self._report(self.me, now_us, front_m, speed_mps, own_len, False))
+            if self.own_reports:
+                self._uplink(now_us, self._report(self.me, now_us, front_m, speed_mps, own_len, False))
             sig = self.next_signal(front_m)
             self.down.send(now_us, {"type": "signal", "t": now_us,
                                     "id": 0 if sig is None else sig.id,
@@ -279,34 +355,19 @@ class World:
                 if train == self.me:
                     self.down.send(now_us, msg)
         received = list(self.down.receive(now_us))
-        if self.tcp is not None and not self.down._out(now_us):
+        if self.tcp is not None and self.own_reports and not self.down._out(now_us):
             received += self.tcp.messages(self.me)
         for msg in received:
-            kind = msg["type"]
-            if kind == "pair":
-                self.leader_id = 0 if msg["leader"] is None else int(msg["leader"][1:])
-                if self.leader_rep is not None and self.leader_rep["train"] != msg["leader"]:
-                    self.leader_rep = None                # a report of a train that is not our leader
-            elif kind == "leader_report" and self.leader_id and msg["train"] == f"U{self.leader_id}":
-                if self.leader_rep is None or msg["t"] >= self.leader_rep["t"]:
-                    self.leader_rep = msg
-            elif kind == "signal":
+            if msg["type"] == "signal":
                 self.signal_msg = msg
+            else:
+                self.leader.take(msg)
         return self.outputs(now_us, front_m, speed_mps)
 
     def outputs(self, now_us: int, front_m: float, speed_mps: float) -> dict[str, float]:
         out = self.out
-        rep = self.leader_rep
-        if rep is not None and self.leader_id:
-            out["RADIO_LEADER_POS.Latitude"] = rep["lat"]
-            out["RADIO_LEADER_POS.Longitude"] = rep["lon"]
-            out["RADIO_LEADER_INFO.LeaderId"] = self.leader_id
-            out["RADIO_LEADER_INFO.RouteSection"] = rep["section"]
-            out["RADIO_LEADER_INFO.Speed"] = min(max(rep["speed"], 0.0), 655.35)
-            out["RADIO_LEADER_INFO.TrainLength"] = rep["length"]
-            out["RADIO_LEADER_INFO.AgeOfReport"] = min((now_us - rep["t"]) / 1e6, AGE_MAX_S)
-        else:
-            out["RADIO_LEADER_INFO.LeaderId"] = 0
+        rep = self.leader.report
+        self.leader.signals(out, 0.0 if rep is None else (now_us - rep["t"]) / 1e6)
         sig = self.signal_msg
         if sig is not None:
             out["RADIO_SIGNAL.SignalId"] = sig["id"]
@@ -318,16 +379,58 @@ class World:
         return dict(out)
 
 
+class ServedGps:
+    """The own train's GPS module served to an external ACD (real time, the ACD a device under test): the
+    plant writes its fixes onto a serial line that the device opens — the port [acd.gps] names (wired to
+    the device's GPS input), or a pseudo-terminal whose path the run prints."""
+
+    def __init__(self, spec: AcdSpec, seed: int) -> None:
+        self.stats = GpsInputStats()
+        self.receiver = GpsReceiver(spec, seed, self.stats)
+        self.pty: ServedPty | None = None
+        if spec.gps.port is not None:
+            self.port_name = spec.gps.port
+            self.writer = GpsLinkWriter(open_port(spec.gps.port), spec.gps.protocol)
+        else:
+            self.pty = ServedPty()
+            self.port_name = self.pty.port_name
+            self.writer = GpsLinkWriter(self.pty.device, spec.gps.protocol)
+        self.protocol, self.rate_hz = spec.gps.protocol, spec.gps.rate_hz
+        self.report: dict = {"port": self.port_name, "protocol": self.protocol}   # refreshed at each fix
+
+    def describe(self) -> str:
+        what = "NMEA 0183 RMC+GGA" if self.protocol == "nmea" else "the framed binary protocol"
+        return (f"the ACD's GPS line: {what} at {self.rate_hz:g} Hz on {self.port_name} (8N1; the external "
+                "ACD reads its fixes there)")
+
+    def write(self, now_us: int, truth_at: Callable[[int], tuple[float, float]]) -> None:
+        """The fixes due by `now_us` onto the line (GpsReceiver.write)."""
+        self.receiver.write(now_us, self.writer, truth_at)
+        self.report.update(vars(self.stats), bytes_written=self.writer.bytes_written,
+                           bytes_dropped=self.writer.bytes_dropped)
+
+    def close(self) -> None:
+        if self.pty is not None:
+            self.pty.close()
+
+
 class WorldPlant(PlantController):
     """The foundation's PlantController plus the world around the train (`World`): same physics,
-    truth, standstill and glance; its extra outputs are the radio box's and the GNSS feed's frames."""
+    truth, standstill and glance; its extra outputs are the radio box's and the GNSS feed's frames.  With
+    `gps` (an external ACD), it also writes the own train's GPS fixes onto the device's serial line."""
 
-    def __init__(self, plant, n_cars: int, db: Database, dbc_name: str, world: World) -> None:
+    def __init__(self, plant, n_cars: int, db: Database, dbc_name: str, world: World,
+                 gps: ServedGps | None = None) -> None:
         super().__init__(plant, n_cars, db, dbc_name)
         self.world = world
+        self.gps = gps
         self.outputs = tuple(self.outputs) + RADIO_OUT + TRUTH_OUT
         self.half_car_m = plant.params.train.car_pitch_m / 2.0     # antenna at the front of car 1
         self.next_world_us = 0
+
+    def announce(self) -> list[str]:
+        """What a real-time run prints before it starts: the GPS line an external ACD opens."""
+        return [] if self.gps is None else [self.gps.describe()]
 
     def step(self, now_us: int, rx) -> dict[str, float]:
         out = super().step(now_us, rx)
@@ -335,6 +438,11 @@ class WorldPlant(PlantController):
             self.next_world_us += WORLD_TICK_US
             snap = self.plant.snapshot()                           # after this step's integration
             out.update(self.world.step(now_us, snap.x[0] + self.half_car_m, snap.v[0]))
+        gps = self.gps
+        if gps is not None and now_us >= gps.receiver.next_fix_us:
+            snap = self.plant.snapshot()
+            front, v = snap.x[0] + self.half_car_m, snap.v[0]
+            gps.write(now_us, lambda t_fix: (front + v * (t_fix - now_us) * 1e-6, v))
         return out
 
 
@@ -360,6 +468,8 @@ class _AcdRx(Mapping):
         return self.rx.get(key, default)
 
     def age_us(self, name: str, now_us: int):
+        if name in self.local:                   # the device's own, current (a report's age is its own)
+            return 0
         age = getattr(self.rx, "age_us", None)
         return None if age is None else age(name, now_us)
 
@@ -374,6 +484,54 @@ class GpsInputStats:
     no_fix: int = 0              # epochs the receiver reported without a fix
     high_hdop: int = 0           # epochs dropped for HDOP > max_hdop (instability)
     unmatched: int = 0           # RMC whose GGA never came (damaged): dropped
+
+
+class GpsReceiver:
+    """The own train's GPS module: at every epoch a fix of the true antenna position (plant_sim.gps: noise,
+    dropouts, instability), encoded (NMEA RMC+GGA or the framed binary) and written onto the serial line;
+    with probability garbage_per_fix a fix's bytes are damaged on the line.  `write` takes the true track
+    position and speed at a fix's time; the ACD runs it on the ACD_GNSS_TRUTH frames (its GPS inside the
+    ACD node), the plant on its own state (an external ACD: the GPS feeds the device's serial port)."""
+
+    def __init__(self, spec: AcdSpec, seed: int, stats: GpsInputStats) -> None:
+        self.geo = geometry(spec)
+        self.gps = GpsModel(gps_params(spec.gps), sub_seed(seed, "own-gps"))
+        self.fix_period_us = self.gps.p.period_us
+        self.next_fix_us = 0
+        self.garbage_per_fix = spec.gps.garbage_per_fix
+        self.rng = np.random.Generator(np.random.PCG64(sub_seed(seed, "serial-garbage")))
+        self.stats = stats
+
+    def write(self, now_us: int, writer: GpsLinkWriter,
+              truth_at: Callable[[int], tuple[float, float]] | None) -> None:
+        """A fix for each epoch due by `now_us`, from `truth_at(t_fix)` -> (track position [m], speed
+        [m/s]); None: no truth yet, the epochs pass without a fix."""
+        while self.next_fix_us <= now_us:
+            t_fix = self.next_fix_us
+            self.next_fix_us += self.fix_period_us
+            if truth_at is None:
+                continue
+            s, v = truth_at(t_fix)
+            lat, lon, heading = self.geo.at(s)
+            fix = self.gps.fix(t_fix, lat, lon, v, heading)
+            self.stats.fixes_written += 1
+            writer.write_bytes(self._damage(writer.encoder.encode(fix)))
+
+    def _damage(self, data: bytes) -> bytes:
+        """A fix's bytes as a noisy line delivers them, with probability garbage_per_fix: one byte
+        changed (bad checksum/CRC), cut short (truncated), or random bytes in front (noise)."""
+        rng = self.rng                       # the same draws for every fix: reproducible
+        u, kind, where, nbytes = rng.random(), rng.integers(3), rng.random(), rng.integers(1, 40)
+        noise = self.rng.integers(0, 256, size=40, dtype=np.uint8).tobytes()[:nbytes]
+        if u >= self.garbage_per_fix:
+            return data
+        self.stats.corrupted += 1
+        k = 1 + int(where * (len(data) - 4))
+        if kind == 0:
+            return data[:k] + bytes([data[k] ^ 0x5A]) + data[k + 1:]
+        if kind == 1:
+            return data[:k] + data[min(len(data), k + 10 + int(nbytes)):]
+        return noise + data
 
 
 class AcdDevice:
@@ -391,12 +549,9 @@ class AcdDevice:
         self.acd = Acd(acd_params(spec))
         self.inputs = tuple(Acd.INPUTS) + self.SIGNAL + TRUTH_OUT
         self.outputs = self.OUTPUTS
-        self.gps = GpsModel(gps_params(spec.gps), sub_seed(seed, "own-gps"))
-        self.fix_period_us = self.gps.p.period_us
-        self.next_fix_us = 0
         self.serial = serial
-        self.rng = np.random.Generator(np.random.PCG64(sub_seed(seed, "serial-garbage")))
         self.stats = GpsInputStats()
+        self.receiver = GpsReceiver(spec, seed, self.stats)   # the GPS module (not with [acd.gps] port)
         self.link: PtyLink | None = None
         self.writer: GpsLinkWriter | None = None
         self.reader: GpsLinkReader | None = None
@@ -405,11 +560,22 @@ class AcdDevice:
         self._pending: ReceivedFix | None = None
         self._signal_cache: tuple[float, float, float] | None = None
         self.report: dict = {}       # the GPS line's figures, refreshed every epoch (run.json node_stats)
+        self.radio: OwnRadio | None = None   # [acd] radio_link = "tcp": the ACD's own link to the centre
+        self._now_us = 0
 
     # the serial line -----------------------------------------------------------------------------
     def open(self) -> None:
-        """Open the line: pyserial loop:// (lockstep) or a real pseudo-terminal pair (real time)."""
+        """Open the line: the port [acd.gps] names (the GPS is elsewhere: its fixes are read, stamped on
+        reception), or pyserial loop:// (lockstep) or a real pseudo-terminal pair (real time) with the GPS
+        module on its other end; and, with [acd] radio_link = "tcp", the ACD's own link to the control
+        centre."""
         proto = self.spec.gps.protocol
+        if self.spec.radio_link == "tcp" and self.radio is None:
+            self.radio = OwnRadio(self.spec, self.geo)
+        if self.spec.gps.port is not None:
+            self.reader = GpsLinkReader(open_port(self.spec.gps.port), proto)
+            self.report.update(serial="port", protocol=proto, port=self.spec.gps.port)
+            return
         if self.serial == "pty":
             self.link = PtyLink()
             self.writer = GpsLinkWriter(self.link.device, proto)
@@ -422,7 +588,7 @@ class AcdDevice:
 
     def _refresh_report(self) -> None:
         self.report.update(vars(self.stats), line=self.reader.stats.summary(),
-                           bytes_dropped=self.writer.bytes_dropped)
+                           bytes_dropped=None if self.writer is None else self.writer.bytes_dropped)
 
     def close(self) -> None:
         if self.reader is not None:
@@ -431,41 +597,24 @@ class AcdDevice:
             self.link.close()
         elif self.reader is not None:
             self.reader.port.close()
-
-    def _damage(self, data: bytes) -> bytes:
-        """A fix's bytes as a noisy line delivers them, with probability garbage_per_fix: one byte
-        changed (bad checksum/CRC), cut short (truncated), or random bytes in front (noise)."""
-        rng = self.rng                       # the same draws for every fix: reproducible
-        u, kind, where, nbytes = rng.random(), rng.integers(3), rng.random(), rng.integers(1, 40)
-        noise = self.rng.integers(0, 256, size=40, dtype=np.uint8).tobytes()[:nbytes]
-        if u >= self.spec.gps.garbage_per_fix:
-            return data
-        self.stats.corrupted += 1
-        k = 1 + int(where * (len(data) - 4))
-        if kind == 0:
-            return data[:k] + bytes([data[k] ^ 0x5A]) + data[k + 1:]
-        if kind == 1:
-            return data[:k] + data[min(len(data), k + 10 + int(nbytes)):]
-        return noise + data
+        if self.radio is not None:
+            self.radio.close()
 
     def _receiver(self, now_us: int, rx: Mapping[str, float]) -> None:
-        """The GPS module: a fix at every epoch due, from the true antenna position, onto the line."""
+        """The GPS module: a fix at every epoch due, from the true antenna position (ACD_GNSS_TRUTH),
+        onto the line."""
         s_true, v_true = rx[TRUTH_OUT[0]], rx[TRUTH_OUT[1]]
         age = getattr(rx, "age_us", lambda *_: 0)(TRUTH_OUT[0], now_us)
-        while self.next_fix_us <= now_us:
-            t_fix = self.next_fix_us
-            self.next_fix_us += self.fix_period_us
-            if not (s_true == s_true and v_true == v_true) or age is None:
-                continue                                  # no truth yet (the first frames)
-            s = s_true + v_true * (t_fix - (now_us - age)) * 1e-6    # the truth moved on since its frame
-            lat, lon, heading = self.geo.at(s)
-            fix = self.gps.fix(t_fix, lat, lon, v_true, heading)
-            self.stats.fixes_written += 1
-            self.writer.write_bytes(self._damage(self.writer.encoder.encode(fix)))
+        truth_at = None
+        if s_true == s_true and v_true == v_true and age is not None:    # no truth yet: the first frames
+            def truth_at(t_fix: int) -> tuple[float, float]:            # the truth moved on since its frame
+                return s_true + v_true * (t_fix - (now_us - age)) * 1e-6, v_true
+        self.receiver.write(now_us, self.writer, truth_at)
 
     def _take(self, f: ReceivedFix) -> None:
-        """An epoch's position accepted as the own fix (step 1-2)."""
-        t_us = f.sim_time_us(DEFAULT_UTC0)
+        """An epoch's position accepted as the own fix (step 1-2): at its UTC as simulated time, or, read
+        from a port (the GPS elsewhere, on another clock), at its reception."""
+        t_us = self._now_us if self.spec.gps.port is not None else f.sim_time_us(DEFAULT_UTC0)
         if t_us is None:
             return
         self.fix = (f.lat_deg, f.lon_deg, f.speed_mps, t_us)
@@ -508,12 +657,14 @@ class AcdDevice:
         return self._signal_cache[1], self._signal_cache[2]
 
     def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
-        if self.writer is None:
+        if self.reader is None:
             self.open()
-        written = self.stats.fixes_written
-        self._receiver(now_us, rx)
+        self._now_us = now_us
+        written, accepted = self.stats.fixes_written, self.stats.accepted
+        if self.writer is not None:
+            self._receiver(now_us, rx)
         self._read()
-        if self.stats.fixes_written != written:
+        if self.stats.fixes_written != written or self.stats.accepted != accepted:
             self._refresh_report()
         local: dict[str, float] = {"OwnFixValid": 0.0}
         if self.fix is not None:
@@ -522,6 +673,8 @@ class AcdDevice:
                          OwnFixAge=(now_us - t_us) * 1e-6)
         local["OwnRouteSection"] = math.nan if self.own_s is None else section_of(self.spec, self.own_s)
         local["SignalLatitude"], local["SignalLongitude"] = self._signal(rx)
+        if self.radio is not None:                   # the leader from the ACD's own link, not from CAN
+            self.radio.step(now_us, self.fix, self.own_s, local)
         return self.acd.step(now_us, _AcdRx(rx, local))
 
 
@@ -548,13 +701,19 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
     n = scenario.train.cars
     if name == "PLANT":
         plant = assembly.build_plant(scenario)
-        ctrl = WorldPlant(plant, n, db, dbc_name, World(spec, scenario.seed))
+        # an external ACD (real time, a device under test): its GPS from the plant, its radio its own
+        external = assembly.building_for_realtime() and ACD_NODE in scenario.nodes \
+            and scenario.nodes[ACD_NODE].external
+        world = World(spec, scenario.seed, own_reports=spec.radio_link == "can" and not external)
+        ctrl = WorldPlant(plant, n, db, dbc_name, world, ServedGps(spec, scenario.seed) if external else None)
         rx_msgs = [f"BECU{i}_PRESS_CMD" for i in range(1, n + 1)]
         tx_msgs = [f"PLANT_CAR{i}_SENSORS" for i in range(1, n + 1)] + [
             "RADIO_LEADER_POS", "RADIO_LEADER_INFO", "RADIO_SIGNAL", "ACD_GNSS_TRUTH"]
         period, offset = plant.params.dt_us, assembly.PLANT_OFFSET_US
     elif name == ACD_NODE:
         ctrl = AcdDevice(spec, scenario.seed, _serial_kind(spec))
+        if assembly.building_for_realtime():      # its line and its radio open now, not in its first cycle
+            ctrl.open()
         rx_msgs = ["RADIO_LEADER_POS", "RADIO_LEADER_INFO", "RADIO_SIGNAL", "ACD_GNSS_TRUTH"]
         tx_msgs = ["ACD_BRAKE_REQ", "ACD_STATUS"]
         period, offset = ctrl.acd.p.cycle_us, ACD_OFFSET_US
@@ -565,6 +724,8 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
                 safe_outputs=assembly.safe_outputs(ctrl))
     if isinstance(ctrl, AcdDevice):
         node.stats.gps_line = ctrl.report        # lands in RunOutcome.node_stats and run.json
+    elif ctrl.gps is not None:
+        node.stats.gps_line = ctrl.gps.report    # the external ACD's line, as the plant wrote it
     return node
 
 

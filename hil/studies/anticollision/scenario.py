@@ -139,6 +139,11 @@ class GpsSpec(Strict):
                                      "(GGA / binary)")] = 2.5
     serial: Literal["auto", "loop", "pty"] = Field(
         "auto", description="the line: pyserial loop:// or a pseudo-terminal; auto = pty in real time")
+    port: str | None = Field(
+        None, description="real time: the GPS line is this serial port (a device path such as "
+                          "/dev/ttyUSB0, or the pseudo-terminal a run printed): an ACD reads its fixes from "
+                          "it, and a run whose ACD is external writes them to it (default: that run opens a "
+                          "pseudo-terminal and prints its path)")
 
 
 class AcdSpec(Strict):
@@ -152,6 +157,13 @@ class AcdSpec(Strict):
                                                  "this [m]")] = 100.0
     control_centre: str | None = Field(None, description="HOST:PORT of a running control centre (real time); "
                                        "default: the in-process model of hil.studies.anticollision.nodes")
+    radio_link: Literal["can", "tcp"] = Field(
+        "can", description="who holds the ACD's radio link to the control centre: \"can\" — the train's "
+                           "radio box (the plant) puts what the centre sends on CAN (RADIO_LEADER_POS/INFO); "
+                           "\"tcp\" — the ACD itself, to control_centre (real time: a device with its own "
+                           "modem, as the paper's): it reports its own position and takes the leader's from "
+                           "the centre (a run whose ACD is external leaves the own train's reports to it in "
+                           "either case)")
     control_centre_keys: str | None = Field(
         None, description="key file of a control centre run with --keys (TOML, [trains] U1 = \"<64 hex "
                           "digits>\"), relative to the scenario file: the bench signs both trains' "
@@ -169,6 +181,9 @@ class AcdSpec(Strict):
                              f"({self.margin_m})")
         if self.leader is not None and self.leader.train_id == self.train_id:
             raise ValueError(f"leader.train_id and train_id are both {self.train_id}; give two ids")
+        if self.radio_link == "tcp" and self.control_centre is None:
+            raise ValueError("radio_link = \"tcp\" (the ACD's own link to the control centre) needs "
+                             "control_centre = \"HOST:PORT\" (real time)")
         if self.control_centre is not None:
             host, sep, port = self.control_centre.rpartition(":")
             if not (sep and host and port.isdigit() and 0 < int(port) < 65536):
