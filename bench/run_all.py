@@ -2,7 +2,8 @@
 gathered at the end, each next to its goal and the issue that set it (each benchmark's ISSUE).
 
 BENCH_FRAMES=N shortens the multi-process bus benchmark (default 10⁶ frames, a few minutes);
-BENCH_RT_S=S the real-time lateness run (default 20 s); BENCH_ONLY=name,name runs only those.
+BENCH_RT_S=S the real-time runs (the lateness runs and the gateway's; default: to the scenario's end);
+BENCH_ONLY=name,name runs only those.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 BENCHES = ("bench_codec", "bench_lockstep", "bench_plain", "bench_trace", "bench_mf4", "bench_governor",
-           "bench_gps", "bench_campaign", "bench_frame_io", "bench_realtime", "bench_bus")
+           "bench_gps", "bench_campaign", "bench_frame_io", "bench_realtime", "bench_gateway", "bench_bus")
 
 
 def main() -> int:

@@ -3,6 +3,7 @@ loops themselves run only in `make bench`)."""
 
 import sys
 
+import pytest
 from conftest import ROOT
 
 sys.path.insert(0, str(ROOT / "bench"))
@@ -48,3 +49,60 @@ def test_profile_counts_each_sample_for_its_innermost_component():
                                       for p in ("controllers", "node dispatch", "codec", "event loop"))
     assert total == 15
     assert counts == {controllers: 5, codec: 3, node: 2, pl.SETUP: 4, loop: 1}
+
+
+def _gateway_kpis(device_p99_us: float, machine: dict) -> dict:
+    way = {"frames": 2940, "p50_us": 170.0, "p99_us": device_p99_us, "max_us": 1509}
+    return {
+        "devices": {"BECU3": {
+            "node": "EBC7", "dbc": "/x/acme_becu.dbc", "verdict": "PASS",
+            "latency": {"device_to_bench": way,
+                        "bench_to_device": {"frames": 0, "p50_us": None, "p99_us": None, "max_us": None}},
+            "processing": {"to_bench": {**way, "frames": 3042, "p99_us": 412546.0},
+                           "to_device": {"frames": 0, "p50_us": None, "p99_us": None, "max_us": None}},
+            "device": {"frames": 4440, "timing": "PASS", "protection_clean": True},
+            "bench": {"timing": "PASS"}}},
+        "realtime": {"held": False, "misses_bench": 14, "misses_machine": 48, "worst_node": "BECU3",
+                     "machine": machine},
+        "simulated_s": 29.4, "end_reason": "standstill", "stopping_distance_m": 357.6, "stopped": True,
+    }
+
+
+def test_gateway_bench_judges_each_direction_against_its_goal_beside_the_probe():
+    import bench_gateway
+
+    probe = {"cycles": 5879, "p50_us": 47, "p99_us": 126, "worst_stall_us": 3435, "stalls": 11}
+    rows = dict(bench_gateway.rows(_gateway_kpis(1000.4, probe), "EBC-7: 3449 cycles"))
+    goals = {label: figure for label, figure in rows.items() if "goal" in label}
+    assert set(goals) == {"gateway latency p99, device → bench (goal ≤ 1 ms)",
+                          "gateway latency p99, bench → device (goal ≤ 1 ms)"}
+    assert goals["gateway latency p99, device → bench (goal ≤ 1 ms)"].startswith("1000 us: NOT met (machine "
+                                                                                 "probe p99 126 us")
+    assert goals["gateway latency p99, bench → device (goal ≤ 1 ms)"].startswith("no routed frames: NOT met")
+    met = dict(bench_gateway.rows(_gateway_kpis(321.0, {"error": "no CPU"}), ""))
+    assert met["gateway latency p99, device → bench (goal ≤ 1 ms)"] == "321 us: met (machine probe failed)"
+    assert rows["  its own (reception to send), device → bench, 3042 frames"].endswith(
+        "(102 frames more than the traces count in the run)")
+    assert "  the device's or the gateway's frames that did not PASS" not in rows
+    failed = _gateway_kpis(321.0, probe)
+    failed["devices"]["BECU3"]["device"]["messages"] = {"EBC7_VALVE_CMD": {"verdict": "FAIL",
+                                                                         "reason": "2 frames missed"},
+                                                      "EBC7_STATUS": {"verdict": "PASS"}}
+    why = dict(bench_gateway.rows(failed, ""))["  the device's or the gateway's frames that did not PASS"]
+    assert why == "device EBC7_VALVE_CMD: 2 frames missed"
+    held = rows["  real time: bench misses / machine misses (all nodes)"]
+    assert held == "NOT HELD: 14 / 48 (worst node: BECU3)"
+    assert all(len(label) <= 62 for label in rows)
+
+
+def test_gateway_bench_says_in_one_line_why_the_firmware_did_not_start(tmp_path):
+    import bench_gateway
+
+    fake = tmp_path / "ebc7.py"
+    fake.write_text("import sys\n"
+                    "print('error: cannot open the bus: OSError: no such group', file=sys.stderr)\n"
+                    "sys.exit(2)\n")
+    expected = r"did not start: it exited \(exit 2\): cannot open the bus"
+    with pytest.raises(RuntimeError, match=expected) as err:
+        bench_gateway.start_firmware(bench_gateway.own_group(), fake)
+    assert "\n" not in str(err.value)
