@@ -115,6 +115,47 @@ def test_the_device_trace_decodes_with_its_own_dbc(acme_lockstep, capsys):
     assert "StatusPage=BRAKE" in text and "StatusPage=DIAGNOSIS" in text and "km/h" in text
 
 
+# --- the device on the bench's own bus (bus = "bench") -------------------------------------------------
+
+def on_the_bench(tmp_path: Path) -> Path:
+    """A copy of the example (and the control law its model imports) whose device is on the bench's bus."""
+    for name in ("acme_becu", "external_becu"):
+        shutil.copytree(ROOT / "examples" / name, tmp_path / name,
+                        ignore=shutil.ignore_patterns("__pycache__"))
+    path = tmp_path / "acme_becu" / "acme_becu.toml"
+    text = path.read_text()
+    start, end = text.index("[bus]"), text.index("hop_limit = 0\n") + len("hop_limit = 0\n")
+    path.write_text(text[:start] + 'bus = "bench"\n' + text[end:])
+    return path
+
+
+def test_a_device_on_the_benchs_bus_arbitrates_with_the_bench(tmp_path, default_lockstep):
+    out = tmp_path / "run"
+    code, _, err = railhil_cli("run", "default", "--device", on_the_bench(tmp_path), "--out", out, "-q")
+    assert code == 0, err
+    assert "acme_becu.dbc declares 250 kbit/s; on the bench's bus" in err and "500 kbit/s" in err
+    kpis = json.loads((out / "kpis.json").read_text())
+    all_simulated = default_lockstep.kpis["stopping_distance_m"]
+    assert kpis["stopping_distance_m"] == pytest.approx(all_simulated, rel=0.01)
+    d = kpis["devices"]["BECU3"]
+    assert d["verdict"] == "PASS" and d["trace"] == "trace.blf" and not (out / "device-BECU3.blf").exists()
+    assert kpis["frames_lost"] == 0 and kpis["frames_sent_by_node"]["BECU3.device"] > 2_000
+    # one bus: the device's frames in the bench's trace and its bit timing, by their own names
+    messages = json.loads((out / "run.json").read_text())["bus_timing"]["messages"]
+    assert {"EBC7_VALVE_CMD", "VCU_BRAKE_DEMAND", "BCU_DEMAND"} <= set(messages)
+    assert 400 <= d["latency"]["bench_to_device"]["p50_us"] < 5_000          # behind the bench's own frames
+
+
+def test_a_device_on_the_benchs_bus_with_an_identifier_of_the_bench_is_one_line(tmp_path, capsys):
+    path = on_the_bench(tmp_path)
+    dbc = path.with_name("acme_becu.dbc")
+    dbc.write_text(dbc.read_text().replace(" 419 ", " 40 "))     # EBC7_VALVE_CMD at BCU_DEMAND's identifier
+    code, _, err = railhil(capsys, "run", "default", "--device", path, "--out", tmp_path / "run", "-q")
+    assert_one_line_error(code, err, "acme_becu.toml", "key 'bus' = \"bench\"", "EBC7_VALVE_CMD",
+                          "0x28 of the bench's BCU_DEMAND")
+    assert not (tmp_path / "run").exists()
+
+
 # --- the map's parts -----------------------------------------------------------------------------------
 
 @pytest.mark.parametrize(("src", "dst", "scale", "x", "y"), [

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import ROOT, realtime_held
+from test_devices import on_the_bench
 from test_exit_codes import wait_for_output
 
 from hil.can.codec import loaded_dbc
@@ -140,6 +141,37 @@ def test_a_device_that_falls_silent_is_reported_and_fails_the_run(tmp_path):
     # its frames stopped on the bench too (the gateway does not keep a silent device alive): the BCU saw
     assert d["bench"]["last_s"] < 4.5                      # car 3 silent and said so
     assert d["bench"]["reported_silent_s"] is not None and d["bench"]["reported_silent_s"] < 5.0, d["bench"]
+
+
+@pytest.mark.realtime
+def test_a_device_on_the_benchs_bus_is_bridged_on_that_bus(tmp_path):
+    """bus = "bench": the EBC-7 joins the bench's own bus; one gateway takes each frame by its identifier."""
+    bus = own_group()
+    out = tmp_path / "run"
+    ecu = start_ebc7(bus)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "hil", "run", "default", "--realtime",
+                               "--device", str(on_the_bench(tmp_path)), "-i", bus["interface"],
+                               "-c", bus["channel"], "--bus-kwargs", f"port={bus['port']}",
+                               f"hop_limit={bus['hop_limit']}", "--set", "max_duration_s=6",
+                               "--out", str(out), "-q"],
+                              cwd=ROOT, capture_output=True, text=True, timeout=400)
+    finally:
+        summary = stop(ecu)
+    assert proc.returncode in (0, 1), proc.stderr          # 1: real time not held here (not judged)
+    assert "in BECU3's place, on the bench's bus behind the gateway" in proc.stderr
+    kpis = json.loads((out / "kpis.json").read_text())
+    d = kpis["devices"]["BECU3"]
+    assert d["mode"] == "device" and d["trace"] == "trace.blf" and not (out / "device-BECU3.blf").exists()
+    assert d["device"]["timing"] == "PASS" and d["device"]["protection_clean"], d["device"]
+    assert d["bench"]["timing"] == "PASS", d["bench"]
+    for way in ("device_to_bench", "bench_to_device"):
+        assert d["latency"][way]["frames"] > 300 and 0 < d["latency"][way]["p50_us"] < 5_000, d["latency"]
+    # the device's frames and the gateway's to it are the bench's trace's: counted, none lost
+    sent = kpis["frames_sent_by_node"]
+    assert sent["BECU3.device"] > 500 and sent["BECU3.gateway"] == d["routed"]["device"] > 1_000
+    assert kpis["frames_lost"] == 0, kpis["frames_lost"]
+    assert "0 rejected by their protection" in summary, summary
 
 
 @pytest.mark.realtime

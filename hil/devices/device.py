@@ -148,14 +148,19 @@ def load_device(path: str | Path, bench_db: Database, replaced: ReplacedNode,
     if spec.replaces != replaced.name:
         raise DeviceError(f"{where}: key 'replaces' = {spec.replaces!r}, but it was given for node "
                           f"{replaced.name} (e.g. --device {replaced.name}=FILE)")
-    if spec.bus == "bench":
-        raise DeviceError(f"{where}: key 'bus' = \"bench\": a device on the bench's own bus is not supported "
-                          "yet; give the device a bus of its own ([bus] interface = ..., channel = ...)")
     dbc_path = (path.parent / spec.dbc).resolve()
     try:
         db, codec = loaded_dbc(dbc_path)
     except DbcError as exc:
         raise DeviceError(f"{where}: key 'dbc' = {spec.dbc!r}: {exc}") from None
+    if spec.bus == "bench":                     # one bus: every identifier names one message
+        bench_ids = {(m.frame_id, bool(m.is_extended_frame)): m.name for m in bench_db.messages}
+        for m in db.messages:
+            clash = bench_ids.get((m.frame_id, bool(m.is_extended_frame)))
+            if clash is not None:
+                raise DeviceError(f"{where}: key 'bus' = \"bench\": the device's {m.name} has the identifier "
+                                  f"0x{m.frame_id:X} of the bench's {clash}; on one bus each identifier must "
+                                  "be one message's (give the device a bus of its own)")
     node = _device_node(spec, db, where)
     sends = tuple(m.name for m in db.messages if node in m.senders)
     if not sends:

@@ -65,18 +65,22 @@ def latency_figures(us) -> dict:
 
 
 class GatewayHost:
-    """A gateway between `bench_bus` and `device_bus`: `run(stop)` until `stop` is set or `orphaned()`."""
+    """A gateway between `bench_bus` and `device_bus` (None: the device is on the bench's bus, each frame
+    goes to the side whose DBC has its identifier): `run(stop)` until `stop` is set or `orphaned()`."""
 
-    def __init__(self, gateway, bench_bus: can.BusABC, device_bus: can.BusABC, t0_ns: int, *,
+    def __init__(self, gateway, bench_bus: can.BusABC, device_bus: can.BusABC | None, t0_ns: int, *,
                  speed: float = 1.0, orphaned: Callable[[], bool] | None = None) -> None:
         self.gateway = gateway
         self.t0_ns, self.speed, self.orphaned = t0_ns, speed, orphaned
         self.epoch_t0 = time.time() + (t0_ns - time.monotonic_ns()) / 1e9   # t0 on the wall clock [s]
         self.sides = {"bench": gateway.bench, "device": gateway.device_side}
         unread = [fc.frame_id for fc in gateway.bench.codec if fc.frame_id not in gateway.bench.rx_ids]
-        self.io = {"bench": FrameIO(bench_bus, drop_own=True, drop_ids=unread),
-                   "device": FrameIO(device_bus, drop_own=True)}
-        self.buses = {"bench": bench_bus, "device": device_bus}
+        bench_io = FrameIO(bench_bus, drop_own=True, drop_ids=unread)
+        self.one_bus = device_bus is None
+        self.io = {"bench": bench_io,
+                   "device": bench_io if self.one_bus else FrameIO(device_bus, drop_own=True)}
+        self.buses = {"bench": bench_bus} if self.one_bus else {"bench": bench_bus, "device": device_bus}
+        self.device_ids = frozenset(gateway.device_side.rx_ids)   # one bus: the frames of the device's
         self.releases = {side: NodeRelease(node.name, node.period_us, node.offset_us)
                          for side, node in self.sides.items()}
         self.timing = CycleTiming(gateway.bench.period_us)   # the bench side's cycles, judged as a node's
@@ -90,9 +94,10 @@ class GatewayHost:
         return int((time.monotonic_ns() - self.t0_ns) * self.speed) // 1000
 
     def _take(self, side: str) -> None:
-        """Every frame the bus of `side` holds, to that side of the gateway; what it routes, out at once."""
-        node, now_us = self.sides[side], self.now_us()
-        other = "device" if side == "bench" else "bench"
+        """Every frame the bus of `side` holds, to that side of the gateway (one bus: to the side its
+        identifier belongs to); what it routes, out at once."""
+        now_us = self.now_us()
+        device_ids = self.device_ids if self.one_bus else None
 
         def on_frame(timestamp: float, frame_id: int, _extended: bool, data: bytes, msg) -> None:
             if msg is not None and (msg.is_error_frame or msg.is_remote_frame):
@@ -101,10 +106,11 @@ class GatewayHost:
             if not (now_us - TIMESTAMP_TRUST_US < t_us <= now_us + 1000):   # not this run's clock
                 t_us = now_us
                 self.timestamps_untrusted += 1
-            self.frames_received[side] += 1
-            node.receive(frame_id, data, t_us)
+            on = side if device_ids is None else "device" if frame_id in device_ids else "bench"
+            self.frames_received[on] += 1
+            self.sides[on].receive(frame_id, data, t_us)
             if self.gateway.outbox:
-                self._route(timestamp, other)
+                self._route(timestamp, "device" if on == "bench" else "bench")
 
         self.io[side].take(on_frame)
 
@@ -123,8 +129,8 @@ class GatewayHost:
     def run(self, stop) -> None:
         # what the buses held before the run's start is not the run's: a device running before the bench
         # (its frames piled up in the socket while the processes started) does not reach the bench late
-        for side, io in self.io.items():
-            self.frames_before_start[side] = io.take(lambda *frame: None)
+        for side in self.buses:
+            self.frames_before_start[side] = self.io[side].take(lambda *frame: None)
         # select(2): its timeout in µs (epoll's and poll's are whole ms: a cycle up to 1 ms late)
         selector = selectors.SelectSelector()
         polled = []
@@ -137,8 +143,8 @@ class GatewayHost:
             self._loop(stop, selector, polled)
         finally:
             selector.close()
-            for io in self.io.values():
-                io.close()
+            for side in self.buses:
+                self.io[side].close()
 
     def _loop(self, stop, selector, polled: list[str]) -> None:
         t0, speed = self.t0_ns, self.speed
@@ -161,7 +167,7 @@ class GatewayHost:
                 if deadline[side] > now:
                     continue
                 node = self.sides[side]
-                for side_taken in self.sides:           # what came before the deadline, first
+                for side_taken in self.buses:           # what came before the deadline, first
                     self._take(side_taken)
                 if side == "bench":
                     self.timing.released(deadline[side], t0, time.monotonic_ns())
@@ -188,6 +194,7 @@ class GatewayHost:
         out["stats"]["frames_received_by_bus"] = dict(self.frames_received)
         out["stats"]["frames_before_start"] = dict(self.frames_before_start)
         out["device"] = {**self.gateway.describe(), "mode": "device", "gateway": self.gateway.stats(),
+                         "bus_mode": "bench" if self.one_bus else "own",
                          "processing": {"to_device": latency_figures(self.latency["device"]),
                                         "to_bench": latency_figures(self.latency["bench"])},
                          "timestamps_untrusted": self.timestamps_untrusted}

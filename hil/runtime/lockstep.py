@@ -25,6 +25,7 @@ frame it translates is delivered.
 from __future__ import annotations
 
 import heapq
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -95,9 +96,10 @@ def bus_bitrate(scenario: Scenario, db: Database) -> int:
     return scenario.bus.bitrate or declared_bitrate(db) or DEFAULT_BITRATE
 
 
-def bus_report(bus: BitTimedBus, db: Database, end_ns: int) -> dict:
-    """The bit-timed bus's figures for the run folder: load and per-message response times [µs]."""
-    names = {m.frame_id: m.name for m in db.messages}
+def bus_report(bus: BitTimedBus, db: Database, end_ns: int, more: tuple[Database, ...] = ()) -> dict:
+    """The bit-timed bus's figures for the run folder: load and per-message response times [µs]; `more`:
+    the DBCs of other frames on it (a device on the bench's bus)."""
+    names = {m.frame_id: m.name for d in (*more, db) for m in d.messages}
     messages = {}
     for fid, s in sorted(bus.stats.items()):
         messages[names.get(fid, hex(fid))] = {
@@ -137,6 +139,7 @@ class DeviceBus:
                                    deadlines)
         self.delivery = LockstepBus(self.nodes, None)
         self.arbitrating = False            # an arbitration is scheduled
+        self.bus_mode = "own"
         self.end_ns = 0
 
     def open(self, writer: can.Listener | None) -> None:
@@ -182,11 +185,28 @@ class DeviceBus:
 
     def report(self) -> dict:
         """What the device bus carried and what the gateway and the model did (RunOutcome.devices)."""
-        return {**self.gateway.describe(), "mode": "model",
+        return {**self.gateway.describe(), "mode": "model", "bus_mode": "own",
                 "bus": None if self.bus is None else bus_report(self.bus, self.gateway.device.db,
                                                                 self.end_ns),
                 "gateway": self.gateway.stats(),
                 "model": vars(self.model.stats).copy()}
+
+
+class DeviceOnBench:
+    """A device on the bench's own bus ([bus] = "bench" in its device file): the gateway's device side and
+    the device's model are nodes of the run (`device_index` and the one after it), their frames arbitrate
+    with the bench's and go into the bench's trace."""
+
+    bus_mode = "bench"
+
+    def __init__(self, bench_index: int, device_index: int, gateway, model: Node) -> None:
+        self.bench_index, self.device_index = bench_index, device_index
+        self.gateway, self.model = gateway, model
+        self.name = gateway.bench.name
+
+    def report(self) -> dict:
+        return {**self.gateway.describe(), "mode": "model", "bus_mode": "bench", "bus": None,
+                "gateway": self.gateway.stats(), "model": vars(self.model.stats).copy()}
 
 
 @dataclass
@@ -197,7 +217,7 @@ class LockstepSetup:
     injector: object | None
     releases: list
     delays: dict
-    devices: list[DeviceBus] = field(default_factory=list)
+    devices: list[DeviceBus | DeviceOnBench] = field(default_factory=list)
 
 
 def prepare_lockstep(scenario: Scenario, db: Database, codec: Codec, dbc_name: str = "DBC") -> LockstepSetup:
@@ -211,8 +231,9 @@ def prepare_lockstep(scenario: Scenario, db: Database, codec: Codec, dbc_name: s
     injector = build_injector(scenario, db, codec, [n.name for n in nodes])
     if injector is not None:
         injector.attach(nodes)              # stuck signals and failed sensors live in the nodes
+    releases = node_releases(scenario, db, nodes)
     devices = []
-    for k, node in enumerate(nodes):
+    for k, node in enumerate(list(nodes)):
         gateway = getattr(node, "gateway", None)
         if gateway is None:
             continue
@@ -223,9 +244,19 @@ def prepare_lockstep(scenario: Scenario, db: Database, codec: Codec, dbc_name: s
         plant = nodes[0].controller.plant
         gateway.to_device.truth = lambda field, car, plant=plant: getattr(plant.snapshot(), field)[car]
         model = build_model_node(device, f"{node.name}.device", node.offset_us)
-        devices.append(DeviceBus(k, gateway, model, scenario, bus_bitrate(scenario, db)))
-    return LockstepSetup(nodes, injector, node_releases(scenario, db, nodes), message_delays(scenario, db),
-                         devices)
+        if device.spec.bus == "bench":           # on the bench's bus: two more nodes of the run
+            own, bench = declared_bitrate(device.db), bus_bitrate(scenario, db)
+            if own and own != bench:
+                print(f"notice: {device.dbc_path.name} declares {own // 1000} kbit/s; on the bench's bus "
+                      f"(bus = 'bench' in {device.path.name}) the device runs at the bench's "
+                      f"{bench // 1000} kbit/s", file=sys.stderr)
+            devices.append(DeviceOnBench(k, len(nodes), gateway, model))
+            for extra in (gateway.device_side, model):
+                nodes.append(extra)
+                releases.append(NodeRelease(extra.name, extra.period_us, extra.offset_us, seed=scenario.seed))
+        else:
+            devices.append(DeviceBus(k, gateway, model, scenario, bus_bitrate(scenario, db)))
+    return LockstepSetup(nodes, injector, releases, message_delays(scenario, db), devices)
 
 
 def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Listener | None,
@@ -323,10 +354,12 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
         for dev in devices:
             if dev.gateway.outbox:
                 for side, fc, data in dev.gateway.take():
-                    if side == "device":
-                        dev.send(now, 0, fc, data, push)
-                    else:
+                    if side == "bench":
                         release(now, dev.bench_index, fc, data, now)
+                    elif dev.bus_mode == "own":
+                        dev.send(now, 0, fc, data, push)
+                    else:                                       # the device on the bench's bus
+                        release(now, dev.device_index, fc, data, now)
 
     if devices:
         def deliver(t_ns: int, fc: FrameCodec, data: bytes) -> None:    # noqa: F811 - the bench bus, routed
@@ -334,8 +367,9 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
             route(t_ns)
 
         for dev in devices:
-            dev.open((device_writers or {}).get(dev.name))
-            dev.start(push)
+            if dev.bus_mode == "own":
+                dev.open((device_writers or {}).get(dev.name))
+                dev.start(push)
     with loop_gc():
         while True:
             if heap:
@@ -430,7 +464,8 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                       frames_by_node={n.name: n.stats.frames_sent for n in nodes},
                       node_stats={n.name: vars(n.stats).copy() for n in nodes},
                       wall_s=time.perf_counter() - wall0,
-                      bus=bus_report(bus, db, now) if bus is not None else None,
+                      bus=None if bus is None else bus_report(
+                          bus, db, now, tuple(d.gateway.device.db for d in devices if d.bus_mode == "bench")),
                       frames_in_flight=in_flight, frames_overwritten=overwritten,
                       frames_faulted=faulted,
                       faults=None if injector is None else {"counts": injector.log.counts,

@@ -312,14 +312,16 @@ def _host_process(host: str, names: tuple[str, ...], scenario_json: str, dbc_pat
             bus.shutdown()
 
 
-def device_bus_config(scenario: Scenario, node: str, bench_cfg: dict) -> dict:
+def device_bus_config(scenario: Scenario, node: str, bench_cfg: dict) -> dict | None:
     """The python-can bus of the device in `node`'s place: the scenario's [devices.NODE] bus, else its device
-    file's [bus] ("bench": the bench's own bus); a DeviceError naming both when neither gives one."""
+    file's [bus]; None: the bench's own (bus = "bench"); a DeviceError naming both when neither gives one."""
     from hil.devices.description import read_device_file
     from hil.errors import DeviceError
 
     ref = scenario.devices[node]
     spec = read_device_file(ref.file)
+    if not ref.bus and spec.bus == "bench":
+        return None
     cfg = dict(ref.bus) if ref.bus else dict(spec.bus)
     if not cfg or "interface" not in cfg:
         raise DeviceError(f"{ref.file}: no [bus] interface for the device's own bus (or [devices.{node}] bus "
@@ -344,14 +346,14 @@ def _gateway_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, de
         _, (node,), _ = hosted_nodes((name,), scenario, dbc_path)
         if truth is not None:                    # the plant's truth, as its host writes it
             node.gateway.to_device.truth = SharedTruth(truth, scenario.train.cars).read
-        buses = [open_bus(cfg), open_bus(device_cfg)]
+        buses = [open_bus(cfg)] + ([] if device_cfg is None else [open_bus(device_cfg)])   # None: one bus
         for bus in buses:
             enlarge_receive_buffer(bus)
         rt = os_setup(scenario, GATEWAY_PRIORITY, cpus)
         if not _ready_to_go(name, shared, results, rt):
             return
-        host = GatewayHost(node.gateway, *buses, shared.t0_ns.value, speed=scenario.realtime.speed,
-                           orphaned=orphaned)
+        host = GatewayHost(node.gateway, buses[0], buses[1] if len(buses) > 1 else None, shared.t0_ns.value,
+                           speed=scenario.realtime.speed, orphaned=orphaned)
         host.run(shared.stop)
         if host.reason == "orphaned":
             return
@@ -581,11 +583,11 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     devices = [n for n in names if n in scenario.devices]
     simulated = [n for n in names if n not in external and n not in devices]
     external_ids = _external_ids(loaded_dbc(Path(dbc_path))[0], list(external))
-    device_cfgs = {n: device_bus_config(scenario, n, cfg) for n in devices}
+    device_cfgs = {n: device_bus_config(scenario, n, cfg) for n in devices}   # None: on the bench's bus
     device_watch = {}                           # each device's bus, until its first frame came
     try:
         for n, dcfg in device_cfgs.items():
-            device_watch[n] = open_bus(dcfg)
+            device_watch[n] = open_bus(dcfg if dcfg is not None else cfg)
     except BaseException:
         for bus in (watch, *device_watch.values()):
             bus.shutdown()
@@ -628,10 +630,11 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
 
         truth = ctx.Array("d", [math.nan] * (len(TRUTH_FIELDS) * scenario.train.cars), lock=False)
     for name in devices:                        # each device: its gateway, and a recorder of its own bus
-        procs[f"RECORDER-{name}"] = ctx.Process(
-            target=_recorder_process, name=f"railhil-RECORDER-{name}", daemon=True,
-            args=(str(device_traces[name]), device_cfgs[name], shared.go, shared.stop, results,
-                  f"RECORDER-{name}"))
+        if device_cfgs[name] is not None:        # (on the bench's bus: the run's recorder has its frames)
+            procs[f"RECORDER-{name}"] = ctx.Process(
+                target=_recorder_process, name=f"railhil-RECORDER-{name}", daemon=True,
+                args=(str(device_traces[name]), device_cfgs[name], shared.go, shared.stop, results,
+                      f"RECORDER-{name}"))
         procs[name] = ctx.Process(target=_gateway_process, name=f"railhil-GATEWAY-{name}", daemon=True,
                                   args=(name, scenario_json, dbc_path, cfg, device_cfgs[name], shared,
                                         results, None, truth))
@@ -712,9 +715,10 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                   f"{'its first frame' if one else 'their first frames'}", file=sys.stderr, flush=True)
         for name in devices:
             device = _device_of(scenario, name)
-            print(f"realtime: device {device.node} ({device.dbc_path.name}) in {name}'s place, on "
-                  f"{describe_bus(device_cfgs[name])} behind the gateway; waiting up to "
-                  f"{rt.external_wait_s:g} s for its first frame", file=sys.stderr, flush=True)
+            where = "the bench's bus" if device_cfgs[name] is None else describe_bus(device_cfgs[name])
+            print(f"realtime: device {device.node} ({device.dbc_path.name}) in {name}'s place, on {where} "
+                  f"behind the gateway; waiting up to {rt.external_wait_s:g} s for its first frame",
+                  file=sys.stderr, flush=True)
         limit = time.monotonic() + START_MARGIN_S + scenario.max_duration_s / rt.speed + 30.0
         wait_external_until = time.monotonic() + START_MARGIN_S + rt.external_wait_s
         death: str | None = None          # a node died: the others run on for OBSERVE_AFTER_DEATH_S
@@ -742,8 +746,8 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                 elif time.monotonic() > wait_external_until:
                     raise NodeDied(f"device {name} ({_device_of(scenario, name).node} of "
                                    f"{Path(scenario.devices[name].file).name}) sent no frame within "
-                                   f"{rt.external_wait_s:g} s on {describe_bus(device_cfgs[name])}: start it "
-                                   "before the run, on that bus")
+                                   f"{rt.external_wait_s:g} s on {describe_bus(device_cfgs[name] or cfg)}: "
+                                   "start it before the run, on that bus")
             if death is not None and time.monotonic() >= observe_until:
                 raise NodeDied(death)
             try:
@@ -844,7 +848,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         "external": list(external),
         "external_first_frame_s": external_seen, "device_first_frame_s": device_seen,
         "announced": infos, **({"control_centre": centre.record()} if centre is not None else {}),
-        "devices": {n: describe_bus(c) for n, c in device_cfgs.items()},
+        "devices": {n: describe_bus(c or cfg) for n, c in device_cfgs.items()},
         "deadline": rt.deadline.model_dump(),
         "cycles": {n: cycle_record(payloads[n], setups) for n in nodes},
         "host_frames": host_info,
@@ -953,11 +957,13 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
         raise ScenarioError("the PLANT cannot be external in `railhil run`: the run's KPIs come from its "
                             "ground truth; run the ECUs elsewhere instead (--external BCU ... here, railhil "
                             "node there)")
-    cfg = resolve_bus_config(cli_bus_config, scenario, external=bool(external))
     from hil.runtime.assembly import build_node, check_devices, node_names
     from hil.runtime.release import node_releases
 
     check_devices(scenario)
+    # a program joins the bench's bus at python-can's default group: a node run elsewhere, or a device on it
+    on_bench = [n for n in scenario.devices if device_bus_config(scenario, n, {}) is None]
+    cfg = resolve_bus_config(cli_bus_config, scenario, external=bool(external) or bool(on_bench))
     clash = sorted(set(external) & set(scenario.devices))
     if clash:
         raise ScenarioError(f"--external {clash[0]}: a device already takes its place "
@@ -968,7 +974,7 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
         print("notice: [messages.*] extra delays apply to lockstep runs only; the real-time bus has its own",
               file=sys.stderr)
     trace = out_dir / trace_name(scenario)        # its folder is made once the bus opened
-    device_traces = {n: out_dir / device_trace_name(scenario, n) for n in scenario.devices}
+    device_traces = {n: out_dir / device_trace_name(scenario, n) for n in scenario.devices}   # own buses
     outcome, epoch_t0, failure = run_realtime(scenario, str(dbc_path), trace, cfg, progress=progress,
                                               external=external, device_traces=device_traces)
     report = finish_run(scenario, outcome, out_dir, db, codec, trace_t0_s=epoch_t0,

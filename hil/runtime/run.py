@@ -58,6 +58,12 @@ def device_trace_name(scenario: Scenario, node: str) -> str:
     return f"device-{node}.{scenario.trace.format}"
 
 
+def device_trace_of(scenario: Scenario, node: str, record: dict) -> str:
+    """Where the frames of the device in `node`'s place are: its own bus's trace, or, on the bench's bus,
+    the run's trace."""
+    return trace_name(scenario) if record.get("bus_mode") == "bench" else device_trace_name(scenario, node)
+
+
 @dataclass
 class RunReport:
     out_dir: Path
@@ -138,6 +144,11 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     external = list((outcome.realtime or {}).get("external") or [])
     for name in external:                      # a device under test sent what the trace holds of its frames
         outcome.frames_by_node[name] = frames_sent_by(decoded, db, name)
+    for name, record in (outcome.devices or {}).items():
+        if record.get("bus_mode") == "bench" and record.get("mode") == "device":    # real time, one bus:
+            ddb, _ = loaded_dbc(record["dbc"])     # the device's frames and the gateway's to it are the run's
+            outcome.frames_by_node[f"{name}.device"] = frames_sent_by(decoded, ddb, record["node"])
+            outcome.frames_by_node[f"{name}.gateway"] = record["gateway"]["device_side"]["frames_sent"]
     kpis = compute_kpis(scenario, cols, target, brake_s, outcome.frames_by_node, recorded,
                         outcome.frames_in_flight, outcome.frames_overwritten, outcome.frames_faulted)
     view = RunView.of(scenario, cols, tuple(target), brake_s, out_dir=out_dir, trace=trace, db=db,
@@ -175,7 +186,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
         kpis["realtime"]["conduct"] = conduct
     if outcome.devices:                         # each device on its own terms (hil.report.devices)
         kpis["devices"] = {name: device_kpis(record, decoded, db, outcome.node_stats,
-                                             out_dir / device_trace_name(scenario, name), trace_t0_s,
+                                             out_dir / device_trace_of(scenario, name, record), trace_t0_s,
                                              trace_speed)
                            for name, record in outcome.devices.items()}
     kpis["mode"] = outcome.mode
@@ -208,7 +219,8 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     run_json = out_dir / "run.json"
     run_json.write_text(json.dumps(meta, indent=2, default=str) + "\n")
     report = [write_run_report(out_dir, interactive_report)] if plots else []   # one self-contained page
-    devices = [out_dir / device_trace_name(scenario, name) for name in outcome.devices]
+    devices = [out_dir / device_trace_name(scenario, name) for name, record in outcome.devices.items()
+               if record.get("bus_mode") != "bench"]
     return RunReport(out_dir, outcome, kpis, [trace, *devices, truth_csv, kpis_json, *figures, run_json,
                                               *report])
 
@@ -271,7 +283,7 @@ def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None,
         writer = open_traces.enter_context(open_writer(out_dir / trace_name(scenario), start_time_s=0.0))
         device_writers = {dev.name: open_traces.enter_context(
             open_writer(out_dir / device_trace_name(scenario, dev.name), start_time_s=0.0))
-            for dev in setup.devices}
+            for dev in setup.devices if dev.bus_mode == "own"}
         outcome = run_lockstep(scenario, db, codec, writer, progress=progress, dbc_name=str(dbc_path),
                                setup=setup, device_writers=device_writers)
     return finish_run(scenario, outcome, out_dir, db, codec, interactive_report=interactive_report,
