@@ -192,3 +192,94 @@ def test_the_follower_stops_behind_the_leader_and_a_forged_report_does_not_relea
     first = int(np.flatnonzero(req > 0)[0])
     stood = truth["t_s"][np.flatnonzero((truth["t_s"] > t[first]) & (truth["v_mps_1"] < 0.01))[0]]
     assert (req[first:][t[first:] <= stood] > 0).all(), "the ACD released before the train stood"
+
+
+# --- a box on its own CAN matrix in the ACD's place (--device ACD=FILE) ------------------------------------
+
+BOX_DBC = '''VERSION ""
+NS_ :
+BS_:
+BU_: BOX
+BO_ 768 BOX_BRAKE: 8 BOX
+ SG_ Request : 0|2@1+ (1,0) [0|2] "" Vector__XXX
+ SG_ Decel : 8|16@1+ (0.001,0) [0|10] "m/s^2" Vector__XXX
+ SG_ Distance : 24|24@1+ (0.01,0) [0|167772] "m" Vector__XXX
+BA_DEF_ BO_ "GenMsgCycleTime" INT 0 65535;
+BA_DEF_DEF_ "GenMsgCycleTime" 100;
+BA_ "GenMsgCycleTime" BO_ 768 100;
+VAL_ 768 Request 0 "OFF" 1 "BRK" 2 "EMG" ;
+'''
+
+BOX_FILE = '''replaces = "ACD"
+dbc = "box.dbc"
+node = "BOX"
+bus = {bus}
+
+[send.ACD_BRAKE_REQ]
+Request = {{ from = "BOX_BRAKE.Request", choices = {{ OFF = "NONE", BRK = "SERVICE", EMG = "EMERGENCY" }} }}
+RequestedDecel = {{ from = "BOX_BRAKE.Decel" }}
+
+[send.ACD_STATUS]
+DistanceToObstacle = {{ from = "BOX_BRAKE.Distance" }}
+'''
+
+
+def box(port: str, bus: dict, stop_event: threading.Event, sentences: list[bytes]) -> None:
+    """The box: reads the GPS line the run serves (pyserial) and sends BOX_BRAKE every 100 ms on its own
+    bus (no brake request, a distance of 1 km), until `stop_event`."""
+    import can
+    import cantools
+    import serial
+
+    msg = cantools.database.load_string(BOX_DBC, "dbc").get_message_by_name("BOX_BRAKE")
+    data = msg.encode({"Request": "OFF", "Decel": 0.0, "Distance": 1000.0})
+    pending = b""
+    with serial.Serial(port, timeout=0) as line, can.Bus(**bus) as can_bus:
+        while not stop_event.wait(0.1):
+            can_bus.send(can.Message(arbitration_id=msg.frame_id, data=data, is_extended_id=False))
+            try:
+                pending += line.read(4096)
+            except serial.SerialException:          # the run ended and closed its end of the line
+                break
+            *done, pending = pending.split(b"\n")
+            sentences.extend(s.strip() for s in done)
+
+
+def test_a_device_in_the_acds_place_gets_the_gps_line_and_the_centre(tmp_path):
+    rnd = np.random.default_rng()
+    bus = {"interface": "udp_multicast", "channel": f"239.255.{rnd.integers(1, 255)}.{rnd.integers(1, 255)}",
+           "port": int(rnd.integers(20_000, 60_000)), "hop_limit": 0}
+    (tmp_path / "box.dbc").write_text(BOX_DBC)
+    inline = "{ " + ", ".join(f"{k} = {json.dumps(v)}" for k, v in bus.items()) + " }"
+    (tmp_path / "box.toml").write_text(BOX_FILE.format(bus=inline))
+    out = tmp_path / "run"
+    run = subprocess.Popen([sys.executable, "-m", "hil", "run", "acd_anticollision", "--realtime",
+                            "--device", str(tmp_path / "box.toml"), "--set", "max_duration_s=6", "--out",
+                            str(out), "-q", *own_bus()],
+                           cwd=ROOT, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           start_new_session=True)
+    sentences: list[bytes] = []
+    done = threading.Event()
+    device = None
+    err = Lines(run.stderr)
+    try:
+        err.until(r"control centre on (\S+) .* key in (\S+):")
+        pty = err.until(r"GPS line: .* on (\S+) \(").group(1)
+        device = threading.Thread(target=box, args=(pty, bus, done, sentences), daemon=True)
+        device.start()
+        text = run.stdout.read()
+        run.wait(timeout=300)
+        err_text = err.rest(run.stderr)
+    finally:
+        done.set()
+        if device is not None:
+            device.join(timeout=10)
+        if run.poll() is None:
+            stop(run)
+    assert run.returncode in (0, 1), err_text + text       # 1: real time not held on this machine
+    assert "device BOX (box.dbc) in ACD's place" in err_text
+    line = json.loads((out / "run.json").read_text())["node_stats"]["PLANT"]["gps_line"]
+    assert line["fixes_written"] >= 5 and line["bytes_dropped"] == 0, line
+    assert sum(s.startswith(b"$GPRMC") or s.startswith(b"$GNRMC") for s in sentences) >= 3, sentences[:4]
+    d = json.loads((out / "kpis.json").read_text())["devices"]["ACD"]
+    assert d["device"]["timing"] == "PASS" and d["bench"]["timing"] == "PASS", d

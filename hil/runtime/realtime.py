@@ -598,9 +598,10 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         watch.shutdown()
         watch = None
     check_out_dir(trace_path.parent)            # only now: a bus that does not open leaves no folder
-    scenario = marked_external(scenario, external)
+    outside = [*external, *devices]             # what the bench serves a real device: the ACD's GPS and radio
+    scenario = marked_external(scenario, outside)
     centre = None
-    if "ACD" in external and scenario.acd is not None and scenario.acd.control_centre is None:
+    if "ACD" in outside and scenario.acd is not None and scenario.acd.control_centre is None:
         centre = ServedCentre(trace_path.parent, scenario)   # the external ACD's radio: the bench serves it
         scenario = centre.scenario
     ctx = mp.get_context("fork" if sys.platform.startswith("linux") else "spawn")

@@ -712,8 +712,9 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
         period, offset = plant.params.dt_us, assembly.PLANT_OFFSET_US
     elif name == ACD_NODE:
         ctrl = AcdDevice(spec, scenario.seed, _serial_kind(spec))
-        if assembly.building_for_realtime():      # its line and its radio open now, not in its first cycle
-            ctrl.open()
+        outside = ACD_NODE in scenario.nodes and scenario.nodes[ACD_NODE].external   # a device in its place
+        if assembly.building_for_realtime() and not outside:   # its line and its radio open now, not in its
+            ctrl.open()                                          # first cycle
         rx_msgs = ["RADIO_LEADER_POS", "RADIO_LEADER_INFO", "RADIO_SIGNAL", "ACD_GNSS_TRUTH"]
         tx_msgs = ["ACD_BRAKE_REQ", "ACD_STATUS"]
         period, offset = ctrl.acd.p.cycle_us, ACD_OFFSET_US
