@@ -19,10 +19,11 @@ from hil.trace.timing import KIND_DATA, KIND_ERROR, KIND_REMOTE, FrameArrays, an
 TOLERANCE = 0.10               # a message's mean period within ±10 % of its cycle time (`railhil timing`'s)
 
 
-def frame_arrays_of(decoded: DecodedTrace, from_s: float = -np.inf) -> FrameArrays:
-    """The trace's frames from `from_s` on [trace time] as hil.trace.timing's columns."""
+def frame_arrays_of(decoded: DecodedTrace, from_s: float = -np.inf, to_s: float = np.inf) -> FrameArrays:
+    """The trace's frames from `from_s` to `to_s` [trace time] as hil.trace.timing's columns."""
     f = decoded.frames
-    k = np.asarray(f.t) >= from_s
+    t = np.asarray(f.t)
+    k = (t >= from_s) & (t <= to_s)
     kind = np.where(f.error, KIND_ERROR, np.where(f.remote, KIND_REMOTE, KIND_DATA)).astype(np.int8)
     return FrameArrays(t=np.asarray(f.t, dtype=np.float64)[k], arbitration_id=np.asarray(f.arbitration_id)[k],
                        extended=np.asarray(f.extended, dtype=bool)[k], dlc=np.asarray(f.dlc)[k], kind=kind[k],
@@ -37,11 +38,13 @@ def frames_sent_by(decoded: DecodedTrace, db, node: str) -> int:
 
 
 def node_conduct(decoded: DecodedTrace, db, nodes: list[str], node_stats: dict[str, dict],
-                 external: list[str], t0_s: float = 0.0, speed: float = 1.0) -> dict[str, dict]:
+                 external: list[str], t0_s: float = 0.0, speed: float = 1.0,
+                 end_s: float = np.inf) -> dict[str, dict]:
     """{node: {"external", "frames", "first_s", "last_s", "timing", "messages": {name: {...}},
-    "protection": {status: count}}} for every node in `nodes`, judged on the frames of the run (from its
-    start t0 on: an external device may have sent before the run began)."""
-    arrays = frame_arrays_of(decoded, t0_s)
+    "protection": {status: count}}} for every node in `nodes`, judged on the frames of the run: from its
+    start t0 to its end `end_s` [trace time] (an external device may send before the run began and after
+    it ended, while the recorder still listens)."""
+    arrays = frame_arrays_of(decoded, t0_s, end_s)
     report = analyse(arrays, db, TOLERANCE)
     by_message = {m.name: m for m in report.messages}
     reported: dict[str, dict[str, int]] = {}         # message -> status -> count, from every receiver

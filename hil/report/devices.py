@@ -76,25 +76,26 @@ def gateway_latency(routes: list[dict], bench: DecodedTrace, device: DecodedTrac
 
 
 def device_kpis(record: dict, bench: DecodedTrace, db, node_stats: dict, device_trace: Path,
-                t0_s: float = 0.0, speed: float = 1.0) -> dict:
-    """kpis.json's entry of one device (module docstring), from its record in RunOutcome.devices."""
+                t0_s: float = 0.0, speed: float = 1.0, end_s: float = np.inf) -> dict:
+    """kpis.json's entry of one device (module docstring), from its record in RunOutcome.devices; judged on
+    the frames from the run's start `t0_s` to its end `end_s` [trace time]."""
     ddb, dcodec = loaded_dbc(record["dbc"])
     from hil.report.kpis import read_run_trace
 
     dtrace = read_run_trace(device_trace, ddb, dcodec)
     gw = record["gateway"]
     own = node_conduct(dtrace, ddb, [record["node"]], {"gateway": gw["device_side"]}, [record["node"]],
-                       t0_s, speed)[record["node"]]
+                       t0_s, speed, end_s)[record["node"]]
     replaced = record["replaces"]
     on_bench = node_conduct(bench, db, [replaced], {n: s for n, s in node_stats.items() if n != replaced},
-                            [replaced], t0_s, speed)[replaced]
+                            [replaced], t0_s, speed, end_s)[replaced]
     on_bench["reported_silent_s"] = silence_reported(bench, db, replaced, on_bench["last_s"], t0_s, speed)
     targets = {r["message"] for r in record["routes"]}
     on_bench["messages"] = {m: v for m, v in on_bench["messages"].items() if m in targets}
     # the gateway's frames to the device, against the device's DBC (informational: the bench's timing)
     senders = sorted({s for m in record["receives"] for s in ddb.get_message_by_name(m).senders})
-    to_device = {m: v for s in senders for m, v in node_conduct(dtrace, ddb, [s], {}, [], t0_s, speed)[s]
-                 ["messages"].items() if m in record["receives"]}
+    judged = node_conduct(dtrace, ddb, senders, {}, [], t0_s, speed, end_s)
+    to_device = {m: v for s in senders for m, v in judged[s]["messages"].items() if m in record["receives"]}
     latency = gateway_latency(record["routes"], bench, dtrace, t0_s, speed)
     passed = (own["timing"] == "PASS" and own["protection_clean"] and on_bench["timing"] == "PASS")
     return {

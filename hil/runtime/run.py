@@ -176,10 +176,11 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     flagged = plausibility_events(decoded, db, codec, scenario.train.cars, trace_t0_s, trace_speed)
     if flagged or outcome.faults is not None:
         kpis["plausibility_flags"] = flagged       # first time [s] each sensor / car was flagged
+    run_end_s = trace_t0_s + outcome.end_us / 1e6 / trace_speed     # the run's end in the trace's time
     if outcome.mode == "realtime":
         kpis["realtime"] = realtime_verdict(outcome)
         conduct = node_conduct(decoded, db, list(outcome.frames_by_node), outcome.node_stats, external,
-                               trace_t0_s, trace_speed)
+                               trace_t0_s, trace_speed, run_end_s)
         for name in external:
             conduct[name]["reported_silent_s"] = silence_reported(decoded, db, name, conduct[name]["last_s"],
                                                                   trace_t0_s, trace_speed)
@@ -187,7 +188,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     if outcome.devices:                         # each device on its own terms (hil.report.devices)
         kpis["devices"] = {name: device_kpis(record, decoded, db, outcome.node_stats,
                                              out_dir / device_trace_of(scenario, name, record), trace_t0_s,
-                                             trace_speed)
+                                             trace_speed, run_end_s)
                            for name, record in outcome.devices.items()}
     kpis["mode"] = outcome.mode
     kpis["seed"] = scenario.seed
