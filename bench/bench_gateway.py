@@ -73,16 +73,26 @@ def start_firmware(bus: dict, firmware: Path = FIRMWARE) -> subprocess.Popen:
     with selectors.DefaultSelector() as sel:       # on the pipe itself: no sleep, no buffered line unseen
         sel.register(proc.stdout.fileno(), selectors.EVENT_READ)
         while b"EBC-7: on" not in seen:
-            chunk = os.read(proc.stdout.fileno(), 4096) if sel.select(timeout=FIRMWARE_START_S) else b""
+            ready = sel.select(timeout=FIRMWARE_START_S)
+            chunk = os.read(proc.stdout.fileno(), 4096) if ready else b""
             if not chunk:
-                exited = proc.poll() is not None
+                exited = bool(ready) and _exits(proc)   # its output ended: exiting, maybe not reaped
                 why = _last_line(_end(proc)[1]).removeprefix("error: ")
                 where = firmware.relative_to(ROOT) if firmware.is_relative_to(ROOT) else firmware
-                how = (f"exited (exit {proc.returncode})" if exited else
+                how = (f"exited (exit {proc.returncode})" if exited else "closed its output" if ready else
                        f"said nothing within {FIRMWARE_START_S:g} s")
                 raise RuntimeError(f"the EBC-7 firmware ({where}) did not start: it {how}: {why}")
             seen += chunk
     return proc
+
+
+def _exits(proc: subprocess.Popen, within_s: float = 10.0) -> bool:
+    """True if `proc` (which closed its output) has exited within `within_s`."""
+    try:
+        proc.wait(timeout=within_s)
+    except subprocess.TimeoutExpired:
+        return False
+    return True
 
 
 def _end(proc: subprocess.Popen) -> tuple[str, str]:
