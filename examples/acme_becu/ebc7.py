@@ -177,7 +177,8 @@ def build_parser() -> argparse.ArgumentParser:
     default = " ".join(f"{k}={v}" for k, v in DEFAULT_BUS.items())
     parser = argparse.ArgumentParser(
         prog="ebc7.py", description=f"ACME EBC-7 brake ECU on a python-can bus (default: {default})")
-    parser.add_argument("--duration", type=float, help="stop after this many seconds")
+    parser.add_argument("--duration", type=float,
+                        help="stop this many seconds after the first frame it receives (the bench's)")
     can.cli.add_bus_arguments(parser)
     return parser
 
@@ -214,7 +215,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(bus: can.BusABC, ecu: Ebc7, args) -> int:
-    """The cycle on absolute deadlines until SIGINT, SIGTERM or --duration; the summary line."""
+    """The cycle on absolute deadlines until SIGINT, SIGTERM or --duration after the first frame received;
+    the summary line."""
     stop = False
 
     def on_signal(signum, frame) -> None:
@@ -226,7 +228,7 @@ def run(bus: can.BusABC, ecu: Ebc7, args) -> int:
     print(f"EBC-7: on {bus.__class__.__name__} {bus.channel_info}, sending EBC7_VALVE_CMD, EBC7_STATUS; "
           f"{realtime_scheduling()}", flush=True)
     t0 = time.monotonic_ns()
-    end_ns = t0 + round(args.duration * 1e9) if args.duration else None
+    end_ns = None                                       # --duration: counted from the first frame received
     deadline = t0
     stats = ecu.stats
     while not stop:
@@ -236,6 +238,8 @@ def run(bus: can.BusABC, ecu: Ebc7, args) -> int:
         if now < deadline:
             msg = bus.recv(timeout=(deadline - now) / 1e9)
             if msg is not None and not msg.is_error_frame and not msg.is_remote_frame:
+                if end_ns is None and args.duration:
+                    end_ns = time.monotonic_ns() + round(args.duration * 1e9)
                 ecu.receive(msg.arbitration_id, bytes(msg.data), (time.monotonic_ns() - t0) // 1000)
             continue
         late = now - deadline
