@@ -127,12 +127,93 @@ class ProtectionSpec(Strict):
         return self
 
 
+#: OPC UA built-in data types a variable may have: name -> (lowest, highest value it carries)
+OPCUA_TYPES = {
+    "Boolean": (0, 1), "SByte": (-2**7, 2**7 - 1), "Byte": (0, 2**8 - 1),
+    "Int16": (-2**15, 2**15 - 1), "UInt16": (0, 2**16 - 1), "Int32": (-2**31, 2**31 - 1),
+    "UInt32": (0, 2**32 - 1), "Int64": (-2**63, 2**63 - 1), "UInt64": (0, 2**64 - 1),
+    "Float": (-3.4028234663852886e38, 3.4028234663852886e38),
+    "Double": (-1.7976931348623157e308, 1.7976931348623157e308),
+}
+
+
+class VariableSpec(Strict):
+    """One OPC UA variable of a device (transport = "opcua"): its data type, engineering unit and, for an
+    integer that carries named states, its value table; `node_id` where the PLC's server does not name it
+    by its object and variable (browse path Objects/OBJECT/VARIABLE in the device's namespace)."""
+
+    type: Literal[tuple(OPCUA_TYPES)]                      # the variable's built-in data type
+    unit: StrictStr | None = None                          # its engineering unit (pint: "m", "km/h", "bar")
+    choices: dict[str, StrictStr] | None = None            # an integer's values: "1" = "RELEASE"
+    node_id: StrictStr | None = None                       # e.g. "ns=3;s=\"DB_Stop\".\"S\""
+    minimum: Number | None = None                          # the range the device accepts (default: the
+    maximum: Number | None = None                          # data type's)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> VariableSpec:
+        if self.choices is not None:
+            if self.type in ("Float", "Double"):
+                raise ValueError(f"'choices' names the values of an integer; this variable is a {self.type}")
+            bad = [k for k in self.choices if not k.lstrip("-").isdigit()]
+            if bad:
+                raise ValueError(f"choices: {bad[0]!r} is not an integer (write \"1\" = \"RELEASE\")")
+        return self
+
+
+class OpcUaSpec(Strict):
+    """[opcua] of a device file: how the bench and the device (a PLC) talk OPC UA.
+
+    role "server": the bench serves the device's variables at `endpoint` and the PLC's client reads and
+    writes them; role "client": the bench connects to the PLC's own server at `endpoint`.  `security`
+    "SignAndEncrypt" (default) or "Sign" with Basic256Sha256, or "None" (said in the run's summary);
+    `trust`: the certificate files (DER or PEM) of the PLC the bench trusts; `certificate` and
+    `private_key`: the bench's own (default: created on first use under the pki folder and kept);
+    `user` and `password_env` (the environment variable that holds the password)."""
+
+    role: Literal["server", "client"]
+    endpoint: StrictStr                                    # opc.tcp://host:port/path
+    namespace: StrictStr = "urn:railhil:device"            # the namespace URI of the device's variables
+    security: Literal["SignAndEncrypt", "Sign", "None"] = "SignAndEncrypt"
+    trust: list[StrictStr] = Field(default_factory=list)   # the PLC's certificate files, beside this file
+    certificate: StrictStr | None = None                   # the bench's certificate (DER or PEM) ...
+    private_key: StrictStr | None = None                   # ... and its private key (PEM)
+    pki: StrictStr | None = None                           # where the bench's own are created (default:
+    #                                                        ~/.local/share/railhil/pki)
+    user: StrictStr | None = None                          # user name the PLC logs in with (server) or the
+    password_env: StrictStr | None = None                  # bench does (client); its password's variable
+    cycle_ms: Annotated[float, Field(gt=0, le=60_000)] = 100.0   # the PLC's scan cycle
+    input_cycle_ms: Annotated[float, Field(ge=1, le=60_000)] = 10.0   # how often the bench updates an
+    #                                                        object it writes from truth or constants only
+    #                                                        (one with a frame source: on each frame)
+    stamp: StrictStr | None = None                         # "OBJECT.Variable" the bench counts up with each
+    echo: StrictStr | None = None                          # update, and the PLC's echo of the count it read
+    silent_after_ms: Annotated[float, Field(gt=0, le=600_000)] | None = None   # default: 3 cycles
+
+    @model_validator(mode="after")
+    def _consistent(self) -> OpcUaSpec:
+        if not self.endpoint.startswith("opc.tcp://"):
+            raise ValueError(f"endpoint {self.endpoint!r}: expected opc.tcp://HOST:PORT[/PATH]")
+        if (self.stamp is None) != (self.echo is None):
+            raise ValueError("'stamp' and 'echo' go together: the bench's count and the PLC's echo of it")
+        if (self.certificate is None) != (self.private_key is None):
+            raise ValueError("'certificate' and 'private_key' go together (the bench's own)")
+        if (self.user is None) != (self.password_env is None):
+            raise ValueError("'user' and 'password_env' go together")
+        if self.security != "None" and not self.trust:
+            raise ValueError(f"security {self.security!r} needs 'trust': the PLC's certificate file(s)")
+        return self
+
+
 class DeviceSpec(Strict):
     """A device file, as read (paths still relative to it)."""
 
     description: str = ""
     replaces: StrictStr                                    # the bench node, e.g. BECU3
-    dbc: StrictStr                                         # the device's DBC, beside the file
+    transport: Literal["can", "opcua"] = "can"             # its frames on a CAN bus, or OPC UA variables
+    dbc: StrictStr | None = None                           # the device's DBC, beside the file (CAN)
+    opcua: OpcUaSpec | None = None                         # OPC UA: the link ...
+    reads: dict[str, dict[str, VariableSpec]] = Field(default_factory=dict)    # ... the variables the device
+    writes: dict[str, dict[str, VariableSpec]] = Field(default_factory=dict)   # reads and writes, by object
     node: StrictStr | None = None                          # its node in that DBC; default: its only sender
     model: StrictStr | None = None                         # "module:Class", the module beside the file
     model_cycle_ms: Annotated[float, Field(gt=0, le=10_000)] | None = None   # default: its frames' cycle
@@ -142,6 +223,28 @@ class DeviceSpec(Strict):
     send: dict[str, dict[str, MapEntry]] = Field(default_factory=dict)      # bench message -> signal
     trigger: dict[str, str] = Field(default_factory=dict)  # target message -> "cycle" or a source message
     ignore: list[StrictStr] = Field(default_factory=list)  # device messages the gateway does not send it
+
+    @model_validator(mode="after")
+    def _transport(self) -> DeviceSpec:
+        if self.transport == "can":
+            if self.dbc is None:
+                raise ValueError("key 'dbc' is missing: the device's own CAN matrix (or transport = "
+                                 "\"opcua\")")
+            if self.opcua is not None or self.reads or self.writes:
+                raise ValueError("[opcua], [reads] and [writes] describe an OPC UA device: give transport = "
+                                 "\"opcua\" (and no dbc)")
+            return self
+        if self.dbc is not None or self.bus:
+            raise ValueError("an OPC UA device has no 'dbc' or [bus]: its variables are [reads] and [writes]")
+        if self.opcua is None:
+            raise ValueError("transport \"opcua\" needs [opcua]: role, endpoint, security")
+        if not self.writes:
+            raise ValueError("transport \"opcua\" needs [writes.OBJECT]: the variables the device writes")
+        both = set(self.reads) & set(self.writes)
+        if both:
+            raise ValueError(f"object {sorted(both)[0]!r} is in [reads] and [writes]: an object's variables "
+                             "go one way")
+        return self
 
     @field_validator("model")
     @classmethod
@@ -174,6 +277,10 @@ def _closest(loc: tuple) -> str:
     model = DeviceSpec
     if len(loc) >= 3 and loc[0] in ("receive", "send"):
         model = MapEntry
+    elif len(loc) >= 3 and loc[0] in ("reads", "writes"):
+        model = VariableSpec
+    elif len(loc) == 2 and loc[0] == "opcua":
+        model = OpcUaSpec
     elif len(loc) >= 2 and loc[0] == "protection":
         model = ProtectionSpec
     elif len(loc) != 1:

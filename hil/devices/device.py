@@ -80,7 +80,7 @@ class Device:
     spec: DeviceSpec
     dbc_path: Path
     db: Database                           # the device's own DBC
-    codec: Codec
+    codec: Codec | None                    # None: an OPC UA device (its variables are not framed)
     node: str                              # the device's node in its DBC
     replaces: str                          # the bench node it replaces
     receives: tuple[str, ...]              # the device messages the gateway sends it
@@ -148,11 +148,18 @@ def load_device(path: str | Path, bench_db: Database, replaced: ReplacedNode,
     if spec.replaces != replaced.name:
         raise DeviceError(f"{where}: key 'replaces' = {spec.replaces!r}, but it was given for node "
                           f"{replaced.name} (e.g. --device {replaced.name}=FILE)")
-    dbc_path = (path.parent / spec.dbc).resolve()
-    try:
-        db, codec = loaded_dbc(dbc_path)
-    except DbcError as exc:
-        raise DeviceError(f"{where}: key 'dbc' = {spec.dbc!r}: {exc}") from None
+    if spec.transport == "opcua":           # its variables, as a schema (hil.devices.variables)
+        from hil.devices.variables import DEVICE_NODE, variable_database
+
+        dbc_path, codec, node = path.resolve(), None, spec.node or DEVICE_NODE
+        db = variable_database(spec, node)
+        _check_opcua(spec, db, where)
+    else:
+        dbc_path = (path.parent / spec.dbc).resolve()
+        try:
+            db, codec = loaded_dbc(dbc_path)
+        except DbcError as exc:
+            raise DeviceError(f"{where}: key 'dbc' = {spec.dbc!r}: {exc}") from None
     if spec.bus == "bench":                     # one bus: every identifier names one message
         bench_ids = {(m.frame_id, bool(m.is_extended_frame)): m.name for m in bench_db.messages}
         for m in db.messages:
@@ -161,7 +168,8 @@ def load_device(path: str | Path, bench_db: Database, replaced: ReplacedNode,
                 raise DeviceError(f"{where}: key 'bus' = \"bench\": the device's {m.name} has the identifier "
                                   f"0x{m.frame_id:X} of the bench's {clash}; on one bus each identifier must "
                                   "be one message's (give the device a bus of its own)")
-    node = _device_node(spec, db, where)
+    if spec.transport == "can":
+        node = _device_node(spec, db, where)
     sends = tuple(m.name for m in db.messages if node in m.senders)
     if not sends:
         raise DeviceError(f"{where}: key 'node' = {node!r}: {dbc_path.name} names no message that {node} "
@@ -200,6 +208,40 @@ def load_device(path: str | Path, bench_db: Database, replaced: ReplacedNode,
     return Device(path=path, spec=spec, dbc_path=dbc_path, db=db, codec=codec, node=node,
                   replaces=replaced.name, receives=receives, sends=sends, to_device=to_device,
                   to_bench=to_bench, protections=protections, ignored=ignored)
+
+
+def _check_opcua(spec: DeviceSpec, db: Database, where: str) -> None:
+    """[opcua] stamp and echo name a variable the device reads and one it writes, each an integer."""
+    for key, objects in (("stamp", spec.reads), ("echo", spec.writes)):
+        text = getattr(spec.opcua, key)
+        if text is None:
+            continue
+        obj, _, var = text.partition(".")
+        names = [f"{o}.{v}" for o, vs in objects.items() for v in vs]
+        if var not in objects.get(obj, {}):
+            side = "[reads] (the bench writes it)" if key == "stamp" else "[writes] (the PLC writes it)"
+            raise DeviceError(f"{where}: key 'opcua.{key}' = {text!r}: not a variable of {side}"
+                              f"{_closest_hint(text, names)}")
+        if objects[obj][var].type in ("Float", "Double", "Boolean"):
+            raise DeviceError(f"{where}: key 'opcua.{key}' = {text!r}: a count needs an integer variable "
+                              f"(it is a {objects[obj][var].type})")
+
+
+def _carries(target: Signal, source: Signal, a: float, b: float, where: str, src_text: str, out_key: str,
+             spec: DeviceSpec) -> None:
+    """An OPC UA variable the bench writes takes every value its source signal can have (its DBC range,
+    through the map): else a DeviceError naming both ranges."""
+    if source.minimum is None or source.maximum is None or target.minimum is None or target.maximum is None:
+        return
+    lo, hi = sorted((a * float(source.minimum) + b, a * float(source.maximum) + b))
+    if lo < float(target.minimum) or hi > float(target.maximum):
+        obj, _, var = out_key.partition(".")
+        vtype = (spec.reads.get(obj) or {}).get(var)
+        unit = f" {target.unit}" if target.unit else ""
+        kind = vtype.type if vtype else "?"
+        raise DeviceError(f"{where}: the variable {out_key} ({kind}, {target.minimum:g}..{target.maximum:g}"
+                          f"{unit}) cannot carry {src_text} ({lo:g}..{hi:g}{unit} through the map): give it "
+                          "a wider type, or narrow the map")
 
 
 def _closest_hint(name: str, names: list[str]) -> str:
@@ -330,6 +372,10 @@ class _Checker:
             from hil.runtime.node import bench_filled_signals
 
             return bench_filled_signals(msg)
+        opcua = self.spec.opcua
+        if opcua is not None:                      # the bench's count, which the link writes itself
+            obj, _, var = (opcua.stamp or "").partition(".")
+            return {var} if obj == msg.name else set()
         return filled_signals(msg, self.protections.get(msg.name))
 
     def route(self, message: str, to: Literal["device", "bench"]) -> Route:
@@ -368,7 +414,10 @@ class _Checker:
         entries = tuple(self._entry(msg, names[s], e, src_side, f"{section}.{message}.{s}")
                         for s, e in table.items())
         trigger = self._trigger(msg, entries, src_side)
-        return Route(message, to, entries, trigger, int(msg.cycle_time) if msg.cycle_time else None)
+        cycle_ms = int(msg.cycle_time) if msg.cycle_time else None
+        if trigger is None and cycle_ms is None and self.spec.opcua is not None:
+            cycle_ms = round(self.spec.opcua.input_cycle_ms)   # an object of truth and constants only
+        return Route(message, to, entries, trigger, cycle_ms)
 
     def _entry(self, msg: Message, target: Signal, e: MapEntry, src_side: str, key: str) -> Entry:
         where = f"{self.where}: key '{key}'"
@@ -412,6 +461,8 @@ class _Checker:
                          default=default, stale_us=stale_us, initial=start)
         a, b = affine(e.unit or src_unit, target.unit, e.scale, e.offset, where=where, source=src_text,
                       target=out_key)
+        if self.spec.opcua is not None and src_signal is not None and src_side == "bench":
+            _carries(target, src_signal, a, b, where, src_text, out_key, self.spec)
         return Entry(target.name, out_key, source=None if truth else src_text, truth=truth, a=a, b=b,
                      default=default, stale_us=stale_us, initial=start)
 
@@ -440,6 +491,8 @@ class _Checker:
         if not sources:
             return None
         first = self.dbs[src_side].get_message_by_name(sources[0])
+        if not msg.cycle_time:                      # an event message (an OPC UA object the device reads):
+            return first.name                      # with its first source's frames
         if first.cycle_time and msg.cycle_time and int(first.cycle_time) == int(msg.cycle_time):
             return first.name                      # same cycle: routed, frame for frame
         return None

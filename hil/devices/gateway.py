@@ -23,15 +23,16 @@ other side's signals (hil.devices.device.Entry: affine units, value tables, a de
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from functools import reduce
+from typing import NamedTuple
 
 from cantools.database.can import Database
 
 from hil.can.codec import Codec, FrameCodec
 from hil.devices.device import Device, Entry, ReplacedNode, Route
-from hil.runtime.node import Binding, Node
+from hil.runtime.node import Binding, Node, NodeStats, RxTable
 
 #: a truth quantity of the plant: (TruthSnapshot field, car index) -> its value now (hil.devices.device)
 TruthReader = Callable[[str, int], float]
@@ -144,6 +145,57 @@ class GatewaySide(Node):
         return frames + self._on_cycle(now_us, now_us if nominal_us is None else nominal_us)
 
 
+class ObjectRef(NamedTuple):
+    """What a variable side's `send_now` names in place of a frame codec: an OPC UA object."""
+
+    frame_id: int                # its place in the device's schema (hil.devices.variables)
+    is_extended_id: bool
+    name: str
+
+
+class VariableSide:
+    """The device side of the gateway for a device on OPC UA (hil.devices.opcua): its objects' variables in
+    place of frames.  `receive(frame_id, values, t_us)` takes an object the device wrote (its variables'
+    values); `send_now(object)` gives the values of an object the bench writes; its cycles send the cyclic
+    routes of objects filled from the plant's truth or constants alone."""
+
+    def __init__(self, name: str, device: Device, period_us: int, on_frame: Callable[[int, int], None],
+                 on_cycle: Callable[[int, int], list]) -> None:
+        db = device.db
+        self.name, self.period_us, self.offset_us = name, period_us, 0
+        self._objects = {m.name: m for m in db.messages}
+        self._pairs = {m.frame_id: tuple((s.name, f"{m.name}.{s.name}") for s in m.signals)
+                       for m in db.messages if m.name in device.sends}
+        self.rx = RxTable([key for pairs in self._pairs.values() for _, key in pairs])
+        self.outputs: dict[str, float] = {}
+        self.stats = NodeStats()
+        self._on_frame, self._on_cycle = on_frame, on_cycle
+
+    @property
+    def rx_ids(self) -> frozenset[int]:
+        return frozenset(self._pairs)
+
+    def receive(self, frame_id: int, values: Mapping[str, float], t_us: int) -> None:
+        pairs = self._pairs.get(frame_id)
+        if pairs is None:
+            self.stats.unknown_frames += 1
+            return
+        self.stats.frames_received += 1
+        self.rx.update(pairs, values, t_us)
+        self._on_frame(frame_id, t_us)
+
+    def send_now(self, message: str, now_us: int) -> tuple[ObjectRef, dict[str, float]]:
+        msg = self._objects[message]
+        out = self.outputs
+        values = {s.name: out[f"{message}.{s.name}"] for s in msg.signals if f"{message}.{s.name}" in out}
+        self.stats.frames_sent += 1
+        return ObjectRef(msg.frame_id, False, message), values
+
+    def cycle(self, now_us: int, nominal_us: int | None = None) -> list:
+        self.stats.cycles += 1
+        return self._on_cycle(now_us, now_us if nominal_us is None else nominal_us)
+
+
 def _gcd_us(cycles_ms: Iterable[int | None], fallback_us: int) -> int:
     cycles = [int(c) * 1000 for c in cycles_ms if c]
     return reduce(math.gcd, cycles) if cycles else fallback_us
@@ -173,16 +225,22 @@ class Gateway:
             routed=[r.message for r in device.to_bench], on_frame=self._from_bench,
             on_cycle=self._bench_cycle)
         ddb = device.db
-        device_in = [f"{m}.{s.name}" for m in device.sends for s in ddb.get_message_by_name(m).signals]
-        device_out = [e.key for r in device.to_device for e in r.entries]
         cycles = [ddb.get_message_by_name(n).cycle_time for n in (*device.sends, *device.receives)]
-        self.device_side = GatewaySide(
-            f"{replaced.name}.gateway", self.to_device,
-            Binding.build(ddb, f"{replaced.name}.gateway", device_in, device_out, device.sends,
-                          device.receives, device.name),
-            device.codec, ddb, period_us=_gcd_us(cycles, replaced.period_us), offset_us=0,
-            protection=device.protection, routed=[r.message for r in device.to_device],
-            on_frame=self._from_device, on_cycle=self._device_cycle)
+        if device.codec is None:                   # OPC UA: variables, not frames
+            cycles += [r.cycle_ms for r in device.to_device]
+            self.device_side = VariableSide(f"{replaced.name}.gateway", device,
+                                            _gcd_us(cycles, replaced.period_us), self._from_device,
+                                            self._device_cycle)
+        else:
+            device_in = [f"{m}.{s.name}" for m in device.sends for s in ddb.get_message_by_name(m).signals]
+            device_out = [e.key for r in device.to_device for e in r.entries]
+            self.device_side = GatewaySide(
+                f"{replaced.name}.gateway", self.to_device,
+                Binding.build(ddb, f"{replaced.name}.gateway", device_in, device_out, device.sends,
+                              device.receives, device.name),
+                device.codec, ddb, period_us=_gcd_us(cycles, replaced.period_us), offset_us=0,
+                protection=device.protection, routed=[r.message for r in device.to_device],
+                on_frame=self._from_device, on_cycle=self._device_cycle)
         self.to_bench.source, self.to_device.source = self.device_side, self.bench
         self._bench_triggers = self._triggers(device.to_device, bench_db)
         self._device_triggers = self._triggers(device.to_bench, ddb)

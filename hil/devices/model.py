@@ -19,7 +19,7 @@ from functools import reduce
 
 from hil.devices.device import Device
 from hil.errors import BindingError, DeviceError
-from hil.runtime.node import Binding, Node
+from hil.runtime.node import Binding, Node, NodeStats
 
 
 def model_class(device: Device) -> type:
@@ -89,3 +89,77 @@ def build_model_node(device: Device, name: str | None = None, offset_us: int = 0
     safe = safe() if callable(safe) else safe
     return Node(name or device.node, model, binding, device.codec, db, period_us=model_period_us(device),
                 offset_us=offset_us, safe_outputs=dict(safe or {}), protection=device.protection)
+
+
+class VariableModel:
+    """A device on OPC UA as its model in lockstep (hil.runtime.lockstep.DeviceLink): each cycle its
+    `step(now_us, rx)` on the variables the device reads — rx keyed "OBJECT.Variable", and by the bare name
+    where that is unique — and what it returns ("OBJECT.Variable" or a bare name) written at once, an
+    object at a time, as the PLC's write of it.  No OPC UA stack: what the link adds in real time is
+    measured there (hil.devices.opcua)."""
+
+    def __init__(self, device: Device, name: str, offset_us: int = 0) -> None:
+        where = f"{device.path}: key 'model' = {device.spec.model!r}"
+        cls = model_class(device)
+        try:
+            self.model = cls()
+        except Exception as exc:
+            raise DeviceError(f"{where}: {cls.__name__}() failed: {type(exc).__name__}: {exc}") from None
+        self.name, self.offset_us = name, offset_us
+        self.period_us = model_period_us(device)
+        db = device.db
+        reads = [m for m in db.messages if m.name in device.receives]
+        writes = [m for m in db.messages if m.name in device.sends]
+        self._objects = {m.frame_id: m for m in reads}
+        self.rx: dict[str, float] = {}
+        bare = [s.name for m in reads for s in m.signals]
+        for m in reads:
+            for s in m.signals:
+                self.rx[f"{m.name}.{s.name}"] = math.nan
+                if bare.count(s.name) == 1:
+                    self.rx[s.name] = math.nan
+        self._keys: dict[str, tuple[int, str]] = {}       # an output key -> (object's frame id, variable)
+        out_bare = [s.name for m in writes for s in m.signals]
+        for m in writes:
+            for s in m.signals:
+                self._keys[f"{m.name}.{s.name}"] = (m.frame_id, s.name)
+                if out_bare.count(s.name) == 1:
+                    self._keys[s.name] = (m.frame_id, s.name)
+        self._written = {m.frame_id: {s.name: 0.0 for s in m.signals} for m in writes}
+        self._names = {m.frame_id: m.name for m in writes}
+        self.stats = NodeStats()
+
+    def deliver(self, frame_id: int, values: dict) -> None:
+        """The bench wrote an object the device reads."""
+        m = self._objects.get(frame_id)
+        if m is None:
+            return
+        for var, v in values.items():
+            self.rx[f"{m.name}.{var}"] = v
+            if var in self.rx:
+                self.rx[var] = v
+
+    def cycle(self, now_us: int, nominal_us: int | None = None) -> list:
+        """One scan: every object the model writes, [(ObjectRef, values)]; a step() that raises, or an
+        output that is not a finite number, is counted and the last values are written."""
+        from hil.devices.gateway import ObjectRef
+
+        self.stats.cycles += 1
+        try:
+            out = self.model.step(now_us, self.rx) or {}
+        except Exception as exc:   # noqa: BLE001 - the user's model: counted, its last values written
+            self.stats.step_errors += 1
+            self.stats.last_error = f"{type(exc).__name__}: {exc}"
+            out = {}
+        for key, v in out.items():
+            where = self._keys.get(key)
+            if where is None:
+                continue
+            if not isinstance(v, (int, float)) or not math.isfinite(v):
+                self.stats.bad_outputs += 1
+                continue
+            self._written[where[0]][where[1]] = float(v)
+        frames = [(ObjectRef(fid, False, self._names[fid]), dict(values))   # a PLC writes every scan
+                  for fid, values in self._written.items()]
+        self.stats.frames_sent += len(frames)
+        return frames

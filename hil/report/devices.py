@@ -75,10 +75,67 @@ def gateway_latency(routes: list[dict], bench: DecodedTrace, device: DecodedTrac
     return out
 
 
+#: an OPC UA device's cycle is PASS when the 99th percentile of the time between its writes is at most this
+#: many of its declared cycles (a PLC's scan varies with its load; a missed scan doubles it)
+PLC_CYCLE_BOUND = 1.5
+
+
+def _gateway_on_bench(record: dict, bench: DecodedTrace, db, node_stats: dict, t0_s: float, speed: float,
+                      end_s: float) -> dict:
+    """The gateway's frames on the bench in the replaced node's place, judged as that node's."""
+    replaced = record["replaces"]
+    on_bench = node_conduct(bench, db, [replaced], {n: s for n, s in node_stats.items() if n != replaced},
+                            [replaced], t0_s, speed, end_s)[replaced]
+    on_bench["reported_silent_s"] = silence_reported(bench, db, replaced, on_bench["last_s"], t0_s, speed)
+    targets = {r["message"] for r in record["routes"]}
+    on_bench["messages"] = {m: v for m, v in on_bench["messages"].items() if m in targets}
+    return on_bench
+
+
+def plc_timing(link: dict) -> tuple[str, str]:
+    """(PASS | FAIL, why) of an OPC UA device's writes: it wrote, never fell silent, and the p99 of its
+    cycle is within PLC_CYCLE_BOUND of the declared one."""
+    bound = PLC_CYCLE_BOUND * link["cycle_ms_declared"]
+    why = []
+    if not link["writes"]:
+        why.append("it never wrote")
+    if link["silences"]:
+        why.append(f"silent {link['silences']}× (longest gap {link['longest_gap_ms']:g} ms, silent after "
+                   f"{link['silent_after_ms']:g} ms)")
+    p99 = link["cycle"]["p99_ms"]
+    if p99 is not None and p99 > bound:
+        why.append(f"cycle p99 {p99:g} ms > {bound:g} ms")
+    return ("FAIL" if why else "PASS"), "; ".join(why) or f"cycle p99 ≤ {bound:g} ms, never silent"
+
+
+def opcua_device_kpis(record: dict, bench: DecodedTrace, db, node_stats: dict, t0_s: float = 0.0,
+                      speed: float = 1.0, end_s: float = np.inf) -> dict:
+    """kpis.json's entry of a device on OPC UA (hil.devices.opcua): what the link measured — the PLC's
+    cycle, the age of what it read when it wrote, the round trip from the bench's update to the PLC's write
+    that reflects it, the bench's own calls (client role), refusals — and the gateway's frames on the
+    bench.  PASS: its writes' timing PASS (plc_timing) and the gateway's bench frames' timing PASS."""
+    link = record["opcua"]
+    on_bench = _gateway_on_bench(record, bench, db, node_stats, t0_s, speed, end_s)
+    timing, why = plc_timing(link)
+    gw = record["gateway"]
+    return {
+        "file": record["file"], "transport": "opcua", "node": record["node"], "replaces": record["replaces"],
+        "mode": record["mode"],
+        "verdict": "PASS" if timing == "PASS" and on_bench["timing"] == "PASS" else "FAIL",
+        "opcua": link, "plc": {"timing": timing, "why": why,
+                               "cycle_bound_ms": PLC_CYCLE_BOUND * link["cycle_ms_declared"]},
+        "bench": on_bench, "routed": gw["routed"],
+        "substituted": {"to_device": gw["to_device"], "to_bench": gw["to_bench"]},
+        **({"processing": record["processing"]} if record.get("processing") else {}),
+    }
+
+
 def device_kpis(record: dict, bench: DecodedTrace, db, node_stats: dict, device_trace: Path,
                 t0_s: float = 0.0, speed: float = 1.0, end_s: float = np.inf) -> dict:
     """kpis.json's entry of one device (module docstring), from its record in RunOutcome.devices; judged on
     the frames from the run's start `t0_s` to its end `end_s` [trace time]."""
+    if record.get("opcua") is not None:
+        return opcua_device_kpis(record, bench, db, node_stats, t0_s, speed, end_s)
     ddb, dcodec = loaded_dbc(record["dbc"])
     from hil.report.kpis import read_run_trace
 
@@ -87,11 +144,7 @@ def device_kpis(record: dict, bench: DecodedTrace, db, node_stats: dict, device_
     own = node_conduct(dtrace, ddb, [record["node"]], {"gateway": gw["device_side"]}, [record["node"]],
                        t0_s, speed, end_s)[record["node"]]
     replaced = record["replaces"]
-    on_bench = node_conduct(bench, db, [replaced], {n: s for n, s in node_stats.items() if n != replaced},
-                            [replaced], t0_s, speed, end_s)[replaced]
-    on_bench["reported_silent_s"] = silence_reported(bench, db, replaced, on_bench["last_s"], t0_s, speed)
-    targets = {r["message"] for r in record["routes"]}
-    on_bench["messages"] = {m: v for m, v in on_bench["messages"].items() if m in targets}
+    on_bench = _gateway_on_bench(record, bench, db, node_stats, t0_s, speed, end_s)
     # the gateway's frames to the device, against the device's DBC (informational: the bench's timing)
     senders = sorted({s for m in record["receives"] for s in ddb.get_message_by_name(m).senders})
     judged = node_conduct(dtrace, ddb, senders, {}, [], t0_s, speed, end_s)

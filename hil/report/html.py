@@ -601,6 +601,9 @@ def _devices_section(kpis: dict) -> str:
     parts = []
     period_columns = ["message", "cycle [ms]", "frames", "mean period [ms]", "max period [ms]", "missed"]
     for name, d in (kpis.get("devices") or {}).items():
+        if d.get("transport") == "opcua":
+            parts.append(_opcua_device(name, d, period_columns))
+            continue
         own, bench, lat = d["device"], d["bench"], d["latency"]
         mode = "its model (lockstep)" if d["mode"] == "model" else "the device (real time)"
         parts.append(f"<h3>{_e(name)}: {_e(d['node'])} of {_e(Path(d['dbc']).name)}, {_e(mode)} — "
@@ -637,6 +640,38 @@ def _devices_section(kpis: dict) -> str:
                      "default or last value; a source value outside its value-table mapping): "
                      f"{_e(_counts(substituted, 'nothing'))}</p>")
     return "".join(parts)
+
+
+def _opcua_device(name: str, d: dict, period_columns: list[str]) -> str:
+    """A device over OPC UA: the link, the PLC's writes (cycle, read age, round trip) against the bound, the
+    bench's own calls, refusals, and the gateway's frames on the bench."""
+    link, plc, bench = d["opcua"], d["plc"], d["bench"]
+    mode = "its model (lockstep)" if d["mode"] == "model" else "the device (real time)"
+    out = (f"<h3>{_e(name)}: {_e(d['node'])} over OPC UA, {_e(mode)} — {_e(d['verdict'])}</h3>"
+           f"<p class=info>device file {_e(d['file'])}; the bench as {_e(link['role'])} at "
+           f"{_e(link['endpoint'])}; security {_e(link['security'])}"
+           f"{'; user ' + _e(link['user']) if link.get('user') else ''}; "
+           f"{link['writes']} writes, {link['bench_writes']} updates by the bench</p>")
+    rows = []
+    for label, key, what in (("PLC cycle", "cycle", "time between its writes"),
+                             ("read age", "read_age", "its write − the bench's update it echoed"),
+                             ("round trip", "round_trip", "a bench update → the PLC's write reflecting it"),
+                             ("the bench's OPC UA calls", "calls", "request → response (client role)")):
+        f = link[key]
+        rows.append([label, what, f["n"], _fmt(f["p50_ms"]), _fmt(f["p99_ms"]), _fmt(f["max_ms"])])
+    echo = _e(link.get("echo") or "none")
+    out += (f"<p>what the link measured (read age and round trip by the echo {echo})"
+            f"; its writes' timing {_e(plc['timing'])}: {_e(plc['why'])}</p>"
+            + _table(["", "what", "n", "p50 [ms]", "p99 [ms]", "max [ms]"], rows, {2, 3, 4, 5}))
+    out += (f"<p>refused: {_e(_counts(link['refused'], 'none'))}; silences {link['silences']} (longest gap "
+            f"{_e(_fmt(link['longest_gap_ms']))} ms); values not finite or not numbers: "
+            f"{link['bad_values']}</p>")
+    rows = [[m, v["cycle_ms"], v["frames"], _ms(v["mean_ms"]), _ms(v["max_ms"]), v["missed"],
+             v["verdict"]] for m, v in bench["messages"].items()]
+    out += (f"<p>the gateway's frames on the bench in {_e(name)}'s place, against the bench's DBC; E2E / "
+            f"SecOC reported by the bench's receivers: {_e(_counts(bench['protection'], 'nothing'))}</p>"
+            + _table([*period_columns, "timing"], rows, {1, 2, 3, 4, 5}))
+    return out
 
 
 def _faults_section(kpis: dict, meta: dict) -> str:

@@ -129,6 +129,9 @@ def device_lines(devices: dict) -> list[str]:
     bench."""
     lines = []
     for name, d in devices.items():
+        if d.get("transport") == "opcua":
+            lines += opcua_lines(name, d)
+            continue
         own, bench = d["device"], d["bench"]
         judged = [v for v in own["messages"].values() if v["verdict"] != "MISSING"]
         passed = sum(v["verdict"] == "PASS" for v in judged)
@@ -147,6 +150,41 @@ def device_lines(devices: dict) -> list[str]:
         lines.append(f"  gateway               device→bench {_way(lat['device_to_bench'])}, bench→device "
                      f"{_way(lat['bench_to_device'])}; on the bench {bench['frames']} frames, timing "
                      f"{bench['timing']} ({b_passed} of {len(b_judged)} messages)")
+    return lines
+
+
+def _spread(f: dict) -> str:
+    if not f["n"]:
+        return "none measured"
+    return f"p50 {f['p50_ms']:g} / p99 {f['p99_ms']:g} / max {f['max_ms']:g} ms"
+
+
+def opcua_lines(name: str, d: dict) -> list[str]:
+    """A device over OPC UA: its link (role, endpoint, security), its writes' cycle against the bound, the
+    age of what it read and the round trip (with an echo), the bench's calls, refusals; the gateway's
+    frames on the bench."""
+    link, bench, plc = d["opcua"], d["bench"], d["plc"]
+    security = link["security"] + (f", user {link['user']}" if link.get("user") else "")
+    where = ("its model in lockstep, no link" if d["mode"] == "model" else
+             f"the bench as {link['role']} at {link['endpoint']}, {security}")
+    lines = [f"device {name:<16} {d['node']} over OPC UA ({Path(d['file']).name}; {where}): {link['writes']} "
+             f"writes, timing {plc['timing']} ({plc['why']})",
+             f"  PLC cycle             {_spread(link['cycle'])} (declared {link['cycle_ms_declared']:g} ms)"]
+    if link.get("echo"):
+        lines.append(f"  read age / round trip {_spread(link['read_age'])} / {_spread(link['round_trip'])} "
+                     f"(by the echo {link['echo']})")
+    else:
+        lines.append("  read age / round trip not measured: the device file names no [opcua] stamp and echo")
+    if link["calls"]["n"]:
+        lines.append(f"  the bench's OPC UA calls {_spread(link['calls'])}")
+    if link["refused"]:
+        lines.append("  refused: " + ", ".join(f"{k} {v}" for k, v in link["refused"].items()))
+    b_judged = [v for v in bench["messages"].values() if v["verdict"] != "MISSING"]
+    b_passed = sum(v["verdict"] == "PASS" for v in b_judged)
+    silent = (f"; the BCU reported it silent at {bench['reported_silent_s']:.2f} s"
+              if bench.get("reported_silent_s") is not None else "")
+    lines.append(f"  gateway on the bench  {bench['frames']} frames, timing {bench['timing']} ({b_passed} of "
+                 f"{len(b_judged)} messages){silent}")
     return lines
 
 

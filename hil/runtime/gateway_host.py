@@ -29,6 +29,7 @@ import numpy as np
 
 from hil.can.frame_io import FrameIO
 from hil.devices.device import TRUTH_FIELDS
+from hil.devices.opcua import OpcUaLink
 from hil.runtime.host import PARENT_CHECK_US, TIMESTAMP_TRUST_US, CycleTiming
 from hil.runtime.release import NodeRelease
 
@@ -68,8 +69,9 @@ class GatewayHost:
     """A gateway between `bench_bus` and `device_bus` (None: the device is on the bench's bus, each frame
     goes to the side whose DBC has its identifier): `run(stop)` until `stop` is set or `orphaned()`."""
 
-    def __init__(self, gateway, bench_bus: can.BusABC, device_bus: can.BusABC | None, t0_ns: int, *,
-                 speed: float = 1.0, orphaned: Callable[[], bool] | None = None) -> None:
+    def __init__(self, gateway, bench_bus: can.BusABC, device_bus, t0_ns: int, *,
+                 speed: float = 1.0, orphaned: Callable[[], bool] | None = None,
+                 first_device_frame: Callable[[float], None] | None = None) -> None:
         self.gateway = gateway
         self.t0_ns, self.speed, self.orphaned = t0_ns, speed, orphaned
         self.epoch_t0 = time.time() + (t0_ns - time.monotonic_ns()) / 1e9   # t0 on the wall clock [s]
@@ -77,8 +79,12 @@ class GatewayHost:
         unread = [fc.frame_id for fc in gateway.bench.codec if fc.frame_id not in gateway.bench.rx_ids]
         bench_io = FrameIO(bench_bus, drop_own=True, drop_ids=unread)
         self.one_bus = device_bus is None
+        # the device's port: its python-can bus, or an OPC UA link (hil.devices.opcua: its objects for frames)
+        port = device_bus if isinstance(device_bus, OpcUaLink) else None
         self.io = {"bench": bench_io,
-                   "device": bench_io if self.one_bus else FrameIO(device_bus, drop_own=True)}
+                   "device": bench_io if self.one_bus else port or FrameIO(device_bus, drop_own=True)}
+        self.first_device_frame = first_device_frame
+        self.stopped_epoch: float | None = None      # when run() ended [s, wall clock]
         self.buses = {"bench": bench_bus} if self.one_bus else {"bench": bench_bus, "device": device_bus}
         self.device_ids = frozenset(gateway.device_side.rx_ids)   # one bus: the frames of the device's
         self.releases = {side: NodeRelease(node.name, node.period_us, node.offset_us)
@@ -107,6 +113,8 @@ class GatewayHost:
                 t_us = now_us
                 self.timestamps_untrusted += 1
             on = side if device_ids is None else "device" if frame_id in device_ids else "bench"
+            if on == "device" and not self.frames_received["device"] and self.first_device_frame is not None:
+                self.first_device_frame(timestamp)
             self.frames_received[on] += 1
             self.sides[on].receive(frame_id, data, t_us)
             if self.gateway.outbox:
@@ -142,6 +150,7 @@ class GatewayHost:
         try:
             self._loop(stop, selector, polled)
         finally:
+            self.stopped_epoch = time.time()
             selector.close()
             for side in self.buses:
                 self.io[side].close()

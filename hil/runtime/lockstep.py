@@ -37,7 +37,7 @@ from cantools.database.can import Database
 from hil.can.busload import declared_bitrate
 from hil.can.bustiming import BitTimedBus, Pending
 from hil.can.codec import Codec, FrameCodec
-from hil.devices.model import build_model_node
+from hil.devices.model import VariableModel, build_model_node
 from hil.errors import DeviceError, ScenarioError
 from hil.runtime.assembly import build_node, check_devices, node_names
 from hil.runtime.gctune import loop_gc
@@ -209,6 +209,59 @@ class DeviceOnBench:
                 "gateway": self.gateway.stats(), "model": vars(self.model.stats).copy()}
 
 
+class DeviceLink:
+    """A device on OPC UA in a lockstep run (transport = "opcua"): the gateway's variable side (0) and the
+    device's model (1, hil.devices.model.VariableModel), each on exact releases of its own cycle; what one
+    writes reaches the other at once (no bus: the link's own delays are measured in real time).  The stamp
+    and echo are counted as the real-time link counts them (hil.devices.opcua.LinkMeter)."""
+
+    bus_mode = "opcua"
+
+    def __init__(self, bench_index: int, gateway, model, scenario: Scenario) -> None:
+        from hil.devices.opcua import LinkMeter
+
+        self.bench_index, self.gateway, self.model = bench_index, gateway, model
+        self.name = gateway.bench.name
+        self.nodes = [gateway.device_side, model]
+        self.releases = [NodeRelease(n.name, n.period_us, n.offset_us, seed=scenario.seed)
+                         for n in self.nodes]
+        objects = {m.frame_id: m for m in gateway.device.db.messages}
+        self.meter = LinkMeter(gateway.device.spec.opcua, objects)
+        self.end_ns = 0
+
+    def open(self, writer) -> None:
+        """No trace: the link carries variables, not frames."""
+
+    def start(self, push: Callable[[int, int, tuple], None]) -> None:
+        for j, release in enumerate(self.releases):
+            t_ns, nominal, _ = release.next()
+            push(t_ns, DEVICE_CYCLE, (self, j, nominal))
+
+    def send(self, now: int, j: int, ref, values: dict, push) -> None:
+        """What side `j` wrote at `now`, to the other at once."""
+        if j == 0:
+            values = dict(values)
+            self.meter.bench_wrote(ref.frame_id, values, now / 1e9)
+            self.model.deliver(ref.frame_id, values)
+        else:
+            clean = self.meter.plc_wrote(ref.frame_id, values, now / 1e9)
+            self.gateway.device_side.receive(ref.frame_id, clean, now // 1000)
+
+    def handle(self, now: int, phase: int, item: tuple, push) -> None:
+        self.end_ns = now
+        _, j, nominal = item
+        for ref, values in self.nodes[j].cycle(now // 1000, nominal):
+            self.send(now, j, ref, values, push)
+        t_ns, nominal, _ = self.releases[j].next()
+        push(t_ns, DEVICE_CYCLE, (self, j, nominal))
+
+    def report(self) -> dict:
+        return {**self.gateway.describe(), "mode": "model", "bus_mode": "opcua", "bus": None,
+                "gateway": self.gateway.stats(), "model": vars(self.model.stats).copy(),
+                "opcua": self.meter.record("none: lockstep, the model without a link", 0.0,
+                                           self.end_ns / 1e9)}
+
+
 @dataclass
 class LockstepSetup:
     """The nodes of a lockstep run, built and checked against the DBC before anything is written."""
@@ -217,7 +270,7 @@ class LockstepSetup:
     injector: object | None
     releases: list
     delays: dict
-    devices: list[DeviceBus | DeviceOnBench] = field(default_factory=list)
+    devices: list[DeviceBus | DeviceOnBench | DeviceLink] = field(default_factory=list)
 
 
 def prepare_lockstep(scenario: Scenario, db: Database, codec: Codec, dbc_name: str = "DBC") -> LockstepSetup:
@@ -243,6 +296,10 @@ def prepare_lockstep(scenario: Scenario, db: Database, codec: Codec, dbc_name: s
                               f"(model = \"module:Class\"), or run --realtime with the device on its bus")
         plant = nodes[0].controller.plant
         gateway.to_device.truth = lambda field, car, plant=plant: getattr(plant.snapshot(), field)[car]
+        if device.codec is None:                  # OPC UA: its variables, no bus
+            model = VariableModel(device, f"{node.name}.device", node.offset_us)
+            devices.append(DeviceLink(k, gateway, model, scenario))
+            continue
         model = build_model_node(device, f"{node.name}.device", node.offset_us)
         if device.spec.bus == "bench":           # on the bench's bus: two more nodes of the run
             own, bench = declared_bitrate(device.db), bus_bitrate(scenario, db)
@@ -356,7 +413,7 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
                 for side, fc, data in dev.gateway.take():
                     if side == "bench":
                         release(now, dev.bench_index, fc, data, now)
-                    elif dev.bus_mode == "own":
+                    elif dev.bus_mode != "bench":
                         dev.send(now, 0, fc, data, push)
                     else:                                       # the device on the bench's bus
                         release(now, dev.device_index, fc, data, now)
@@ -367,7 +424,7 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
             route(t_ns)
 
         for dev in devices:
-            if dev.bus_mode == "own":
+            if dev.bus_mode != "bench":
                 dev.open((device_writers or {}).get(dev.name))
                 dev.start(push)
     with loop_gc():

@@ -117,7 +117,12 @@ def resolve_bus_config(cli: dict, scenario: Scenario, external: bool = False) ->
     return cfg
 
 
+OPCUA = "opcua"                 # a device's "bus" that is an OPC UA link (device_bus_config)
+
+
 def describe_bus(cfg: dict) -> str:
+    if cfg.get("interface") == OPCUA:
+        return f"OPC UA {cfg['channel']} (the bench as {cfg['role']})"
     extra = f":{cfg['port']}" if "port" in cfg else ""
     return f"interface={cfg.get('interface')} channel={cfg.get('channel')}{extra}"
 
@@ -320,6 +325,8 @@ def device_bus_config(scenario: Scenario, node: str, bench_cfg: dict) -> dict | 
 
     ref = scenario.devices[node]
     spec = read_device_file(ref.file)
+    if spec.transport == "opcua":               # no bus: an OPC UA link (hil.devices.opcua)
+        return {"interface": OPCUA, "channel": spec.opcua.endpoint, "role": spec.opcua.role}
     if not ref.bus and spec.bus == "bench":
         return None
     cfg = dict(ref.bus) if ref.bus else dict(spec.bus)
@@ -331,6 +338,17 @@ def device_bus_config(scenario: Scenario, node: str, bench_cfg: dict) -> dict | 
         raise DeviceError(f"{ref.file}: the device's bus {describe_bus(cfg)} is the bench's; give it a bus "
                           "of its own")
     return cfg
+
+
+def _check_link(device) -> None:
+    """An OPC UA device's link opened once and closed, in the parent: an endpoint that cannot be reached
+    or served, a refused login, a variable the PLC's server does not have or of another type, a certificate
+    that is not one — each one line (DeviceError, BusError) before any process starts."""
+    from hil.devices.opcua import OpcUaLink
+
+    link = OpcUaLink(device)
+    link.start()
+    link.close()
 
 
 def _gateway_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, device_cfg: dict,
@@ -346,18 +364,31 @@ def _gateway_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, de
         _, (node,), _ = hosted_nodes((name,), scenario, dbc_path)
         if truth is not None:                    # the plant's truth, as its host writes it
             node.gateway.to_device.truth = SharedTruth(truth, scenario.train.cars).read
-        buses = [open_bus(cfg)] + ([] if device_cfg is None else [open_bus(device_cfg)])   # None: one bus
+        link = None
+        if device_cfg is not None and device_cfg.get("interface") == OPCUA:
+            from hil.devices.opcua import OpcUaLink
+
+            link = OpcUaLink(node.gateway.device)
+            link.start()                          # the server up, or the PLC's server connected
+            buses = [open_bus(cfg)]
+        else:
+            buses = [open_bus(cfg)] + ([] if device_cfg is None else [open_bus(device_cfg)])   # None: one bus
         for bus in buses:
             enlarge_receive_buffer(bus)
         rt = os_setup(scenario, GATEWAY_PRIORITY, cpus)
         if not _ready_to_go(name, shared, results, rt):
             return
-        host = GatewayHost(node.gateway, buses[0], buses[1] if len(buses) > 1 else None, shared.t0_ns.value,
-                           speed=scenario.realtime.speed, orphaned=orphaned)
+        device_port = link if link is not None else buses[1] if len(buses) > 1 else None
+        host = GatewayHost(node.gateway, buses[0], device_port, shared.t0_ns.value,
+                           speed=scenario.realtime.speed, orphaned=orphaned,
+                           first_device_frame=lambda t: results.put(("seen", name, t)))
         host.run(shared.stop)
         if host.reason == "orphaned":
             return
         payload = host.payload()
+        if link is not None:                      # the PLC's cycle, read age, round trip: its own terms
+            payload["device"]["opcua"] = link.payload(host.epoch_t0, host.stopped_epoch)
+            payload["device"]["bus_mode"] = OPCUA
         payload["stats"]["host"] = name
         results.put(("result", name, payload))
         results.put(("host", name, {"frames_received": sum(host.frames_received.values()),
@@ -584,16 +615,21 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     simulated = [n for n in names if n not in external and n not in devices]
     external_ids = _external_ids(loaded_dbc(Path(dbc_path))[0], list(external))
     device_cfgs = {n: device_bus_config(scenario, n, cfg) for n in devices}   # None: on the bench's bus
+    linked = [n for n, c in device_cfgs.items() if c is not None and c["interface"] == OPCUA]   # OPC UA
     device_watch = {}                           # each device's bus, until its first frame came
     try:
+        for n in linked:                        # its endpoint, security and variables checked first
+            _check_link(_device_of(scenario, n))
         for n, dcfg in device_cfgs.items():
-            device_watch[n] = open_bus(dcfg if dcfg is not None else cfg)
+            if n not in linked:
+                device_watch[n] = open_bus(dcfg if dcfg is not None else cfg)
     except BaseException:
         for bus in (watch, *device_watch.values()):
-            bus.shutdown()
+            if bus is not None:
+                bus.shutdown()
         raise
     device_ids = {n: {m.frame_id for m in _device_of(scenario, n).db.messages
-                      if _device_of(scenario, n).node in m.senders} for n in devices}
+                      if _device_of(scenario, n).node in m.senders} for n in devices if n not in linked}
     if not external:
         watch.shutdown()
         watch = None
@@ -631,7 +667,8 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
 
         truth = ctx.Array("d", [math.nan] * (len(TRUTH_FIELDS) * scenario.train.cars), lock=False)
     for name in devices:                        # each device: its gateway, and a recorder of its own bus
-        if device_cfgs[name] is not None:        # (on the bench's bus: the run's recorder has its frames)
+        if device_cfgs[name] is not None and name not in linked:   # (on the bench's bus: the run's
+            #                                                         recorder has its frames; OPC UA: none)
             procs[f"RECORDER-{name}"] = ctx.Process(
                 target=_recorder_process, name=f"railhil-RECORDER-{name}", daemon=True,
                 args=(str(device_traces[name]), device_cfgs[name], shared.go, shared.stop, results,
@@ -717,8 +754,9 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         for name in devices:
             device = _device_of(scenario, name)
             where = "the bench's bus" if device_cfgs[name] is None else describe_bus(device_cfgs[name])
+            first = "write" if name in linked else "frame"
             print(f"realtime: device {device.node} ({device.dbc_path.name}) in {name}'s place, on {where} "
-                  f"behind the gateway; waiting up to {rt.external_wait_s:g} s for its first frame",
+                  f"behind the gateway; waiting up to {rt.external_wait_s:g} s for its first {first}",
                   file=sys.stderr, flush=True)
         limit = time.monotonic() + START_MARGIN_S + scenario.max_duration_s / rt.speed + 30.0
         wait_external_until = time.monotonic() + START_MARGIN_S + rt.external_wait_s
@@ -749,10 +787,18 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                                    f"{Path(scenario.devices[name].file).name}) sent no frame within "
                                    f"{rt.external_wait_s:g} s on {describe_bus(device_cfgs[name] or cfg)}: "
                                    "start it before the run, on that bus")
+            for name in linked:
+                if name not in device_seen and time.monotonic() > wait_external_until:
+                    device = _device_of(scenario, name)
+                    raise NodeDied(f"device {name} ({device.node} of {device.path.name}) wrote nothing "
+                                   f"within {rt.external_wait_s:g} s over {describe_bus(device_cfgs[name])}: "
+                                   "start it before the run" + (" (it connects to the bench's server)"
+                                                          if device_cfgs[name]["role"] == "server" else ""))
             if death is not None and time.monotonic() >= observe_until:
                 raise NodeDied(death)
             try:
-                kind, name, detail = results.get(timeout=0.05 if (death or watch or device_watch) else 0.2)
+                kind, name, detail = results.get(timeout=0.05 if (death or watch or device_watch
+                                                                  or len(device_seen) < len(linked)) else 0.2)
             except queue.Empty:
                 dead = [n for n, p in procs.items() if p.exitcode is not None and not n.startswith("PROBE")
                         and not all(m in payloads for m in hosted[n])]
@@ -782,6 +828,8 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                 payloads[name] = detail
             elif kind == "host":
                 host_info[name] = detail
+            elif kind == "seen":                   # an OPC UA device's first write (its gateway saw it)
+                device_seen.setdefault(name, round(detail - epoch_t0, 4))
     except (KeyboardInterrupt, _Terminate):
         reason = "interrupted"
         print("\nstopping: interrupt received, closing the trace", file=sys.stderr)

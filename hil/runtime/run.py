@@ -221,7 +221,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     run_json.write_text(json.dumps(meta, indent=2, default=str) + "\n")
     report = [write_run_report(out_dir, interactive_report)] if plots else []   # one self-contained page
     devices = [out_dir / device_trace_name(scenario, name) for name, record in outcome.devices.items()
-               if record.get("bus_mode") != "bench"]
+               if record.get("bus_mode") not in ("bench", "opcua")]
     return RunReport(out_dir, outcome, kpis, [trace, *devices, truth_csv, kpis_json, *figures, run_json,
                                               *report])
 
