@@ -238,9 +238,9 @@ def run(bus: can.BusABC, ecu: Ebc7, args) -> int:
         if now < deadline:
             msg = bus.recv(timeout=(deadline - now) / 1e9)
             if msg is not None and not msg.is_error_frame and not msg.is_remote_frame:
-                if end_ns is None and args.duration:
-                    end_ns = time.monotonic_ns() + round(args.duration * 1e9)
                 ecu.receive(msg.arbitration_id, bytes(msg.data), (time.monotonic_ns() - t0) // 1000)
+                if end_ns is None and args.duration and stats.frames_received:   # the bench's, not its own
+                    end_ns = time.monotonic_ns() + round(args.duration * 1e9)      # (udp_multicast echoes)
             continue
         late = now - deadline
         if late > CATCH_UP_CYCLES * CYCLE_NS:           # far behind: skip to the next slot
