@@ -1,31 +1,38 @@
 """Precise stopping at a target point (seed 002 §III, §VI–§VIII): the BCU's braking command along a
 theoretical braking curve (S, V, a), three ways.
 
-* ``adaptive`` — the paper's *adaptive search with united attempt and work steps* (§III, Fig. 2): every
-  work period the command u (a target deceleration) takes one work step ±Δu, which is also the next
-  attempt.  The quality function Q is evaluated after each step: if Q did not deteriorate by more than
-  the threshold δ (δ > 0) the previous work step is repeated, otherwise the opposite step is taken.  Inside
-  the insensitivity zone (Q below `dead_zone_m`) the command is held: the driver's brake valve's lap
-  position (§VII, position IV), between release (II) and service brake (V).  Q is the path deviation from
-  the theoretical curve, |S − S_th(t)| [m] (the PLC of §VI computes S, V and a along the curve, Fig. 4).
-* ``adaptive_diff`` — the same search with the *differentiation unit* (Fig. 3), which "follows a change
-  of the controllable parameters in time": it differentiates the speed (the odometer's deceleration
-  estimate a, `Odometer.decel`), and Q is evaluated on the path deviation predicted a horizon T_d ahead,
-  |e + T_d·ė + T_d²/2·ë| with e = S − S_th, ė = V − V_th and ë = a_th − a (the time derivatives of e),
-  so the search sees where the deviation is heading before the brake's lag and the double integration
-  from deceleration to path show it in S; and it judges each work step against the trend it follows,
-  ΔQ = Q_N − |2ê_(N−1) − ê_(N−2)| (the deviation extrapolated one work period as if no step had been
-  taken), so that a drifting deviation is not mistaken for the step's failure.
+* ``adaptive`` — the paper's PLC program: the *adaptive search with united attempt and work steps* (§III,
+  Fig. 2) setting the driver's brake valve (§VII: II release, IV lap with feeding, V service brake).  The
+  PLC scans every 100 ms (the S7-200 of §VI); every work period (a multiple of the scan) it evaluates the
+  quality function Q and takes one work step, which is also the next attempt: the valve in V (brake
+  harder) or II (release) for a few scans, then IV.  If Q did not deteriorate by more than the threshold δ
+  (δ > 0) the previous work step is repeated, otherwise the opposite step is taken (`search_step`); inside
+  the insensitivity zone (Q below `dead_zone_m`) the valve stays in IV (lap).  Q is the path deviation from
+  the theoretical curve, |S − S_th(t)| [m].
+* ``adaptive_diff`` — the same search with the *differentiation unit* (Fig. 3), which "follows a change of
+  the controllable parameters in time": it takes the time derivatives of the path deviation e = S − S_th,
+  ė = V − V_th and ë = a_th − a (the measured speed and deceleration are the derivatives of the path), and
+  Q is the deviation they predict `diff_horizon_s` = T_d ahead, |e + T_d·ė + T_d²/2·ë| — evaluated as the
+  train's path extrapolated with V and a (up to its standstill) minus the curve's path at t + T_d.  A work
+  step changes ë at once (after the brake's lag), so Q shows the step within one work period; on S alone
+  it shows only after the lag and a double integration, under the drift of the deviation itself.
 * ``pi`` — a modern baseline (not in the paper): curve tracking on distance to go.  The curve is
   V_th(s) = √(2 a_c s) (s: distance to go); the command is the feed-forward v²/(2s) (the deceleration
   that stops the train exactly at the point from here) plus the shared PI (`firmware_py.pi`) on the
-  speed error v − V_th(s).
+  speed error v − V_th(s).  It commands the deceleration directly, without the valve.
+
+The searches' decisions are the pure `AdaptiveSearch` (one PLC scan: time, S, V, a and the curve in, a
+valve position out), so a PLC program can run the same search; the valve positions become the braking
+command through `firmware_py.brake_valve.BrakeValve`, as the BCU integrates a PLC's positions.
 
 Theoretical curve (§VI: "a road driven S, a current motion speed V and a current braking acceleration
-a"): when the train reaches the point from which a stop at the planned deceleration a_p ends at the target
-(or at once, when the target is nearer than that), the curve starts at time t_0, position x_0 and speed
-v_0 with a_c = max(a_p, v_0²/(2 d_0)), d_0 = target − x_0:  S_th(τ) = v_0 τ − a_c τ²/2, V_th(τ) = v_0 − a_c τ,
-a_th = a_c, for τ = t − t_0 ≤ T = v_0/a_c; afterwards S_th = d_0, V_th = 0.
+a"): the curve starts at time t_0, position x_0 and speed v_0 and ends at the target, d_0 = target − x_0
+ahead, with a_c = max(a_p, v_0²/(2 d_0)):  S_th(τ) = v_0 τ − a_c τ²/2, V_th(τ) = v_0 − a_c τ, a_th = a_c,
+for 0 ≤ τ = t − t_0 ≤ T = v_0/a_c; afterwards S_th = d_0, V_th = 0; before t_0 the train coasts
+(S_th = v_0 τ).  It starts when the train reaches the point from which a stop at the planned
+deceleration a_p ends at the target (at once, and harder, when it is nearer).  With the valve the brake
+needs a_c / service rate to apply: the valve goes to V half that time before t_0, so the application ramp
+is centred on the curve's start (`apply_lead_s`).
 
 Position: the BCU knows the train's position only from CAN.  Its odometer (`Odometer`) starts from a
 known reference point passed at a known time (a balise: the scenario's start position at t = 0) and
@@ -33,7 +40,7 @@ integrates the train speed estimate over the samples' reception times (trapezoid
 the last sample and compensating the speed chain's latency (wheel sensor → BECU estimate → CAN).
 
 Mode logic is the pure `stop_state_transition`; `StoppingController.step` is one BCU cycle.  Units: SI,
-decelerations positive when braking.
+decelerations positive when braking; time an integer count of microseconds.
 """
 
 from __future__ import annotations
@@ -42,6 +49,7 @@ import math
 from dataclasses import dataclass, field
 from enum import IntEnum
 
+from firmware_py.brake_valve import BrakeValve, BrakeValveParams, ValvePosition
 from firmware_py.limits import clip
 from firmware_py.pi import PI, PIParams
 
@@ -84,10 +92,18 @@ def search_step(direction: int, q_now: float, q_before: float, threshold: float,
 
     direction: +1 (brake harder) or −1 (release) of the previous work step.  Returns (direction, move):
     the previous direction repeated when ΔQ = Q_N − Q_(N−1) ≤ δ, reversed when ΔQ > δ (deteriorated);
-    move is False (lap: the command is held) while Q is inside the insensitivity zone."""
+    move is False (lap: the valve stays in IV) while Q is inside the insensitivity zone."""
     if q_now - q_before > threshold:
         direction = -direction
     return direction, q_now >= dead_zone
+
+
+def step_position(direction: int, move: bool, scan_in_period: int, step_scans: int) -> ValvePosition:
+    """The valve position of one scan of a work period, pure: a work step holds the valve in V (direction
+    +1) or II (−1) for the period's first `step_scans` scans, then in IV; no step (insensitivity zone): IV."""
+    if not move or scan_in_period >= step_scans:
+        return ValvePosition.LAP
+    return ValvePosition.SERVICE if direction > 0 else ValvePosition.RELEASE
 
 
 @dataclass(frozen=True)
@@ -105,17 +121,36 @@ class StoppingParams:
     speed_latency_s: float = 0.005           # speed chain latency, wheel → BECU SpeedEst → CAN: the plant's
     #                                          sensor frame, the BECU's estimate and its 50 ms status frame
     #                                          (chosen, measured on the lockstep bench: see README)
-    # --- adaptive search (Fig. 2): work period, step size a, threshold δ, insensitivity zone
-    # (the search's four constants were chosen together by a sweep on an ideal train with a 0.3 s brake
-    #  lag, ±15 % brake gain, 400–1000 m at 20–25 m/s: the best worst case of adaptive_diff; the plain
-    #  search gets the same constants so that the two differ by the differentiation unit only)
-    work_period_s: float = 0.5               # one work step every 0.5 s: the brake's response limits how
-    #                                          often the command may usefully change (§III-A)
-    search_step_mps2: float = 0.05           # Δu: one brake-valve notch of the command [m/s²]
-    threshold_m: float = 0.1                 # δ on ΔQ [m]
-    dead_zone_m: float = 2.0                 # insensitivity zone on Q [m]: lap position inside it
-    diff_horizon_s: float = 5.0              # T_d of the differentiation unit (Fig. 3) [s]
-    diff_tau_s: float = 0.5                  # low-pass of the differentiated speed (deceleration) [s]
+    # --- the PLC (§VI) and the driver's brake valve it sets (§VII), for the adaptive methods
+    scan_us: int = 100_000                   # the PLC's scan cycle [µs] (chosen: a SIMATIC S7-200, §VI,
+    #                                          scans a program of this size in a few ms; 100 ms is its
+    #                                          usual cyclic-interrupt period for a slow loop)
+    valve_service_rate_mps3: float = BrakeValveParams.service_rate_mps3   # V: the valve's application
+    valve_release_rate_mps3: float = BrakeValveParams.release_rate_mps3   # ... and II: its release rate
+    #                                          [m/s³] (firmware_py/brake_valve.py: 0.3, chosen)
+    # --- adaptive search (Fig. 2), the same for both variants: work period, work step, δ, insensitivity
+    # (the paper gives none of these numbers; chosen together from its text and the bench's brake, and
+    #  checked by a sweep on a point-mass train with the bench's brake hysteresis, lag and speed noise, the
+    #  campaign's mass/pad/gradient spread, 1500 m: docs/studies/precise-stop.md)
+    work_scans: int = 15                     # work period = 15 scans = 1.5 s (chosen: §III-A, the brake
+    #                                          system limits how often the control signal may change: a step's
+    #                                          effect (lag ~0.2 s, a estimate 0.25 s) has settled before Q is
+    #                                          evaluated again)
+    step_scans: int = 5                      # a work step holds V or II for 5 scans (0.5 s): Δu = 0.15 m/s²
+    #                                          (chosen: above the brake's hysteresis, ~0.09 m/s², so that a
+    #                                          reversed step still moves the deceleration)
+    threshold_m: float = 0.3                 # δ on ΔQ [m] (chosen: a small part of the insensitivity zone;
+    #                                          a smaller deterioration is taken as the noise of Q)
+    dead_zone_m: float = 2.0                 # insensitivity zone on Q [m]: the valve stays in IV (lap) inside
+    #                                          it (chosen: the paper's best stop, ±2–7 m, at its low end)
+    # --- the differentiation unit (Fig. 3)
+    diff_horizon_s: float = 12.0             # T_d: horizon of the predicted deviation [s] (chosen: on the
+    #                                          surface Q = 0 the deviation settles in ~2 T_d, about half of a
+    #                                          40 s stop; a step then moves Q by T_d²/2·Δu ≈ 10 m, well
+    #                                          above the drift left after the unit's extrapolation)
+    diff_tau_s: float = 0.25                 # low-pass of the differentiated speed, the deceleration a [s]
+    #                                          (chosen: settles within a work period's lap; on the bench the
+    #                                          estimate is within ~0.01 m/s² rms of the truth)
     # --- PI baseline: speed error [m/s] → deceleration [m/s²]
     pi: PIParams = field(default_factory=lambda: PIParams(kp=0.4, ki=0.1, out_min=0.0, out_max=1.0))
     final_distance_m: float = 0.3            # below this distance to go the feed-forward is held (1/s → ∞)
@@ -123,6 +158,22 @@ class StoppingParams:
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"StoppingParams.method must be one of {METHODS}, got {self.method!r}")
+        if self.scan_us <= 0 or self.work_scans < 1 or not 0 <= self.step_scans <= self.work_scans:
+            raise ValueError(f"StoppingParams: scan_us {self.scan_us} must be > 0 and 0 <= step_scans "
+                             f"{self.step_scans} <= work_scans {self.work_scans} (>= 1)")
+
+    @property
+    def valve(self) -> BrakeValveParams:
+        """The driver's brake valve the adaptive methods set (the demand's ceiling: full service)."""
+        return BrakeValveParams(self.valve_service_rate_mps3, self.valve_release_rate_mps3,
+                                self.max_decel_mps2)
+
+    def apply_lead_s(self, decel_mps2: float) -> float:
+        """How long before the curve's start the valve goes to V: half the time it takes to apply
+        `decel_mps2` at the service rate (the application ramp is centred on the curve's start); 0 for pi."""
+        if self.method == "pi":
+            return 0.0
+        return 0.5 * min(decel_mps2, self.max_decel_mps2) / self.valve_service_rate_mps3
 
 
 class Odometer:
@@ -181,13 +232,112 @@ class Curve:
     d0_m: float           # distance to go at the start
     a_mps2: float         # a_c
 
-    def at(self, now_us: int) -> tuple[float, float]:
-        """(S_th, V_th): path [m] from the curve's start and speed [m/s] at now_us."""
-        tau = max((now_us - self.t0_us) * 1e-6, 0.0)
-        t_end = self.v0_mps / self.a_mps2 if self.a_mps2 > 0.0 else math.inf
-        if tau >= t_end:
-            return self.d0_m, 0.0
-        return self.v0_mps * tau - 0.5 * self.a_mps2 * tau * tau, self.v0_mps - self.a_mps2 * tau
+    @property
+    def end_us(self) -> float:
+        """The curve's end (V_th = 0) [µs]."""
+        return self.t0_us + (self.v0_mps / self.a_mps2 * 1e6 if self.a_mps2 > 0.0 else math.inf)
+
+    def state(self, now_us: float) -> tuple[float, float, float]:
+        """(S_th, V_th, a_th): path [m] from the curve's start, speed [m/s] and deceleration [m/s²] at now_us;
+        before the start the train coasts at v0, after the end it stands at d0."""
+        tau = (now_us - self.t0_us) * 1e-6
+        if tau < 0.0:
+            return self.v0_mps * tau, self.v0_mps, 0.0
+        if now_us >= self.end_us:
+            return self.d0_m, 0.0, 0.0
+        return self.v0_mps * tau - 0.5 * self.a_mps2 * tau * tau, self.v0_mps - self.a_mps2 * tau, self.a_mps2
+
+    def at(self, now_us: float) -> tuple[float, float]:
+        """(S_th, V_th) at now_us (not before the curve's start)."""
+        s_th, v_th, _ = self.state(max(now_us, self.t0_us))
+        return s_th, v_th
+
+
+def braking_curve(now_us: int, x_m: float, v_mps: float, togo_m: float, p: StoppingParams) -> Curve:
+    """The curve that starts now from x_m at v_mps, togo_m before the target (§VI), its start moved
+    `apply_lead_s` ahead for the valve's application ramp."""
+    lead = p.apply_lead_s(max(p.planned_decel_mps2, v_mps * v_mps / (2.0 * max(togo_m, 0.01))))
+    d0 = max(togo_m - v_mps * lead, 0.01)
+    a_c = max(p.planned_decel_mps2, v_mps * v_mps / (2.0 * d0))
+    return Curve(now_us + round(lead * 1e6), x_m + v_mps * lead, v_mps, d0, a_c)
+
+
+def braked_path(v_mps: float, a_mps2: float, h_s: float) -> float:
+    """Path [m] a train at v_mps braking at a_mps2 covers in h_s, up to its standstill."""
+    if a_mps2 > 0.0:
+        h_s = min(h_s, v_mps / a_mps2)
+    return v_mps * h_s - 0.5 * a_mps2 * h_s * h_s
+
+
+class AdaptiveSearch:
+    """The PLC program of seed 002 (§VI, Fig. 2; with `diff`, Fig. 3) for one braking curve: `scan(now_us,
+    s_m, v_mps, a_mps2) -> ValvePosition`, one PLC scan (call it every `p.scan_us`).
+
+    s_m: the path driven since the curve's start point x0 [m]; v_mps: the speed [m/s]; a_mps2: the
+    deceleration [m/s²] (positive when braking).  It needs nothing else: a PLC program can run the same.
+
+    First the brake is applied: V until the valve's demand (modelled with `BrakeValve`, from the positions
+    sent) reaches the curve's deceleration a_c (§VII: "a desired braking acceleration a" is set in the PLC;
+    a curve beyond full service keeps V).  Then the search: every `work_scans` scans Q is evaluated and
+    `search_step` decides the work step, held `step_scans` scans (`step_position`).  A scan without a
+    finite S, V or a holds the valve in IV and does not count."""
+
+    def __init__(self, p: StoppingParams, curve: Curve, diff: bool) -> None:
+        self.p, self.curve, self.diff = p, curve, diff
+        self.model = BrakeValve(p.valve)         # the demand the positions sent so far make (the BCU's)
+        self.applying = True                     # the initial application to a_c
+        self.scans = 0                           # scans since the search began
+        self.direction = 1                       # the last work step's direction (+1: V, brake harder)
+        self.move = False
+        self.q_expected: float | None = None     # Q expected at the next evaluation without a step
+        self.quality = math.nan                  # the last Q [m]
+        self.deviation = math.nan                # the last e (plain) or predicted e (diff) [m]; + = ahead
+
+    def predicted_deviation(self, now_us: float, s_m: float, v_mps: float, a_mps2: float) -> float:
+        """e = S − S_th now (plain search), or with the differentiation unit the deviation T_d ahead:
+        the train's path extrapolated with V and a (to its standstill when that comes first) minus the
+        curve's path at t + T_d, = e + T_d·ė + T_d²/2·ë while neither stops."""
+        if not self.diff:
+            return s_m - self.curve.state(now_us)[0]
+        h = self.p.diff_horizon_s
+        return s_m + braked_path(v_mps, a_mps2, h) - self.curve.state(now_us + h * 1e6)[0]
+
+    def expected_quality(self, now_us: int, s_m: float, v_mps: float, a_mps2: float, q: float) -> float:
+        """What Q will be at the next evaluation if the work step has no effect: the plain search expects
+        the Q it has (Fig. 2: ΔQ = Q_N − Q_(N−1)); the differentiation unit follows the parameters' change
+        in time and extrapolates them one work period with the V and a measured now."""
+        if not self.diff:
+            return q
+        tw = self.p.work_scans * self.p.scan_us * 1e-6
+        e = self.predicted_deviation(now_us + tw * 1e6, s_m + braked_path(v_mps, a_mps2, tw),
+                                     max(v_mps - a_mps2 * tw, 0.0), a_mps2)
+        return abs(e) if math.isfinite(e) else math.inf
+
+    def scan(self, now_us: int, s_m: float, v_mps: float, a_mps2: float) -> ValvePosition:
+        p = self.p
+        if not (math.isfinite(s_m) and math.isfinite(v_mps) and math.isfinite(a_mps2)):
+            return self._send(ValvePosition.LAP)             # no valid measurement: hold what is applied
+        if self.applying:
+            if self.model.demand + p.valve_service_rate_mps3 * p.scan_us * 1e-6 <= self.curve.a_mps2 + 1e-9:
+                return self._send(ValvePosition.SERVICE)
+            self.applying = False
+        k = self.scans % p.work_scans
+        if k == 0:                                           # one united attempt-and-work step
+            e = self.predicted_deviation(now_us, s_m, v_mps, a_mps2)
+            q = abs(e) if math.isfinite(e) else math.inf
+            if self.q_expected is None:
+                self.move = q >= p.dead_zone_m               # the first step: towards braking harder
+            else:
+                self.direction, self.move = search_step(self.direction, q, self.q_expected, p.threshold_m,
+                                                        p.dead_zone_m)
+            self.q_expected = self.expected_quality(now_us, s_m, v_mps, a_mps2, q)
+            self.quality, self.deviation = q, e
+        self.scans += 1
+        return self._send(step_position(self.direction, self.move, k, p.step_scans))
+
+    def _send(self, position: ValvePosition) -> ValvePosition:
+        self.model.step(self.p.scan_us * 1e-6, position)
+        return position
 
 
 @dataclass
@@ -197,10 +347,15 @@ class StopOutput:
     distance_to_go_m: float  # target − odometer position [m] (NaN without target)
     ref_speed_mps: float     # the curve's speed at this point [m/s] (NaN when not following)
     quality: float           # the search's last Q [m] (NaN for pi or when not following)
+    valve: ValvePosition | None = None   # the brake valve position of the adaptive methods (None: pi)
 
 
 class StoppingController:
-    """One BCU cycle of precise stopping: step(...) -> StopOutput."""
+    """One BCU cycle of precise stopping: step(...) -> StopOutput.
+
+    The adaptive methods run `AdaptiveSearch` every PLC scan (`p.scan_us`) and turn its valve position into
+    the command with `BrakeValve` every cycle; `valve_position` is the position in force (RELEASE when
+    not braking, SERVICE while holding the train at the stop; None for pi)."""
 
     def __init__(self, p: StoppingParams) -> None:
         self.p = p
@@ -210,11 +365,10 @@ class StoppingController:
         self.curve: Curve | None = None
         self.command = 0.0
         self.pi = PI(p.pi)
-        self._dir = 1                            # the search's last work-step direction (+1: brake harder)
-        self._q_before: float | None = None
-        self._e_before: float | None = None       # ê of the last two work steps (differentiation unit)
-        self._e_before2: float | None = None
-        self._next_work_us = 0
+        self.search: AdaptiveSearch | None = None
+        self.valve = BrakeValve(p.valve)
+        self.valve_position: ValvePosition | None = None if p.method == "pi" else ValvePosition.RELEASE
+        self._next_scan_us = 0
         self.quality = math.nan
 
     def step(self, now_us: int, dt_s: float, *, target_valid: bool, target_m: float, emergency: bool,
@@ -227,7 +381,8 @@ class StoppingController:
         self.target_m = target_m if target_valid else None
         v = max(train_speed_mps, 0.0)
         togo = (target_m - x) if target_valid else math.nan
-        curve_reached = target_valid and togo <= v * v / (2.0 * p.planned_decel_mps2)
+        curve_reached = target_valid and togo <= v * v / (2.0 * p.planned_decel_mps2) + v * p.apply_lead_s(
+            p.planned_decel_mps2)
         before = self.state
         self.state = stop_state_transition(before, target_valid=target_valid, new_target=new_target,
                                            emergency=emergency, standstill=standstill,
@@ -239,20 +394,27 @@ class StoppingController:
             ref_speed = self._follow(now_us, dt_s, x, v, togo)
         elif self.state == StopState.STOPPED:
             self.command = p.hold_decel_mps2
+            if p.method != "pi":
+                self.valve_position = ValvePosition.SERVICE
+                self.valve.demand = self.command
         else:
-            self.command, self.curve, self.quality = 0.0, None, math.nan
-        return StopOutput(self.state, self.command, togo, ref_speed, self.quality)
+            self.command, self.curve, self.search, self.quality = 0.0, None, None, math.nan
+            if p.method != "pi":
+                self.valve_position, self.valve.demand = ValvePosition.RELEASE, 0.0
+        return StopOutput(self.state, self.command, togo, ref_speed, self.quality, self.valve_position)
 
     def _start_curve(self, now_us: int, x: float, v: float, togo: float) -> None:
         p = self.p
-        d0 = max(togo, 0.01)
-        a_c = max(p.planned_decel_mps2, v * v / (2.0 * d0))
-        self.curve = Curve(now_us, x, v, d0, a_c)
-        self.command = min(a_c, p.max_decel_mps2)       # the desired braking acceleration (§VII)
-        self._dir, self._q_before, self._next_work_us = 1, None, now_us
-        self._e_before = self._e_before2 = None
-        # bumpless: the first PI output is the curve's deceleration, with the feed-forward v²/(2 d0) in it
-        self.pi.handover(self.command, feedforward=min(v * v / (2.0 * d0), p.max_decel_mps2))
+        self.curve = braking_curve(now_us, x, v, togo, p)
+        if p.method == "pi":
+            d0 = max(togo, 0.01)
+            self.command = min(self.curve.a_mps2, p.max_decel_mps2)     # the desired braking acceleration
+            # bumpless: the first PI output is the curve's deceleration, with the feed-forward v²/(2 d0) in it
+            self.pi.handover(self.command, feedforward=min(v * v / (2.0 * d0), p.max_decel_mps2))
+        else:
+            self.search = AdaptiveSearch(p, self.curve, diff=p.method == "adaptive_diff")
+            self.search.model.demand = self.valve.demand                # a new target while braking
+            self._next_scan_us = now_us
 
     def _follow(self, now_us: int, dt_s: float, x: float, v: float, togo: float) -> float:
         p, curve = self.p, self.curve
@@ -265,23 +427,9 @@ class StoppingController:
                 ff = p.max_decel_mps2 if togo <= 0.0 else v * v / (2.0 * p.final_distance_m)
             self.command = self.pi.update(v - ref, dt_s, feedforward=clip(ff, 0.0, p.max_decel_mps2))
             return ref
-        s_th, v_th = curve.at(now_us)
-        e = (x - curve.x0_m) - s_th                      # > 0: ahead of the curve: brake harder
-        if p.method == "adaptive_diff":
-            # differentiation unit, Fig. 3: ė = V − V_th, ë = a_th − a
-            a_th = curve.a_mps2 if v_th > 0.0 else 0.0
-            td = p.diff_horizon_s
-            e += td * (v - v_th) + 0.5 * td * td * (a_th - self.odometer.decel)
-        q = abs(e)
-        if now_us >= self._next_work_us:                  # one united attempt-and-work step
-            if self._q_before is not None:
-                q_before = self._q_before
-                if p.method == "adaptive_diff" and self._e_before2 is not None:
-                    q_before = abs(2.0 * self._e_before - self._e_before2)      # the trend, extrapolated
-                self._dir, move = search_step(self._dir, q, q_before, p.threshold_m, p.dead_zone_m)
-                if move:
-                    self.command = clip(self.command + self._dir * p.search_step_mps2, 0.0, p.max_decel_mps2)
-            self._q_before, self._e_before2, self._e_before = q, self._e_before, e
-            self._next_work_us = now_us + round(p.work_period_s * 1e6)
-        self.quality = q
-        return v_th
+        if now_us >= self._next_scan_us:                       # one PLC scan
+            self.valve_position = self.search.scan(now_us, x - curve.x0_m, v, self.odometer.decel)
+            self.quality = self.search.quality
+            self._next_scan_us += p.scan_us * max(1, (now_us - self._next_scan_us) // p.scan_us + 1)
+        self.command = self.valve.step(dt_s, self.valve_position)
+        return curve.state(now_us)[1]

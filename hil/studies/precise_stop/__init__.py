@@ -1,7 +1,7 @@
 """Precise stopping at a target point: the BCU brakes the train along a braking curve to the stop point
-the desk (the ATO) gives, correcting its command with the paper's adaptive search ("with united attempt
-and work steps", with or without the differentiation unit) or a PI on the curve; balises re-anchor its
-odometer.
+the desk (the ATO) gives, correcting its braking with the paper's adaptive search ("with united attempt
+and work steps", with or without the differentiation unit, setting the driver's brake valve every PLC
+scan) or a PI on the curve; balises re-anchor its odometer.
 
 Paper: seed 002, adaptive train braking on a PLC and an embedded anti-collision device
 (../shared/seeds/002_52bf1e74f6d1e01e.txt), §VII.  Controller: firmware_py/stopping.py in the foundation
