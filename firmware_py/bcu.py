@@ -33,9 +33,10 @@ from __future__ import annotations
 import math
 import statistics
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import IntEnum
 
+from firmware_py.brake_valve import BrakeValve, BrakeValveParams, ValvePosition
 from firmware_py.cycle import CycleTimer
 from firmware_py.decel_feedback import DecelFeedback, FbState, FeedbackParams
 from firmware_py.limits import clip, finite_or, rate_limit
@@ -109,6 +110,15 @@ class BcuParams:
     acd: bool = False                        # obey ACD_BRAKE_REQ (an anti-collision device is fitted)
     acd_timeout_us: int = 300_000            # the ACD's request (100 ms cycle) is stale after 3 cycles
     #                                          (chosen)
+    # the driver's brake valve a PLC on the desk sets (DESK_CMD.BrakeValve, seed 002 §VII), integrated into a
+    # demand at its service / release rate; its ceiling is full service (step 7)
+    brake_valve: BrakeValveParams = field(default_factory=BrakeValveParams)
+    desk_timeout_us: int = 300_000           # a valve position (DESK_CMD, 100 ms) older than 3 cycles: the
+    #                                          PLC is silent and the valve goes to V (service brake), as a
+    #                                          brake pipe vents when its control is lost (chosen)
+
+
+VALVE_POSITIONS = frozenset(int(p) for p in ValvePosition)
 
 
 class Bcu:
@@ -130,7 +140,8 @@ class Bcu:
         self.speed_keys = tuple(f"BECU{i}_STATUS.SpeedEst" for i in range(1, n_cars + 1))
         self.fault_keys = tuple(f"BECU{i}_DIAG.{sig}" for i in range(1, n_cars + 1)
                                 for sig in ("SpeedSensorFault", "AccelSensorFault", "CylSensorFault"))
-        self.inputs = ("BrakeStep", "EmergencyReq") + self.speed_keys + self.fault_keys
+        self.inputs = ("BrakeStep", "EmergencyReq", "BrakeValve") + self.speed_keys + self.fault_keys
+        self.valve = BrakeValve(self.p.brake_valve)
         self.feedback: DecelFeedback | None = None
         if self.p.feedback is not None:
             self.feedback = DecelFeedback(self.p.feedback)
@@ -189,9 +200,10 @@ class Bcu:
             stop_cmd = so.command_mps2 if stop_demand else 0.0
         acd_emergency, acd_cmd, acd_silent = (self._acd_request(now_us, rx, standstill) if p.acd
                                               else (False, 0.0, False))
+        valve_cmd = self._valve_step(now_us, rx, dt_s)
         desk_emergency = emergency_req >= 0.5
         self.mode = bcu_mode_transition(self.mode, brake_step, desk_emergency or acd_emergency, standstill,
-                                        stop_demand or acd_cmd > 0.0)
+                                        stop_demand or acd_cmd > 0.0 or valve_cmd > 0.0)
         emergency = self.mode == BcuMode.EMERGENCY
         if emergency:
             self.target = p.emergency_decel_mps2                      # no jerk limit on emergency
@@ -201,7 +213,7 @@ class Bcu:
                 self.source = 2 if acd_emergency else 1
         else:
             self.source = 0
-            wanted = max(p.step_decel_mps2[brake_step], stop_cmd, acd_cmd)
+            wanted = max(p.step_decel_mps2[brake_step], stop_cmd, acd_cmd, valve_cmd)
             jerk = p.jerk_limit_mps3 * dt_s
             self.target = rate_limit(wanted, self.target, jerk, jerk)
         fb_state, phi, slope = FbState.OFF, 1.0, 0.0
@@ -224,6 +236,21 @@ class Bcu:
             "SlopeEst": clip(slope, -0.064, 0.06375),            # the DBC signal's range
             **(self._stop_signals() if self.stopping is not None else {"StopState": 0}),
         }
+
+    def _valve_step(self, now_us: int, rx: Mapping[str, float], dt_s: float) -> float:
+        """The demand of the driver's brake valve a PLC on the desk sets (DESK_CMD.BrakeValve): 0 while it
+        is not used (NONE, or never received); its position integrated (firmware_py.brake_valve); a
+        position gone stale, or a value that is no position, brakes (V)."""
+        raw = rx.get("BrakeValve", math.nan)      # not bound in a controller test: not used
+        if raw != raw or raw == 0:
+            self.valve.demand = 0.0                  # not used: the brake step alone
+            return 0.0
+        position = int(raw) if raw in VALVE_POSITIONS else ValvePosition.SERVICE
+        age_us = getattr(rx, "age_us", None)
+        age = age_us("BrakeValve", now_us) if age_us is not None else None
+        if age is not None and age > self.p.desk_timeout_us:
+            position = ValvePosition.SERVICE
+        return self.valve.step(dt_s, position)
 
     def _acd_request(self, now_us: int, rx: Mapping[str, float],
                      standstill: bool) -> tuple[bool, float, bool]:

@@ -150,3 +150,49 @@ def test_bcu_steps_and_emergency():
     assert out["CarsSilent"] == 0b10 and out["TrainSpeedEst"] == 20.0
     out = bcu.step(2_000_000, {**rx, "EmergencyReq": 1})
     assert out["Mode"] == BcuMode.EMERGENCY and out["EmergencyActive"] == 1 and out["TargetDecel"] == 1.3
+
+
+class AgedRx(dict):
+    """An rx table with reception times, as the node runtime's RxTable gives the BCU."""
+
+    def __init__(self, *args, received_us: dict | None = None, **kw):
+        super().__init__(*args, **kw)
+        self.received_us = received_us or {}
+
+    def age_us(self, name, now_us):
+        t = self.received_us.get(name)
+        return None if t is None else now_us - t
+
+
+def test_bcu_integrates_the_driver_brake_valve_a_plc_sets():
+    """DESK_CMD.BrakeValve (seed 002 §VII): V raises the demand at the valve's service rate, IV holds it,
+    II lowers it; NONE is the brake step alone."""
+    bcu = Bcu(1)
+    rate = bcu.p.brake_valve.service_rate_mps3
+    base = {"BrakeStep": 0, "EmergencyReq": 0, "BECU1_STATUS.SpeedEst": 20.0}
+    t, out = 0, {}
+    for position, seconds in ((5, 2.0), (4, 1.0), (2, 1.0)):     # V 2 s, IV 1 s, II 1 s
+        for _ in range(round(seconds * 100)):
+            out = bcu.step(t, {**base, "BrakeValve": position})
+            t += 10_000
+        if position == 5:
+            assert out["Mode"] == BcuMode.SERVICE
+            assert out["TargetDecel"] == pytest.approx(2.0 * rate, abs=0.01)
+        if position == 4:
+            assert out["TargetDecel"] == pytest.approx(2.0 * rate, abs=0.01)
+    assert out["TargetDecel"] == pytest.approx(1.0 * rate, abs=0.01)
+    out = bcu.step(t, {**base, "BrakeValve": 0})                  # NONE: the valve is not used
+    assert bcu.valve.demand == 0.0 and out["Mode"] == BcuMode.RELEASED
+
+
+def test_bcu_brakes_when_the_plc_setting_the_valve_falls_silent():
+    bcu = Bcu(1)
+    base = {"BrakeStep": 0, "EmergencyReq": 0, "BECU1_STATUS.SpeedEst": 20.0}
+    out = bcu.step(0, AgedRx(base))                               # never received: not used, no brake
+    assert out["TargetDecel"] == 0.0 and out["Mode"] == BcuMode.RELEASED
+    rx = AgedRx({**base, "BrakeValve": 4}, received_us={"BrakeValve": 0})   # IV, last heard at 0
+    for k in range(1, 101):                                       # 1 s: silent after 0.3 s
+        out = bcu.step(k * 10_000, rx)
+    assert out["TargetDecel"] > 0.0 and out["Mode"] == BcuMode.SERVICE
+    out = bcu.step(1_010_000, AgedRx({**base, "BrakeValve": 9}, received_us={"BrakeValve": 1_010_000}))
+    assert bcu.valve.demand > 0.1                                  # not a position: V

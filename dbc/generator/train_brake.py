@@ -56,6 +56,12 @@ def messages() -> list[Msg]:
                 Sig("BrakeStep", 12, 3, maximum=7,
                     comment="service brake step 0 (released) .. 7 (full service)"),
                 Sig("EmergencyReq", 15, 1, maximum=1, comment="1 = driver emergency brake request"),
+                # seed 002 §VII: the PLC sets the driver's brake valve; the BCU integrates the position into
+                # a brake demand at the valve's service / release rate (firmware_py/brake_valve.py)
+                Sig("BrakeValve", 16, 3, maximum=7,
+                    comment="driver's brake valve position set by a PLC on the desk: 0 not used (the brake "
+                            "step alone), 2 = II release, 4 = IV lap with feeding, 5 = V service brake",
+                    choices={0: "NONE", 2: "RELEASE", 4: "LAP", 5: "SERVICE"}),
             ] + secoc("the desk command"), secoc_data_id=0x018),
         Msg(0x019, "DESK_TARGET", "DESK", ["BCU"], 100,
             "Driver desk / ATO target stop point (precise stopping; authenticated: a forged target "
