@@ -69,6 +69,7 @@ Speed = {{ from = "truth.car1.speed" }}
 [send.DESK_CMD]
 BrakeStep = {{ from = "Command.BrakeStep" }}
 EmergencyReq = {{ from = "Command.Emergency" }}
+BrakeValve = {{ value = "NONE" }}
 
 [send.DESK_TARGET]
 TargetStopValid = {{ value = 0 }}

@@ -39,14 +39,15 @@ def model_class(device: Device) -> type:
         added = str(folder) not in sys.path
         if added:
             sys.path.insert(0, str(folder))
+        sys.modules[unique] = module     # before it runs: a dataclass in it looks its module up there
         try:
             spec.loader.exec_module(module)
         except Exception as exc:         # the user's module: its error, in one line
+            del sys.modules[unique]
             raise DeviceError(f"{where}: importing {file.name} failed: {type(exc).__name__}: {exc}") from None
         finally:
             if added:
                 sys.path.remove(str(folder))
-        sys.modules[unique] = module
     cls = getattr(module, class_name, None)
     if not isinstance(cls, type) or not callable(getattr(cls, "step", None)):
         raise DeviceError(f"{where}: {file.name} has no class {class_name!r} with a step(now_us, rx) method")

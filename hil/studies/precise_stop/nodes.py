@@ -19,5 +19,7 @@ def build_node(name, scenario, db, codec, dbc_name="DBC"):
 
 
 def bcu_messages(scenario, rx: list[str], tx: list[str]) -> None:
+    if scenario.precise_stop.method == "plc":      # a PLC in the DESK's place: no function in the BCU
+        return
     rx += ["DESK_TARGET"] + (["PLANT_BTM"] if scenario.track.balises else [])
     tx.append("BCU_STOP")

@@ -3,7 +3,8 @@ stopping function's parameters it sets in the BCU.
 
     [precise_stop]
     method = "pi"               # "adaptive" (Fig. 2), "adaptive_diff" (Fig. 3: with the differentiation
-                                # unit) or "pi" (the modern baseline: curve tracking, PI + feed-forward)
+                                # unit) or "pi" (the modern baseline: curve tracking, PI + feed-forward),
+                                # in the BCU; "plc": a PLC in the DESK's place sets the brake valve
     planned_decel_mps2 = 0.6    # the braking curve's planned deceleration a_p [m/s²]
 
 The target stop point is a `[[desk]]` event's `target_stop_m`; `[track] balises` re-anchor the BCU's
@@ -18,6 +19,7 @@ from typing import TYPE_CHECKING, Annotated, Literal
 from pydantic import Field
 
 from firmware_py.stopping import StoppingParams
+from hil.errors import ScenarioError
 from hil.scenario.base import Strict
 from hil.scenario.params import step_decel_mps2
 
@@ -25,13 +27,18 @@ if TYPE_CHECKING:
     from hil.scenario.model import ScenarioBase as Scenario
 
 
+PLC = "plc"           # the method of a PLC in the DESK's place (the BCU's function not fitted)
+
+
 class PreciseStopSpec(Strict):
     """[precise_stop] of a scenario file."""
 
-    method: Literal["adaptive", "adaptive_diff", "pi"] = Field(
+    method: Literal["adaptive", "adaptive_diff", "pi", "plc"] = Field(
         "pi", description="the paper's adaptive search without (adaptive, Fig. 2) or with the "
                           "differentiation unit (adaptive_diff, Fig. 3), or the modern baseline pi (curve "
-                          "tracking, PI + feed-forward)")
+                          "tracking, PI + feed-forward), each in the BCU; or plc: a PLC in the DESK's place "
+                          "(a device, docs/plc-over-opcua.md) stops the train with the driver's brake valve "
+                          "(DESK_CMD.BrakeValve) and the BCU's own function is not fitted")
     planned_decel_mps2: Annotated[float, Field(
         gt=0, le=5, description="the braking curve's planned deceleration a_p [m/s²]")] = 0.6
 
@@ -66,6 +73,12 @@ def bcu_params(scenario: Scenario, kw: dict) -> None:
     the train's front passing the start position at t = 0."""
     full = step_decel_mps2(scenario)[7]
     ps = scenario.precise_stop
+    if ps.method == PLC:
+        if "DESK" not in scenario.devices:
+            raise ScenarioError("precise_stop.method = 'plc': the stopping program runs on a PLC in the "
+                                "DESK's place; give the device (--device DESK=FILE, e.g. "
+                                "examples/plc_precise_stop/plc_precise_stop.toml, or [devices.DESK])")
+        return                                  # the BCU obeys the PLC's brake valve: no function fitted
     kw["stopping"] = StoppingParams(
         method=ps.method, planned_decel_mps2=ps.planned_decel_mps2, max_decel_mps2=full, hold_decel_mps2=full,
         start_position_m=scenario.train.start_position_m, start_time_us=0,
