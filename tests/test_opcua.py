@@ -261,6 +261,9 @@ class PlcServer:
                 var = await obj.add_variable(idx, name, ua.Variant(initial, vtype), varianttype=vtype,
                                              datatype=ua.NodeId(getattr(ua.ObjectIds, type_name)))
                 await var.set_writable()
+                if name == "Speed":                  # the PLC's own engineering unit
+                    await var.add_property(0, "EngineeringUnits", ua.EUInformation(
+                        DisplayName=ua.LocalizedText("km/h"), UnitId=-1))
                 self.vars[name] = var
         self.stop_event = asyncio.Event()
         self.loop = asyncio.get_running_loop()
@@ -314,6 +317,9 @@ def test_the_bench_as_client_finds_the_plcs_variables_and_measures_its_calls(tmp
      "key 'reads.Train.Speed': the variable's data type on the PLC is Double, the device file says Float"),
     (('namespace = "urn:railhil:test-plc"', 'namespace = "urn:acme:plc"'),
      "key 'opcua.namespace' = 'urn:acme:plc': the PLC's server has no such namespace"),
+    (('Speed = { type = "Double", unit = "km/h" }', 'Speed = { type = "Double", unit = "m/s" }'),
+     "key 'reads.Train.Speed': the PLC's server gives the variable the unit 'km/h', the device file "
+     "says m/s"),
 ])
 def test_a_plc_server_that_does_not_have_the_variables_is_one_line(tmp_path, change, expected):
     port = free_port()

@@ -129,3 +129,27 @@ def test_the_example_plc_over_opcua_stops_the_train_in_real_time(tmp_path, name,
     assert link["cycle"]["p50_ms"] == pytest.approx(100.0, abs=10.0) and link["read_age"]["n"] > 50
     assert link["round_trip"]["p50_ms"] is not None and (role == "server" or link["calls"]["n"] > 50)
     assert "PLC: " in said and " scans," in said, said
+
+
+@pytest.mark.realtime
+def test_a_plc_that_falls_silent_fails_the_run_and_the_bcu_brakes(tmp_path):
+    """The PLC stops writing 4 s into the run: the link reports the silence, the run fails (exit 1), the
+    gateway sends no more DESK frames and the BCU takes the stale valve position as V: the train stops."""
+    port = free_port()
+    plc = start_plc(tmp_path, port, "--duration", "4")
+    out = tmp_path / "run"
+    try:
+        sets = [a for s in SHORT for a in ("--set", s)]
+        proc = run(["precise_stop", "--realtime", "--set", "precise_stop.method=plc", *sets, "--device",
+                    str(device_copy(tmp_path, "plc_precise_stop.toml", port)), "--out", str(out)], tmp_path)
+    finally:
+        stop(plc)
+    assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-2000:]
+    last = proc.stdout.strip().splitlines()[-1]
+    assert last.startswith("verdict: FAIL") and "device DESK" in last, last
+    k = json.loads((out / "kpis.json").read_text())
+    d = k["devices"]["DESK"]
+    assert d["plc"]["timing"] == "FAIL" and d["opcua"]["silences"] >= 1, d["plc"]
+    assert "silent" in d["plc"]["why"], d["plc"]
+    assert d["bench"]["last_s"] < 8.0, d["bench"]               # no DESK frames once it is silent
+    assert k["precise_stop"]["stopped"], k["precise_stop"]        # the BCU braked (V) and stopped it

@@ -61,28 +61,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--security", choices=("SignAndEncrypt", "None"), default="SignAndEncrypt")
     p.add_argument("--pki", type=Path, default=HERE / "pki", help="its certificate's folder (default: pki/ "
                    "beside this file)")
-    p.add_argument("--duration", type=float, help="stop after this many seconds of scans")
+    p.add_argument("--duration", type=float,
+                   help="stop this many seconds after the bench's first update (its Stamp) was read")
     return p
 
 
 class Plc:
     """The scan loop on absolute deadlines; `read()` and `write()` are the OPC UA side (client or server)."""
 
-    def __init__(self, program: StoppingProgram) -> None:
-        self.program = program
+    def __init__(self, program: StoppingProgram, duration_s: float | None = None) -> None:
+        self.program, self.duration_s = program, duration_s
         self.scans = self.late = self.writes = self.reconnects = 0
+        self.end: float | None = None       # --duration: from the first scan with the bench's data
 
-    async def cycle(self, read, write, stop: asyncio.Event, until: float | None) -> None:
+    @property
+    def done(self) -> bool:
+        return self.end is not None and time.monotonic() >= self.end
+
+    async def cycle(self, read, write, stop: asyncio.Event) -> None:
         period = self.program.p.scan_us / 1e6
         t0 = time.monotonic()
         deadline = t0
-        while not stop.is_set() and (until is None or time.monotonic() < until):
+        while not stop.is_set() and not self.done:
             now = time.monotonic()
             if now < deadline:
                 await asyncio.sleep(deadline - now)
                 continue
             self.late += now - deadline > period / 2
             position, speed, target, stamp = await read()
+            if self.end is None and self.duration_s and stamp:     # the bench's first update
+                self.end = time.monotonic() + self.duration_s
             now_us = round((deadline - t0) * 1e6)
             valve = self.program.scan(now_us, position, speed, target)
             await write({"Valve": valve, "Target": target, "Echo": stamp})
@@ -109,12 +117,12 @@ def variant(name: str, value) -> ua.Variant:
     return ua.Variant(int(value) if value == value else 0, vtype)
 
 
-async def as_client(plc: Plc, args, password: str | None, stop: asyncio.Event, until: float | None) -> None:
+async def as_client(plc: Plc, args, password: str | None, stop: asyncio.Event) -> None:
     endpoint = args.endpoint or "opc.tcp://127.0.0.1:48400/railhil"
     cert, key = await certificate(args.pki)
     print(f"PLC: certificate {cert}; connecting to {endpoint}", flush=True)
     announced = False
-    while not stop.is_set() and (until is None or time.monotonic() < until):
+    while not stop.is_set() and not plc.done:
         client = Client(endpoint, timeout=4)
         client.application_uri = APP_URI
         if password is not None:
@@ -144,7 +152,7 @@ async def as_client(plc: Plc, args, password: str | None, stop: asyncio.Event, u
             async def write(values, client=client, outs=outs):
                 await client.write_values(outs, [variant(n, values[n]) for n in OUTPUTS])
 
-            await plc.cycle(read, write, stop, until)
+            await plc.cycle(read, write, stop)
         except Exception:                    # the bench went away: reconnect
             plc.reconnects += 1
             await asyncio.sleep(0.2)
@@ -155,7 +163,7 @@ async def as_client(plc: Plc, args, password: str | None, stop: asyncio.Event, u
                 pass
 
 
-async def as_server(plc: Plc, args, secret: str | None, stop: asyncio.Event, until: float | None) -> None:
+async def as_server(plc: Plc, args, secret: str | None, stop: asyncio.Event) -> None:
     endpoint = args.endpoint or "opc.tcp://127.0.0.1:48410/plc"
 
     class Users:                                # the user "plc" with its password (any certificate)
@@ -201,7 +209,7 @@ async def as_server(plc: Plc, args, secret: str | None, stop: asyncio.Event, unt
                 await server.write_attribute_value(nodes[("Brake", n)].nodeid,
                                                    ua.DataValue(variant(n, values[n])))
 
-        await plc.cycle(read, write, stop, until)
+        await plc.cycle(read, write, stop)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -212,15 +220,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.security != "None" and password is None:
         print(f"error: set {PASSWORD_ENV}: the PLC's user {USER!r} logs in with it", file=sys.stderr)
         return 2
-    plc = Plc(StoppingProgram(diff=args.method == "adaptive_diff"))
+    plc = Plc(StoppingProgram(diff=args.method == "adaptive_diff"), args.duration)
 
     async def run() -> None:
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, stop.set)
-        until = time.monotonic() + args.duration if args.duration else None
-        await (as_server if args.serve else as_client)(plc, args, password, stop, until)
+        await (as_server if args.serve else as_client)(plc, args, password, stop)
 
     try:
         asyncio.run(run())

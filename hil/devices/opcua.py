@@ -388,7 +388,7 @@ class OpcUaLink:
                                              ua.Variant(self._initial(vs.type), vtype), varianttype=vtype,
                                              datatype=ua.NodeId(getattr(ua.ObjectIds, vs.type)))
                 if sig.unit:
-                    await var.add_property(idx, "EngineeringUnits", ua.EUInformation(
+                    await var.add_property(0, "EngineeringUnits", ua.EUInformation(
                         NamespaceUri="http://www.opcfoundation.org/UA/units/un/cefact", UnitId=-1,
                         DisplayName=ua.LocalizedText(sig.unit), Description=ua.LocalizedText(sig.unit)))
                 if fid in self.written:
@@ -508,8 +508,33 @@ class OpcUaLink:
                            else str(dtype))
                     raise DeviceError(f"{self.where}: key '{key}': the variable's data type on the PLC is "
                                       f"{got}, the device file says {vs.type}")
+                await self._check_unit(node, vs.unit, key)
                 self._nodes[fid][sig.name] = node
                 self._types[(fid, sig.name)] = getattr(ua.VariantType, vs.type)
+
+    async def _check_unit(self, node, unit: str | None, key: str) -> None:
+        """The variable's EngineeringUnits (where the PLC's server gives them) against the file's unit: the
+        same unit, or a DeviceError naming both (a PLC in km/h mapped as m/s would be off by 3.6)."""
+        from asyncua.ua import UaStatusCodeError
+
+        from hil.devices.units import affine
+
+        try:
+            eu = await (await node.get_child("0:EngineeringUnits")).read_value()
+        except UaStatusCodeError:
+            return                                # the server names no unit: the file's stands
+        text = (getattr(getattr(eu, "DisplayName", None), "Text", None) or "").strip()
+        if not text or text == (unit or ""):
+            return
+        where = f"{self.where}: key '{key}'"
+        try:
+            a, b = affine(text, unit, where=where)
+            same = math.isclose(a, 1.0, rel_tol=1e-9) and abs(b) < 1e-9
+        except DeviceError:
+            same = False
+        if not same:
+            raise DeviceError(f"{where}: the PLC's server gives the variable the unit {text!r}, the device "
+                              f"file says {unit or 'none'}; give it unit = {text!r}")
 
     @staticmethod
     async def _browse_names(objects) -> list[str]:
