@@ -146,7 +146,7 @@ def known(tmp_path_factory) -> tuple[Path, Path]:
             out.append(std(t, demand.frame_id, data))
         for k in range(5 if side == "A" else 4):
             data = desk.encode({"CHECKSUM": 0, "COUNTER": k, "BrakeStep": 7, "EmergencyReq": 0,
-                                "SecOCFreshness": k, "SecOCMAC": 0})
+                                "BrakeValve": 0, "SecOCFreshness": k, "SecOCMAC": 0})
             out.append(std(k / 50 + 0.005, desk.frame_id, data))
         for k in range(3):
             last = 4 if side == "B" and k == 1 else 3
