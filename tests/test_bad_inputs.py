@@ -43,7 +43,7 @@ from hil.can.codec import Codec
 from hil.can.dbc import DEFAULT_DBC, load_dbc
 from hil.errors import ScenarioError
 
-TESLA = CORPUS / "opendbc" / "opendbc" / "dbc" / "tesla_can.dbc"
+VW = CORPUS / "opendbc" / "opendbc" / "dbc" / "vw_mqb.dbc"     # overlapping signals: cantools rejects it
 RAILHIL = Path(sys.executable).with_name("railhil")
 N_FRAMES = 3000                # frames of the good traces: 10 ms apart, several BLF containers
 SCENARIO_BASE = "max_duration_s = 0.5\nseed = 5\n[train]\ncars = 1\n"   # short, should a case ever run
@@ -159,8 +159,8 @@ def bad(tmp_path_factory) -> Bad:
     f["dbc_overlap"].write_text(dbc_text.replace(" SG_ BrakeStep : 16|3@1+", " SG_ BrakeStep : 20|3@1+"))
     f["dbc_dir"] = d / "folder.dbc"
     f["dbc_dir"].mkdir()
-    for key in [k for k in f if k.startswith("dbc_")] + ["dbc_tesla"]:
-        path = f[key] if key != "dbc_tesla" else TESLA
+    for key in [k for k in f if k.startswith("dbc_")] + ["dbc_vw"]:
+        path = f[key] if key != "dbc_vw" else VW
         scen = d / f"uses-{key}.toml"
         scen.write_text(f"dbc = {json.dumps(str(path))}\n" + SCENARIO_BASE)
         f["scen_" + key] = scen
@@ -294,7 +294,7 @@ DBC_CASES = [
     ("dbc_png", lambda b: ("picture.dbc", "binary file", "expected a DBC")),
     ("dbc_garbage", lambda b: ("garbage.dbc", "not a loadable DBC", "line 1")),
     ("dbc_syntax", lambda b: ("syntax.dbc", "not a loadable DBC", f"line {b.syntax_line}")),
-    ("dbc_tesla", lambda b: ("tesla_can.dbc", "not a loadable DBC", "VAL_")),
+    ("dbc_vw", lambda b: ("vw_mqb.dbc", "not a loadable DBC", "overlapping")),
     ("dbc_collide", lambda b: ("collide.dbc", "BCU_DEMAND, BCU_DEMAND_COPY", "same frame id 0x28")),
     ("dbc_overlap", lambda b: ("overlap.dbc", "overlapping", "BCU_DEMAND")),
     ("dbc_dir", lambda b: ("folder.dbc", "directory", "expected a DBC")),
@@ -302,7 +302,7 @@ DBC_CASES = [
 
 
 def _dbc_path(b: Bad, key: str) -> Path:
-    return TESLA if key == "dbc_tesla" else b[key]
+    return VW if key == "dbc_vw" else b[key]
 
 
 CASES: list[Case] = []

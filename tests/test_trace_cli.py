@@ -286,10 +286,22 @@ def test_text_of_another_format_is_an_error(capsys, tmp_path, name, needle):
 
 @NO_CORPUS
 def test_dbc_cantools_rejects_exits_2_with_one_line():
-    tesla = OPENDBC / "tesla_can.dbc"
-    proc = railhil_process("trace", "decode", CANDUMP, "--dbc", tesla)
-    assert_one_line_error(proc.returncode, proc.stderr.decode(), str(tesla), "not a loadable DBC")
+    vw = OPENDBC / "vw_mqb.dbc"                      # overlapping signals: cantools rejects it strictly
+    proc = railhil_process("trace", "decode", CANDUMP, "--dbc", vw)
+    assert_one_line_error(proc.returncode, proc.stderr.decode(), str(vw), "not a loadable DBC")
     assert proc.stdout == b""
+
+
+@NO_CORPUS
+def test_a_dbc_with_a_value_table_naming_no_signal_is_read_and_says_so():
+    """opendbc's tesla_can.dbc has VAL_ 568 UI_mapSpeedLimit, a signal message 568 no longer has: cantools
+    rejects the file; railhil leaves the value table out, says so in one notice, and decodes."""
+    tesla = OPENDBC / "tesla_can.dbc"
+    proc = railhil_process("trace", "decode", CANDUMP, "--dbc", tesla, "--format", "csv")
+    assert proc.returncode == 0, proc.stderr
+    notices = [line for line in proc.stderr.decode().splitlines() if line.startswith("notice: ")]
+    assert notices == [f"notice: {tesla}: VAL_ 568 UI_mapSpeedLimit names no signal of its message; the "
+                       "value table is left out"], proc.stderr
 
 
 @NO_CORPUS

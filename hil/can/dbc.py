@@ -7,6 +7,8 @@ import hashlib
 import io
 import logging
 import os
+import re
+import sys
 from collections import defaultdict
 from pathlib import Path
 
@@ -71,6 +73,12 @@ def load_dbc(path: str | Path = DEFAULT_DBC) -> Database:
     clash = _duplicates(db)
     if clash is not None:
         raise DbcError(f"{path}: {clash}; expected one message per frame id and per name")
+    unused = getattr(db, "railhil_unused_values", None)
+    if unused:
+        one = len(unused) == 1
+        print(f"notice: {path}: {', '.join(unused)} "
+              + ("names no signal of its message; the value table is" if one else
+                 "name no signal of their messages; the value tables are") + " left out", file=sys.stderr)
     return db
 
 
@@ -82,15 +90,42 @@ class _Overwriting(logging.Filter):
         return not str(record.msg).startswith("Overwriting message")
 
 
+_UNUSED_VAL = re.compile(r"VAL_ (\d+) (\w+)")
+
+
+def parse_dbc_text(text: str, strict: bool = True) -> Database:
+    """cantools' load_string of DBC text, except that a value table (VAL_) naming a signal its message
+    does not have is left out rather than failing the whole file: real DBCs carry such leftovers (opendbc's
+    tesla_can.dbc: VAL_ 568 UI_mapSpeedLimit, a signal since renamed).  The entries left out are on the
+    database as `railhil_unused_values` ("VAL_ 568 UI_mapSpeedLimit"); load_dbc says so."""
+    dropped: list[str] = []
+    for _ in range(3):
+        try:
+            db = cantools.database.load_string(text, database_format="dbc", strict=strict)
+        except Exception as exc:
+            message = str(exc)
+            unused = _UNUSED_VAL.findall(message) if "unused VAL_ entries" in message else []
+            if not unused:
+                raise
+            for frame_id, signal in unused:
+                text = re.sub(rf"^VAL_\s+{frame_id}\s+{re.escape(signal)}\s[^;]*;[ \t]*\r?\n?", "", text,
+                              flags=re.MULTILINE)
+                dropped.append(f"VAL_ {frame_id} {signal}")
+            continue
+        db.railhil_unused_values = dropped
+        return db
+    raise DbcError("value tables that name no signal remain after three passes: " + ", ".join(dropped))
+
+
 def _parse(data: bytes) -> Database:
     """cantools' load_file on these bytes: its DBC decoding (cp1252, undecodable bytes replaced, newlines
-    translated), then load_string."""
+    translated), then load_string (parse_dbc_text)."""
     text = io.TextIOWrapper(io.BytesIO(data), encoding="cp1252", errors="replace").read()
     logger = logging.getLogger("cantools.database.can.database")
     quiet = _Overwriting()
     logger.addFilter(quiet)
     try:
-        return cantools.database.load_string(text, database_format="dbc", strict=True)
+        return parse_dbc_text(text)
     finally:
         logger.removeFilter(quiet)
 
