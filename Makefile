@@ -67,7 +67,7 @@ soak: $(STAMP)
 lock: $(STAMP)
 	$(PY) -m pip install --quiet uv
 	$(PY) -m pip freeze --exclude-editable | grep -v '^uv==' > $(VENV)/tested.txt
-	$(VENV)/bin/uv pip compile pyproject.toml --extra test --extra docs --python-version 3.11 --no-annotate \
+	$(VENV)/bin/uv pip compile pyproject.toml --extra test --extra docs --extra vcan --python-version 3.11 --no-annotate \
 	  --constraint $(VENV)/tested.txt -o constraints.txt
 
 ## make docs: the docs site under docs/ built strictly into site/ (a warning is an error)
