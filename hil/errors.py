@@ -32,6 +32,11 @@ class DeviceError(RailhilError, ValueError):
     file and the key, and what was expected."""
 
 
+class FmuError(RailhilError, ValueError):
+    """An FMU (hil.fmi) that cannot be used, or a map of its variables that does not fit it: names the file
+    and the variable, and what was expected."""
+
+
 class BusError(RailhilError, OSError):
     """A python-can bus that cannot be opened or used."""
 

@@ -3,7 +3,7 @@
 - firmware_py and plant_sim import neither hil nor each other, nor anything that does I/O.
 - Inside hil, the wings form layers and every import points to the same layer or a lower one:
 
-      cli, pytest plugin  →  studies  →  runtime / devices / safety / report / campaign / typetest
+      cli, pytest plugin  →  studies  →  runtime / devices / fmi / safety / report / campaign / typetest
                           →  can / trace / scenario / links  →  errors, resources
 
 - No import circles between modules.
@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 LAYERS: list[tuple[str, ...]] = [
     ("hil.errors", "hil.resources"),
     ("hil.can", "hil.trace", "hil.scenario", "hil.links"),
-    ("hil.runtime", "hil.devices", "hil.safety", "hil.report", "hil.campaign", "hil.typetest"),
+    ("hil.runtime", "hil.devices", "hil.fmi", "hil.safety", "hil.report", "hil.campaign", "hil.typetest"),
     ("hil.studies",),
     ("hil.cli", "hil.pytest_plugin", "hil.__main__", "hil"),
 ]

@@ -28,6 +28,8 @@ COMMANDS = {
              "stand-in for a device, or the ECUs on another host"),
     "scenarios": ("hil.cli.scenarios", "list the shipped scenarios with their descriptions (run one by name: "
                   "railhil run NAME)"),
+    "export-fmu": ("hil.cli.export_fmu", "write railhil's plant or a BECU of a scenario as an FMI 2.0 "
+                   "co-simulation FMU"),
     "init": ("hil.cli.init", "write an editable copy of a shipped scenario and the DBC into a folder"),
     "trace": ("hil.cli.trace",
               "inspect a recorded CAN trace: statistics, decoding, export, plots, comparison, replay"),

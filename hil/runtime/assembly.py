@@ -65,7 +65,15 @@ def becu_messages(i: int) -> tuple[list[str], list[str]]:
             [f"BECU{i}_PRESS_CMD", f"BECU{i}_STATUS", f"BECU{i}_DIAG", f"BECU{i}_EST"])
 
 
-def build_plant(scenario: Scenario) -> Plant:
+def build_plant(scenario: Scenario, db: Database | None = None) -> Plant:
+    """railhil's plant of the scenario, or the FMU of its [plant] fmu (hil.fmi.plant.FmuPlant, which the plant
+    node steps the same way; `db`: the run's DBC, for the FMU's port)."""
+    if scenario.plant.fmu is not None:
+        from hil.can.codec import loaded_dbc
+        from hil.fmi.plant import fmu_plant
+
+        return fmu_plant(scenario, db if db is not None else loaded_dbc(scenario.dbc)[0],
+                         params.plant_params(scenario))
     return Plant(params.plant_params(scenario), params.build_track(scenario),
                  v0_mps=scenario.train.initial_speed_kmh / 3.6, x0_m=scenario.train.start_position_m,
                  seed=scenario.seed)
@@ -102,6 +110,16 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_na
             break
     if node is None:
         node = build_foundation_node(name, scenario, db, codec, dbc_name)
+    elif name == "PLANT" and scenario.plant.fmu is not None:
+        raise ScenarioError(f"[plant] fmu = {scenario.plant.fmu!r}: a study of this scenario brings its own "
+                            "plant node; an FMU plant takes the foundation's plant node's place only")
+    timing = scenario.nodes.get(name)
+    if timing is not None and timing.fmu is not None:
+        from hil.fmi.node import fmu_node
+
+        if name == "PLANT":
+            raise ScenarioError("[nodes.PLANT] fmu: the plant's FMU is [plant] fmu = \"FILE\"")
+        node = fmu_node(node, timing.fmu, timing.fmu_map, scenario, db, codec, dbc_name)
     ref = scenario.devices.get(name)
     if ref is None:
         return node
@@ -144,7 +162,7 @@ def build_foundation_node(name: str, scenario: Scenario, db: Database, codec: Co
     """A node of the foundation's train (PLANT, DESK, BCU, BECUn) as the scenario configures it."""
     n = scenario.train.cars
     if name == "PLANT":
-        plant = build_plant(scenario)
+        plant = build_plant(scenario, db)
         ctrl = PlantController(plant, n, db, dbc_name, balises=scenario.track.balises,
                                failsafe_hold_s=scenario.plant.failsafe_hold_s)
         rx_msgs = [f"BECU{i}_PRESS_CMD" for i in range(1, n + 1)]

@@ -259,6 +259,16 @@ def _ready_to_go(name: str, shared: Shared, results, rt: RtSetup) -> bool:
     return True
 
 
+def _exit_text(code: int) -> str:
+    """A process's exit code in words: "exit 1", "killed by SIGSEGV"."""
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit {code}"
+
+
 def _report_failure(results, name: str, exc: BaseException) -> None:
     """Tell the runner why this process ends (it names the node or host), then exit non-zero."""
     detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
@@ -713,8 +723,14 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         deadline = time.monotonic() + READY_TIMEOUT_S
         while len(ready) < len(procs):
             try:
-                kind, name, detail = results.get(timeout=max(0.1, deadline - time.monotonic()))
+                kind, name, detail = results.get(timeout=min(0.5, max(0.1, deadline - time.monotonic())))
             except queue.Empty:
+                died = [f"{n} ({_exit_text(p.exitcode)})" for n, p in procs.items()
+                        if n not in ready and p.exitcode is not None]
+                if died:                           # a crash says nothing on the queue: its exit code does
+                    raise NodeDied(f"node process {', '.join(died)} ended at start without a word") from None
+                if time.monotonic() < deadline:
+                    continue
                 missing = sorted(set(procs) - ready)
                 raise NodeDied(f"nodes {', '.join(missing)} did not start "
                                f"within {READY_TIMEOUT_S:.0f} s") from None
@@ -1006,6 +1022,7 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
         raise ScenarioError("the PLANT cannot be external in `railhil run`: the run's KPIs come from its "
                             "ground truth; run the ECUs elsewhere instead (--external BCU ... here, railhil "
                             "node there)")
+    from hil.fmi.fmu import check_only
     from hil.runtime.assembly import build_node, check_devices, node_names
     from hil.runtime.release import node_releases
 
@@ -1017,7 +1034,8 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
     if clash:
         raise ScenarioError(f"--external {clash[0]}: a device already takes its place "
                             f"([devices.{clash[0]}]); a node is either external or a device's")
-    nodes = [build_node(name, scenario, db, codec, str(dbc_path)) for name in node_names(scenario)]
+    with check_only():                            # FMUs checked here, instantiated in their processes
+        nodes = [build_node(name, scenario, db, codec, str(dbc_path)) for name in node_names(scenario)]
     node_releases(scenario, db, nodes)            # bad bindings or [nodes.*]: one line, before any process
     if scenario.messages:
         print("notice: [messages.*] extra delays apply to lockstep runs only; the real-time bus has its own",

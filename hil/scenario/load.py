@@ -248,6 +248,25 @@ def apply_set(data: dict, key: str, value: object, source: str) -> None:
         node = child
 
 
+def _resolve_fmus(scenario: ScenarioBase, folder: Path, set_keys: list[str]) -> ScenarioBase:
+    """The FMU files of [plant] and [nodes.NAME] as absolute paths: beside the scenario, or beside the working
+    directory where --set gave them."""
+    def where(value: str | None, key: str) -> str | None:
+        if value is None:
+            return None
+        base = Path.cwd() if key in set_keys else folder
+        return str((base / value).resolve())
+
+    plant = scenario.plant
+    if plant.fmu or plant.fmu_map:
+        plant = plant.model_copy(update={"fmu": where(plant.fmu, "plant.fmu"),
+                                         "fmu_map": where(plant.fmu_map, "plant.fmu_map")})
+    nodes = {name: (t.model_copy(update={"fmu": where(t.fmu, f"nodes.{name}.fmu"),
+                                         "fmu_map": where(t.fmu_map, f"nodes.{name}.fmu_map")})
+                    if t.fmu or t.fmu_map else t) for name, t in scenario.nodes.items()}
+    return scenario.model_copy(update={"plant": plant, "nodes": nodes})
+
+
 def load_scenario(path: str | Path, overrides: dict | None = None,
                   sets: list[str] | tuple[str, ...] = ()) -> ScenarioBase:
     """Load and validate a scenario file: a path, or the name of a shipped scenario (`default`;
@@ -277,6 +296,7 @@ def load_scenario(path: str | Path, overrides: dict | None = None,
         key_file = str((path.parent / scenario.secoc.key_file).resolve())
         secoc = scenario.secoc.model_copy(update={"key_file": key_file})
         scenario = scenario.model_copy(update={"secoc": secoc})
+    scenario = _resolve_fmus(scenario, path.parent, set_keys)
     if scenario.devices:                              # device files named relative to the scenario
         devices = {name: ref.model_copy(update={"file": str((path.parent / ref.file).resolve())})
                    for name, ref in scenario.devices.items()}

@@ -213,6 +213,10 @@ class NodeTiming(_Strict):
     # real time: the node is not simulated; its frames come from the bus (a device under test, another
     # process or host: `railhil node`); the run judges them like any node's
     external: bool = False
+    # an FMU as the node's controller (hil.fmi, docs/fmu.md), and the map of its variables where they are
+    # not named as the node's signals; the bench adds E2E and SecOC as for any node
+    fmu: str | None = None
+    fmu_map: str | None = None
 
     @model_validator(mode="after")
     def _ordered(self) -> NodeTiming:
@@ -263,6 +267,10 @@ class PlantSpec(_Strict):
     pad_speed_amplitude: Annotated[float, Field(gt=-1, le=2)] | None = None     # n_v of eq. (25)
     pad_cold_amplitude: Annotated[float, Field(gt=-1, le=2)] | None = None      # n_T of eq. (25)
     disc_temp_rise_K: Annotated[float, Field(ge=0, le=600)] = 0.0              # T_d at the start [K]
+    # an FMU as the plant (hil.fmi, docs/fmu.md): its file, and the map of its variables where they are not
+    # named as the bench's port (paths beside the scenario; given by --set, beside the working directory)
+    fmu: str | None = None
+    fmu_map: str | None = None
 
 
 class SensorSpec(_Strict):
