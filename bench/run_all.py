@@ -17,7 +17,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 BENCHES = ("bench_codec", "bench_lockstep", "bench_plain", "bench_trace", "bench_mf4", "bench_governor",
-           "bench_gps", "bench_campaign", "bench_frame_io", "bench_realtime", "bench_gateway", "bench_bus")
+           "bench_fmu", "bench_gps", "bench_campaign", "bench_frame_io", "bench_realtime", "bench_gateway",
+           "bench_bus")
 
 
 def main() -> int:
