@@ -16,6 +16,7 @@ import contextlib
 import difflib
 import math
 import shutil
+import weakref
 import zipfile
 from collections.abc import Iterator, Sequence
 from contextvars import ContextVar
@@ -190,6 +191,9 @@ class CoSimulation:
 
         self.info = info
         self.unzip_dir = extract(str(info.path))
+        # the extracted FMU goes with this object, or at exit: a campaign builds many (the library stays
+        # mapped, a deleted file is no matter to it)
+        self._cleanup = weakref.finalize(self, shutil.rmtree, self.unzip_dir, True)
         cls = FMU2Slave if info.fmi_version == "2.0" else FMU3Slave
         self.t_s = 0.0
         try:
@@ -253,7 +257,7 @@ class CoSimulation:
             except Exception:   # noqa: BLE001, S110 - closing an FMU that failed: nothing more to do
                 pass
             self.fmu = None
-        shutil.rmtree(self.unzip_dir, ignore_errors=True)
+        self._cleanup()
 
 
 def _as_int(value: float) -> int:
