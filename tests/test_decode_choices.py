@@ -146,8 +146,13 @@ def motohawk_log(tmp_path) -> Path:
     return path
 
 
+#: the motohawk log's times as recorded (1.0, 2.0, 3.0), as cantools prints them: by default `trace decode`
+#: gives them from the first frame (hil.cli.trace.timebase)
+AS_RECORDED = ("--absolute",)
+
+
 def test_motohawk_table_shows_names_and_units(capsys, motohawk_log):
-    code, out, err = railhil(capsys, "trace", "decode", motohawk_log, "--dbc", MOTOHAWK)
+    code, out, err = railhil(capsys, "trace", "decode", motohawk_log, "--dbc", MOTOHAWK, *AS_RECORDED)
     assert code == 0, err
     lead = "0x1F0       ExampleMessage  "
     assert out.splitlines() == [
@@ -169,7 +174,7 @@ def test_motohawk_raw_shows_numbers_with_their_units(capsys, motohawk_log):
 
 def test_motohawk_csv_carries_number_unit_and_name(capsys, motohawk_log):
     for raw in (False, True):
-        code, out, err = railhil(capsys, "trace", "decode", motohawk_log, "--dbc", MOTOHAWK,
+        code, out, err = railhil(capsys, "trace", "decode", motohawk_log, "--dbc", MOTOHAWK, *AS_RECORDED,
                                  "--format", "csv", *(["--raw"] if raw else []))
         assert code == 0, err
         lines = out.splitlines()
@@ -186,7 +191,8 @@ def test_motohawk_csv_carries_number_unit_and_name(capsys, motohawk_log):
 
 
 def test_motohawk_jsonl_keeps_numbers_and_adds_names_and_units(capsys, motohawk_log):
-    code, out, err = railhil(capsys, "trace", "decode", motohawk_log, "--dbc", MOTOHAWK, "--format", "jsonl")
+    code, out, err = railhil(capsys, "trace", "decode", motohawk_log, "--dbc", MOTOHAWK, *AS_RECORDED,
+                             "--format", "jsonl")
     assert code == 0, err
     first, second, unknown = out.splitlines()
     assert first == ('{"t": 1.0, "id": "0x1F0", "name": "ExampleMessage", '
@@ -204,8 +210,8 @@ def test_motohawk_jsonl_keeps_numbers_and_adds_names_and_units(capsys, motohawk_
 
 
 def test_motohawk_signal_filter_keeps_the_names_and_units_of_its_signals(capsys, motohawk_log):
-    code, out, err = railhil(capsys, "trace", "decode", motohawk_log, "--dbc", MOTOHAWK, "--format", "jsonl",
-                             "--signal", "Enable")
+    code, out, err = railhil(capsys, "trace", "decode", motohawk_log, "--dbc", MOTOHAWK, *AS_RECORDED,
+                             "--format", "jsonl", "--signal", "Enable")
     assert code == 0, err
     assert [json.loads(line) for line in out.splitlines()] == [
         {"t": t, "id": "0x1F0", "name": "ExampleMessage", "signals": {"Enable": v}, "choices": {"Enable": n},

@@ -149,7 +149,9 @@ def test_decode_equals_cantools(capsys, trace, dbc):
     db = cantools.database.load_file(str(dbc))
     known = {(m.frame_id, m.is_extended_frame) for m in db.messages}
     frames = list(can.LogReader(trace))
-    code, out, err = railhil(capsys, "trace", "decode", trace, "--dbc", dbc, "--format", "jsonl")
+    # --absolute: the timestamps as recorded, as cantools prints them (by default: from the first frame)
+    code, out, err = railhil(capsys, "trace", "decode", trace, "--dbc", dbc, "--format", "jsonl",
+                             "--absolute")
     assert code == 0, err
     rows = jsonl(out)
     assert len(rows) == len(frames)
@@ -309,7 +311,8 @@ def test_stdin_candump_text():
     proc = railhil_process("trace", "stats", "-", stdin=CANDUMP.read_bytes())
     assert proc.returncode == 0, proc.stderr
     header = proc.stdout.decode().splitlines()[0]
-    assert header == "<stdin>: 12974 frames (0 error, 0 remote) over 8.000000 s, 180 ids"
+    assert header == ("<stdin>: 12974 frames (0 error, 0 remote) over 8.000000 s, 180 ids; times from the "
+                      "first frame: t0 = 166.000000 s")
 
 
 @NO_CORPUS

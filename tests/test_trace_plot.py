@@ -175,11 +175,17 @@ def test_real_trace_with_its_dbc(capsys, tmp_path):
     assert len(got.series[0].t) == 79
 
 
-def test_absolute_timestamps_are_plotted_from_the_first_frame():
-    assert plot.time_axis(0.0) == (0.0, "time [s]")
-    assert plot.time_axis(166.0) == (0.0, "time [s]")                  # SavvyCAN's capture: relative
-    t0, label = plot.time_axis(1_795_321_814.75)                        # a real-time recording: epoch
-    assert t0 == 1_795_321_814.75 and "since the first frame" in label and "1795321814.750000" in label
+def test_the_time_axis_is_the_trace_time_base(tmp_path):
+    from hil.cli.trace.timebase import RunOfTrace, TimeBase
+
+    base = TimeBase()                                                   # a trace of no run: its first frame
+    base.bind(1_795_321_814.75)
+    assert base.axis_label() == "time [s] from the first frame (t0 = 1795321814.750000 s)"
+    run = RunOfTrace(tmp_path, {"trace_t0_s": 1_795_321_814.5, "mode": "realtime"})
+    assert TimeBase(run=run).axis_label() == "time [s] from the run's start (t0 = 1795321814.500000 s)"
+    lockstep = RunOfTrace(tmp_path, {"trace_t0_s": 0.0})
+    assert TimeBase(run=lockstep).axis_label() == "time [s] from the run's start"
+    assert TimeBase(absolute=True).axis_label() == "time [s] (as recorded)"
 
 
 # --- bad input ------------------------------------------------------------------------------------

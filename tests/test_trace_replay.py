@@ -132,8 +132,9 @@ def test_a_real_trace_window_at_double_speed(capsys, group):
     sent = expected(ISSUE_1256, keep)
     assert len(sent) > 150
     with listen(group) as own:
+        # --absolute: the window on the timestamps as recorded (by default: from the trace's first frame)
         code, out, err = railhil(capsys, "trace", "replay", ISSUE_1256, "--start", "1", "--end", "2",
-                                 "--speed", "2", "--verify", *bus_args(group))
+                                 "--absolute", "--speed", "2", "--verify", *bus_args(group))
         got = receive(own, len(sent))
     assert code == 0, out + err
     assert [identity(m) for m in got] == sent

@@ -12,6 +12,12 @@ et al. 2007) — with no trace, the analysis only (exit 0 when every message is 
 trace, also the response each message shows in it (FAIL when above its bound).  ``--chain``:
 cause -> effect latencies (hil.trace.timing.analyse_chains), with a verdict under ``--chain-max-ms``.
 ``--histogram NAME``: the periods of NAME as text bars (the JSON output has every histogram).
+
+A run's trace (trace.blf beside its run.json, or ``--run FOLDER``) is judged as that run: only the cyclic
+messages its nodes send (run.json's messages_sent: its cars, its studies' frames) are judged, one line says
+what was left out and why, and ``--all-messages`` judges every one.  Times (--start/--end, the report's)
+are on the trace's time base (hil.cli.trace.timebase): from the run's start, or the first frame of a
+trace of no run; --absolute as recorded.
 """
 
 from __future__ import annotations
@@ -22,18 +28,20 @@ import math
 import sys
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import can
 import numpy as np
 from cantools.database.can import Database
 
-from hil.can.busload import declared_bitrate, with_functions
+from hil.can.busload import declared_bitrate, optional_function, with_functions
 from hil.can.dbc import closest, load_dbc
 from hil.can.rta import RtaReport, messages_from_dbc
 from hil.can.rta import analyse as rta_analyse
 from hil.cli.aliases import function_names
 from hil.cli.trace import Output, id_text, notice_skipped, num
+from hil.cli.trace.timebase import RunOfTrace, TimeBase, add_time_arguments
 from hil.trace.columns import read_trace_columns
 from hil.trace.readers import Salvage, TraceError, open_trace
 from hil.trace.timing import (
@@ -83,7 +91,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                     "over the trace and peak over a sliding window. --rta adds the worst-case "
                     "response time of every cyclic message from the DBC (Davis et al. 2007, revised "
                     "analysis; without a trace: the analysis alone, exit 0 when all are schedulable); "
-                    "--chain adds cause -> effect latencies.",
+                    "--chain adds cause -> effect latencies. A run's trace (run.json beside it, or --run "
+                    "FOLDER) is judged on the cyclic messages that run sends (one line says what was left "
+                    "out; --all-messages judges every one); times are seconds from the run's start (a trace "
+                    "of no run: from its first frame; --absolute: as recorded).",
     )
     p.add_argument("trace", nargs="?", default=None,
                    help="trace file python-can reads, or '-' for candump -L text on stdin "
@@ -124,6 +135,11 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--histogram", action="append", default=[], metavar="NAME",
                    help="print the period histogram of this message as text bars (table format; the "
                         "JSON output has every message's); repeatable")
+    p.add_argument("--all-messages", action="store_true",
+                   help="a run's trace: judge every cyclic message in scope, also those the run's scenario "
+                        "does not send (by default a run's trace is judged on the messages its nodes send: "
+                        "run.json beside the trace, or --run)")
+    add_time_arguments(p, run=True)
     p.add_argument("--format", choices=FORMAT_CHOICES, default="table", help="output format (default table)")
     p.add_argument("-o", "--output", type=Path, default=None, metavar="FILE",
                    help="write the report to FILE instead of stdout")
@@ -343,11 +359,13 @@ def rta_text(report: RtaReport, checks: tuple[RtaCheck, ...], with_trace: bool) 
             + "".join(f"  {c.result.message.name}: FAIL: {c.reason}\n" for c in failed) + tail + "\n")
 
 
-def rta_messages(db: Database, args: argparse.Namespace, bitrate: int) -> RtaReport:
+def rta_messages(db: Database, args: argparse.Namespace, bitrate: int, ignore: list[str] | None = None
+                 ) -> RtaReport:
     from fnmatch import fnmatchcase
 
+    ignore = args.ignore if ignore is None else ignore
     messages = [m for m in messages_from_dbc(db, parse_jitters(args.jitter))
-                if not any(fnmatchcase(m.name, g) for g in args.ignore)]
+                if not any(fnmatchcase(m.name, g) for g in ignore)]
     return rta_analyse(messages, bitrate)
 
 
@@ -508,31 +526,101 @@ def rta_only(args: argparse.Namespace) -> tuple[str, int]:
     return text, code
 
 
+@dataclass(frozen=True)
+class RunScope:
+    """What a run's trace is judged on: the run, the cyclic messages of the DBC left out because its nodes
+    do not send them (`left_out`), and the line that says so."""
+
+    run: RunOfTrace
+    left_out: tuple[str, ...]
+    line: str
+
+
+def run_scope(args: argparse.Namespace, timebase: TimeBase, db: Database) -> RunScope | None:
+    """The scope of a run's trace (the module docstring): None for a trace of no run, with --all-messages,
+    for a trace of the run's folder other than the run's own (a device's bus) without --run, or when
+    run.json does not say what the run sends."""
+    run = timebase.run
+    if run is None or args.all_messages or args.trace == "-":
+        return None
+    if args.run is None and Path(args.trace).name != run.trace.name:
+        return None
+    sent = run.messages_sent()
+    if not sent or not sent & {m.name for m in db.messages}:
+        print(f"notice: {run.folder / 'run.json'}: does not say which messages the run sends (or none is in "
+              f"{args.dbc}): every cyclic message in scope is judged", file=sys.stderr)
+        return None
+    asked = set(function_names(args.function))
+    left = tuple(m.name for m in db.messages if m.cycle_time and m.cycle_time > 0 and m.name not in sent
+                 and not ({"all", optional_function(m)} & asked))
+    if not left:
+        return RunScope(run, (), f"run {run.describe()}: every cyclic message of the DBC is one it sends")
+    line = (f"run {run.describe()}: left out {len(left)} cyclic messages of the DBC that its nodes do not "
+            f"send ({why_left_out(left, db, run)}); --all-messages judges them too")
+    return RunScope(run, left, line)
+
+
+def why_left_out(left: tuple[str, ...], db: Database, run: RunOfTrace) -> str:
+    """The messages a run does not send, in kinds: the frames of cars its train does not have, of the
+    optional functions (DBC RailhilFunction) it has not, and any other by name."""
+    import re
+
+    cars = (run.scenario.get("train") or {}).get("cars")
+    by_name = {m.name: m for m in db.messages}
+    per_car, functions, other = [], {}, []
+    for name in left:
+        car = re.match(r"^(?:BECU|PLANT_CAR)(\d+)_", name)
+        function = optional_function(by_name[name])
+        if car and cars and int(car.group(1)) > int(cars):
+            per_car.append(int(car.group(1)))
+        elif function:
+            functions[function] = functions.get(function, 0) + 1
+        else:
+            other.append(name)
+    parts = []
+    if per_car:
+        lo, hi = min(per_car), max(per_car)
+        parts.append(f"{len(per_car)} of car{'s' if hi > lo else ''} {lo}{f'–{hi}' if hi > lo else ''}, "
+                     f"beyond its {cars}-car train")
+    if functions:
+        parts.append(f"{sum(functions.values())} of functions it does not have: "
+                     + ", ".join(f"{f} {n}" for f, n in sorted(functions.items())))
+    if other:
+        parts.append(", ".join(other[:6]) + (f" and {len(other) - 6} more" if len(other) > 6 else ""))
+    return "; ".join(parts)
+
+
 def trace_report(args: argparse.Namespace, trace_name: str) -> tuple[str, int, TraceError | None]:
     """`railhil timing TRACE --dbc DBC [--rta] [--chain ...] [--histogram ...]`: the report, its exit
     code, and the error of a damaged trace (the report is of the frames read before it)."""
     if args.dbc is None:
         raise TimingArgError("--dbc DBC is required (or --periods-only for periods without a DBC)")
     check_tolerance(args.tolerance, "--tolerance")
-    db = with_functions(load_dbc(args.dbc), function_names(args.function))
+    timebase = TimeBase.of(args, args.trace)
+    full = load_dbc(args.dbc)
+    scope = run_scope(args, timebase, with_functions(full, ["all"]))
+    db = with_functions(full, ["all"] if scope is not None else function_names(args.function))
+    ignore = [*args.ignore, *(scope.left_out if scope is not None else ())]
     overrides = parse_overrides(args.override, [m.name for m in db.messages])
     bitrate = bitrate_of(args, db, "the bus load")
     chains: list[Chain] = [parse_chain(text, db) for text in args.chain]
-    check_histogram_names(args.histogram, db, args.ignore)
-    rta_report = rta_messages(db, args, bitrate) if args.rta else None
+    check_histogram_names(args.histogram, db, ignore)
+    rta_report = rta_messages(db, args, bitrate, ignore) if args.rta else None
     kept: list[can.Message] = []
     if chains:                      # chains need the frames themselves: one pass through python-can
         trace = open_trace(args.trace)
         frames = Salvage(trace)
-        arrays = frame_arrays(tap(frames, chain_frame_keys(chains), kept))
+        arrays = frame_arrays(tap(timebase.messages(frames), chain_frame_keys(chains), kept))
         damage = frames.error
     else:                           # columns only: BLF read without a can.Message per frame
         arrays, trace = read_trace_columns(args.trace, salvage=True)
         damage = trace.error
-    if damage is not None and not len(arrays):  # nothing read: the error alone
+        arrays = timebase.arrays(arrays)
+    if damage is not None and timebase.first is None:  # nothing read: the error alone
         raise damage
     notice_skipped(trace)
-    report = analyse(arrays, db, args.tolerance, overrides, bitrate, args.window, ignore=args.ignore)
+    timebase.warn_outside(trace_name)
+    report = analyse(arrays, db, args.tolerance, overrides, bitrate, args.window, ignore=ignore)
     rta = rta_against_trace(arrays, rta_report) if rta_report is not None else ()
     end_s = float(arrays.t.max()) if len(arrays) else 0.0  # the end of the trace, as hil.trace.timing.analyse
     chain_results = analyse_chains(kept, chains, end_s, args.chain_max_ms) if chains else ()
@@ -542,6 +630,10 @@ def trace_report(args: argparse.Namespace, trace_name: str) -> tuple[str, int, T
     by_name = {m.name: m for m in report.messages}
     if args.format == "json":
         obj = {"trace": trace_name, "dbc": str(args.dbc), "tolerance": args.tolerance,
+               "times": timebase.describe(), "start_s": args.start, "end_s": args.end,
+               "run": None if scope is None else {
+                   "folder": str(scope.run.folder), "left_out": list(scope.left_out),
+                   "why": "not sent by the run's nodes (run.json messages_sent)"},
                "frames": report.frames, "duration_s": report.duration_s,
                "messages": [{**timing_obj(m), "histogram": histogram_obj(histogram_of(m))}
                             for m in report.messages],
@@ -558,8 +650,12 @@ def trace_report(args: argparse.Namespace, trace_name: str) -> tuple[str, int, T
         text = junit(report, trace_name, rta, chain_results, rta_report, str(args.dbc))
     else:
         rows = [timing_row(m) for m in report.messages]
-        text = (f"{trace_name}: {report.frames} frames over {report.duration_s:.6f} s "
-                f"against {args.dbc}, tolerance ±{100 * args.tolerance:g} %\n"
+        window = (f", frames between {num(args.start, 'g') or '-inf'} and {num(args.end, 'g') or 'inf'} s"
+                  if timebase.windowed else "")
+        text = (f"{trace_name}: {report.frames} frames over {report.duration_s:.6f} s{window} "
+                f"against {args.dbc}, tolerance ±{100 * args.tolerance:g} %"
+                + (f"; {timebase.describe()}" if timebase.windowed or timebase.shifted else "") + "\n"
+                + (scope.line + "\n" if scope is not None else "")
                 + render_table(TIMING_COLUMNS, rows, {"name", "id", "verdict"})
                 + "".join(f"  {m.name}: {m.verdict}: {m.reason}\n" for m in report.messages if m.reason)
                 + summary_line(report) + "\n" + load_line(report.load) + "\n")
@@ -596,11 +692,14 @@ def timing(args: argparse.Namespace) -> int:
             if given:
                 raise TimingArgError(f"{option} needs a DBC verdict, not --periods-only")
         trace_name = "<stdin>" if args.trace == "-" else str(args.trace)
+        timebase = TimeBase.of(args, args.trace)
         arrays, trace = read_trace_columns(args.trace, salvage=True)
         damage = trace.error
         if damage is not None and not len(arrays):  # nothing read: the error alone
             raise damage
+        arrays = timebase.arrays(arrays)
         notice_skipped(trace)
+        timebase.warn_outside(trace_name)
         load = bus_load(arrays, args.bitrate, args.window) if args.bitrate is not None else None
         text, code = periods_report(measure_periods(arrays), args.format, trace_name, load), 0
     else:

@@ -3,8 +3,9 @@
 One module per action (cantools' ``subparsers/``): ``stats``, ``decode``, ``export``, ``plot``,
 ``diff``, ``replay``; what they share is in ``common``.  Every action reads any trace python-can reads
 (.asc .blf .csv .db .log .mf4 .trc, also .gz compressed; '-' = candump -L text on stdin) through
-``hil.trace.readers.open_trace``.  Times are the trace's own timestamps, in seconds, everywhere: in the
-output and in --start/--end (``trace stats`` shows the first and last).  Ids print as candump does:
+``hil.trace.readers.open_trace``.  Times are seconds on the trace's time base everywhere, in the output
+and in --start/--end (``timebase``: a run's trace from the run's start, any other from its first frame,
+--absolute as recorded; ``trace stats`` shows the first and last).  Ids print as candump does:
 3 hex digits for an 11-bit id, 8 for a 29-bit one, so the two never mix.
 """
 

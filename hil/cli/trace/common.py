@@ -1,7 +1,7 @@
 """Helpers shared by the `railhil trace` actions: ids, options, DBC lookups, stdout, notices.
 
-Times are the trace's own timestamps in seconds everywhere.  Ids print as candump does: 3 hex digits
-for an 11-bit id, 8 for a 29-bit one, so the two never mix.
+Times are seconds on the trace's time base everywhere (hil.cli.trace.timebase).  Ids print as candump
+does: 3 hex digits for an 11-bit id, 8 for a 29-bit one, so the two never mix.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def parse_id(text: str, option: str = "--id") -> int:
 
 
 def check_window(start: float | None, end: float | None) -> None:
-    """--start/--end (trace time, seconds): finite, and not the wrong way round."""
+    """--start/--end (seconds on the trace's time base): finite, and not the wrong way round."""
     for option, value in (("--start", start), ("--end", end)):
         if value is not None and not math.isfinite(value):
             raise TraceArgError(f"{option} {value}: expected a finite time in seconds")

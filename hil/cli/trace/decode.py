@@ -32,7 +32,6 @@ from hil.can.dbc import closest, load_dbc
 from hil.cli.trace.common import (
     Output,
     TraceArgError,
-    check_window,
     id_text,
     jsonable,
     kind_of,
@@ -40,6 +39,7 @@ from hil.cli.trace.common import (
     notice_skipped,
     parse_id,
 )
+from hil.cli.trace.timebase import TimeBase, add_time_arguments
 from hil.trace.columns import BLOCK_FRAMES, BlockReader
 from hil.trace.fastdecode import BlockDecoder, choice_names, table_word
 from hil.trace.readers import open_trace
@@ -73,10 +73,7 @@ def add_parser(tsub: argparse._SubParsersAction) -> None:
                    help="only frames of this DBC message; repeatable")
     d.add_argument("--signal", dest="signals", action="append", default=[], metavar="NAME",
                    help="only these signals (and only frames that carry one); repeatable")
-    d.add_argument("--start", type=float, default=None, metavar="S",
-                   help="only frames with timestamp >= S (the trace's own time, seconds)")
-    d.add_argument("--end", type=float, default=None, metavar="S",
-                   help="only frames with timestamp <= S (the trace's own time, seconds)")
+    add_time_arguments(d)
     d.add_argument("--format", choices=FORMAT_CHOICES, default="table", help="output format (default table)")
     d.add_argument("--raw", action="store_true",
                    help="value-table signals as their numbers, not their names (as cantools decode "
@@ -233,21 +230,24 @@ def signal_text(name: str, value: float, choices: dict[str, str] | None, units: 
 def run(args: argparse.Namespace) -> int:
     codec = Codec(load_dbc(args.dbc))
     sel = select(args, codec)
-    check_window(args.start, args.end)
+    timebase = TimeBase.of(args, args.trace)
     return decode(args.trace, codec, sel, args.format, args.start, args.end, dbc_name=str(args.dbc),
-                  raw=args.raw)
+                  raw=args.raw, timebase=timebase)
 
 
 def decode(trace: str | Path, codec: Codec, sel: Selection, fmt: str, start: float | None, end: float | None,
-           dbc_name: str, fast: bool = True, block_frames: int = BLOCK_FRAMES, raw: bool = False) -> int:
+           dbc_name: str, fast: bool = True, block_frames: int = BLOCK_FRAMES, raw: bool = False,
+           timebase: TimeBase | None = None) -> int:
     """Write the decoded frames of `trace` to stdout in `fmt`, the summary to stderr; `raw` (--raw):
-    numbers only, no value-table names.
+    numbers only, no value-table names.  Times and `start`/`end` are on `timebase`
+    (hil.cli.trace.timebase; default: the timestamps as recorded).
 
     `fast` (the default): a block of up to `block_frames` frames at a time (hil.trace.columns reads
     them, hil.trace.fastdecode decodes and writes them, the per-frame path below takes the frames it does
     not); `fast` False: the per-frame path for every frame -- the reference that
     tests/test_fastdecode.py holds the fast path to, byte for byte.
     """
+    timebase = timebase or TimeBase(start, end, absolute=True)
     counts = {"decoded": 0, "unknown": 0, "remote": 0, "error": 0, "failed": 0}
     width = max([len(fc.name) for fc in codec] + [6])
     texts = row_texts(fmt, width)
@@ -268,12 +268,12 @@ def decode(trace: str | Path, codec: Codec, sel: Selection, fmt: str, start: flo
         decoder = BlockDecoder(codec, fmt, width=width, ids=sel.ids, names=sel.names, signals=sel.signals,
                                start=start, end=end, slow=slow, counts=counts, raw=raw)
         for block in reader:
-            out.write(decoder.text(block))
+            out.write(decoder.text(timebase.block(block)))
             if out.closed:
                 break
         frames = reader.trace  # a new one if the BLF reader gave the file to python-can's
     else:
-        for row in decoded_rows(frames, codec, sel, start, end, counts, raw):
+        for row in decoded_rows(timebase.messages(frames, window=False), codec, sel, start, end, counts, raw):
             out.write(texts((row,)))
             if out.closed:
                 break
@@ -283,5 +283,8 @@ def decode(trace: str | Path, codec: Codec, sel: Selection, fmt: str, start: flo
         summary = (f"{counts['decoded']} frames decoded, {counts['unknown']} with ids not in {dbc_name}, "
                    f"{counts['remote']} remote, {counts['error']} error frames, "
                    f"{counts['failed']} failed to decode")
+        if timebase.shifted:
+            summary += f"; {timebase.describe()}"
         print(summary, file=sys.stderr)
+        timebase.warn_outside("<stdin>" if str(trace) == "-" else str(trace))
     return 0

@@ -4,8 +4,10 @@ Frames are paired per message by order of occurrence: the k-th frame of a messag
 frame of the same message (same id, same 11/29-bit kind, same data/remote/error kind) in B.  For
 every pair:
 
-- timestamps: |t_B − t_A| > --time-tolerance counts as a timing difference (times as recorded, or
-  each relative to its trace's first frame with ``--align start``);
+- timestamps: |t_B − t_A| > --time-tolerance counts as a timing difference, each time on its trace's
+  time base (hil.cli.trace.timebase: a run's trace from the run's start, any other from its first
+  frame, as recorded with --absolute), or each relative to its first frame in the window with
+  ``--align start``;
 - a message the DBC knows: each signal is decoded on both sides; |Δ| = |value_B − value_A| in the
   signal's DBC unit, > its tolerance counts as a difference (NaN equals NaN; NaN against a number is
   |Δ| = inf).  A pair in which only one side carries a signal (another multiplexer value) counts as
@@ -13,7 +15,8 @@ every pair:
 - ids the DBC does not know, remote frames (DLC) and error frames: raw payload (DLC and data bytes).
 
 Also reported: frame counts per message that differ, and messages present in one trace only.  Times
-reported (first_over_s ...) are trace A's own timestamps, in seconds.
+reported (first_over_s ...) are trace A's, on its time base, in seconds; --start/--end select the
+frames of both traces, each on its own time base.
 
 Exit 0 when the traces are equal within tolerance, 1 when they differ (a verdict, not an error), 2
 for bad input.  The traces are read once, side by side in time order, so memory stays small when
@@ -47,6 +50,7 @@ from hil.cli.trace.common import (
     num,
     resolve_signal,
 )
+from hil.cli.trace.timebase import TimeBase, add_time_arguments
 from hil.trace.readers import open_trace
 
 FORMAT_CHOICES = ("table", "json")
@@ -77,8 +81,10 @@ def add_parser(tsub: argparse._SubParsersAction) -> None:
     p.add_argument("--time-tolerance", type=float, default=0.0, metavar="S",
                    help="allowed |t_B − t_A| of paired frames, seconds (default 0; 'inf' ignores timing)")
     p.add_argument("--align", choices=("none", "start"), default="none",
-                   help="none: compare timestamps as recorded (default); start: each relative to its "
-                        "trace's first frame (for traces recorded at different wall-clock times)")
+                   help="none: compare the times on each trace's time base (default: a run's trace from "
+                        "the run's start, any other from its first frame; --absolute: as recorded); "
+                        "start: each relative to its first frame in the window")
+    add_time_arguments(p)
     p.add_argument("--format", choices=FORMAT_CHOICES, default="table",
                    help="table: the messages and signals that differ and a summary line (default); "
                         "json: every message and signal")
@@ -415,10 +421,14 @@ def run(args: argparse.Namespace) -> int:
     tol = tolerances(args, codec)
     if args.a == "-" and args.b == "-":
         raise TraceArgError("A and B cannot both be '-' (stdin)")
+    base_a, base_b = TimeBase.of(args, args.a), TimeBase.of(args, args.b)
     trace_a, trace_b = open_trace(args.a), open_trace(args.b)
-    diff = TraceDiff(codec, tol, args.time_tolerance).run(trace_a, trace_b, args.align == "start")
+    diff = TraceDiff(codec, tol, args.time_tolerance).run(base_a.messages(trace_a), base_b.messages(trace_b),
+                                                           args.align == "start")
     notice_skipped(trace_a)
     notice_skipped(trace_b)
+    base_a.warn_outside(trace_a.name)
+    base_b.warn_outside(trace_b.name)
     summary = diff.summary()
     out = Output()
     overrides = {**tol.by_signal, **tol.by_message_signal}
@@ -432,10 +442,14 @@ def run(args: argparse.Namespace) -> int:
         print(summary, file=sys.stderr)
     else:
         shown = ", ".join(f"{k}={v:g}" for k, v in overrides.items())
-        times = "as recorded" if args.align == "none" else "from each trace's first frame"
+        same = base_a.describe() == base_b.describe()
+        times = ((f"{base_a.describe()}, both" if same else f"A: {base_a.describe()}; B: {base_b.describe()}")
+                 if args.align == "none" else "times from each trace's first frame in the window")
+        if base_a.windowed:
+            times += f"; frames between {num(args.start, 'g') or '-inf'} and {num(args.end, 'g') or 'inf'} s"
         head = [f"A: {trace_a.name} ({trace_a.count} frames)", f"B: {trace_b.name} ({trace_b.count} frames)",
                 f"tolerance {tol.default:g}{f' ({shown})' if shown else ''}, time tolerance "
-                f"{args.time_tolerance:g} s, times {times}"
+                f"{args.time_tolerance:g} s; {times}"
                 + ("" if codec is not None else ", no DBC: every frame compared raw")]
         for line in [*head, *table_lines(diff, args.all), "", summary]:
             out.write(line + "\n")

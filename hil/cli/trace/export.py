@@ -1,6 +1,7 @@
 """`railhil trace export TRACE --dbc DBC -o FILE.mf4|FILE.parquet|FILE.csv` — the trace's signals,
 decoded with the DBC, with their names, units and value tables: MF4 one channel group per message,
-Parquet/CSV one row per (frame, signal).  Definitions in hil.trace.export."""
+Parquet/CSV one row per (frame, signal).  Definitions in hil.trace.export.  Times (and --start/--end) are
+on the trace's time base (hil.cli.trace.timebase)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from pathlib import Path
 from hil.can.codec import Codec
 from hil.can.dbc import closest, load_dbc
 from hil.cli.trace.common import TraceArgError
+from hil.cli.trace.timebase import TimeBase, add_time_arguments
 from hil.trace.decoded import DecodedTrace
 from hil.trace.export import FORMATS, export_format, write_export
 
@@ -33,6 +35,7 @@ def add_parser(tsub: argparse._SubParsersAction) -> None:
                    help="the file to write: " + ", ".join(FORMATS))
     p.add_argument("--message", action="append", default=[], metavar="NAME",
                    help="only this DBC message (repeatable; default: every message with frames)")
+    add_time_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -44,7 +47,9 @@ def run(args: argparse.Namespace) -> int:
         if name not in names:
             raise TraceArgError(f"--message {name!r}: no such message in {args.dbc} (closest: "
                                 f"{closest(name, names)})")
+    timebase = TimeBase.of(args, args.trace)
     decoded = DecodedTrace.read(args.trace, db, Codec(db))
+    decoded.frames = timebase.block(decoded.frames, window=True)    # on the time base, in the window
     present = decoded.message_names()
     wanted = [n for n in present if not args.message or n in args.message]
     counts = write_export(decoded, args.output, wanted)
@@ -52,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.trace}: {len(decoded.frames)} frames, {counts['frames']} decoded in {counts['messages']} "
           f"messages ({counts['signals']} signals)"
           + (f", {unknown} not in the DBC (or remote/error)" if unknown else "")
-          + (f", {decoded.undecodable} that do not decode" if decoded.undecodable else ""), file=sys.stderr)
+          + (f", {decoded.undecodable} that do not decode" if decoded.undecodable else "")
+          + (f"; {timebase.describe()}" if timebase.shifted else ""), file=sys.stderr)
+    timebase.warn_outside(str(args.trace))
     print(f"wrote {args.output}")
     return 0

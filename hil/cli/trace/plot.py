@@ -8,9 +8,9 @@ next frame).  PNG: matplotlib (Agg), one subplot per unit (``--subplots signal``
 unit from the DBC on the y axis.  HTML: plotly, one self-contained file with plotly.js embedded, so
 it opens offline.
 
-Time axis in seconds, the trace's own time.  Traces stamped with absolute (epoch) times -- real-time
-recordings, candump captures -- are plotted against the time since their first frame instead, and
-the axis label gives that first frame's timestamp.
+Time axis in seconds on the trace's time base (hil.cli.trace.timebase), as --start/--end: from the run's
+start for a run's trace, from the first frame for any other (the axis label gives that origin's
+timestamp), as recorded with --absolute.
 """
 
 from __future__ import annotations
@@ -26,11 +26,11 @@ import numpy as np
 
 from hil.can.codec import Codec
 from hil.can.dbc import load_dbc
-from hil.cli.trace.common import SignalRef, TraceArgError, check_window, notice_skipped, resolve_signal
+from hil.cli.trace.common import SignalRef, TraceArgError, notice_skipped, resolve_signal
+from hil.cli.trace.timebase import TimeBase, add_time_arguments
 from hil.trace.readers import open_trace
 
 SUFFIXES = (".png", ".html")
-EPOCH_LIKE_S = 1e8      # a first timestamp beyond this (1973-03-03 as a Unix time) is absolute
 WEBGL_POINTS = 20_000   # an HTML series longer than this is drawn with WebGL (plotly's Scattergl)
 MAX_CHOICE_TICKS = 16   # a lone signal with at most this many value-table entries gets them as y ticks
 
@@ -42,18 +42,16 @@ def add_parser(tsub: argparse._SubParsersAction) -> None:
         description="Decode the named signals with the DBC and plot them over time. SIGNAL is NAME or "
                     "MESSAGE.NAME (a NAME that several messages carry must be qualified). -o FILE.png: "
                     "matplotlib, one subplot per unit; -o FILE.html: plotly, interactive, one "
-                    "self-contained file that works offline. Time in seconds, the trace's own time "
-                    "(traces with absolute epoch timestamps: seconds since their first frame).",
+                    "self-contained file that works offline. Time in seconds from the trace's start "
+                    "(a run's trace: the run's start; any other: its first frame; --absolute: as "
+                    "recorded).",
     )
     p.add_argument("trace", help="trace file, or '-' for candump -L text on stdin")
     p.add_argument("signals", nargs="+", metavar="SIGNAL", help="signal to plot: NAME or MESSAGE.NAME")
     p.add_argument("--dbc", type=Path, required=True, help="DBC file that defines the signals")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE",
                    help="output file: FILE.png (static image) or FILE.html (interactive, self-contained)")
-    p.add_argument("--start", type=float, default=None, metavar="S",
-                   help="only frames with timestamp >= S (the trace's own time, seconds)")
-    p.add_argument("--end", type=float, default=None, metavar="S",
-                   help="only frames with timestamp <= S (the trace's own time, seconds)")
+    add_time_arguments(p)
     p.add_argument("--subplots", choices=("unit", "signal"), default="unit",
                    help="one subplot per unit (signals of one unit share axes; default) or per signal")
     p.add_argument("--title", default=None, help="figure title (default: the trace file name)")
@@ -141,13 +139,6 @@ def groups(series: list[Series], per: str) -> list[tuple[str, list[Series]]]:
     return list(by_unit.items())
 
 
-def time_axis(first_t: float | None) -> tuple[float, str]:
-    """(origin subtracted from every timestamp, x axis label)."""
-    if first_t is not None and abs(first_t) >= EPOCH_LIKE_S:
-        return first_t, f"time since the first frame [s] (t0 = {first_t:.6f} s)"
-    return 0.0, "time [s]"
-
-
 def y_label(unit: str, members: list[Series]) -> str:
     if len(members) == 1:
         return f"{members[0].ref.name} [{unit}]" if unit else members[0].ref.name
@@ -217,11 +208,11 @@ def check_output(path: Path) -> str:
 
 def run(args: argparse.Namespace) -> int:
     suffix = check_output(args.output)
-    check_window(args.start, args.end)
+    timebase = TimeBase.of(args, args.trace)
     codec = Codec(load_dbc(args.dbc))
     refs = resolve(codec, args.signals, args.dbc)
     trace = open_trace(args.trace)
-    got = collect(trace, refs, args.start, args.end)
+    got = collect(timebase.messages(trace, window=False), refs, args.start, args.end)
     notice_skipped(trace)
     name = "<stdin>" if args.trace == "-" else str(args.trace)
     window = ""
@@ -231,14 +222,17 @@ def run(args: argparse.Namespace) -> int:
         window = f" between {lo} and {hi} s"
     empty = [s.ref.label for s in got.series if not s.t]
     if len(empty) == len(got.series):
-        raise TraceArgError(f"{name}: no frame carries {', '.join(empty)}{window} "
-                            f"({got.frames} frames read, {got.failed} of those messages did not decode)")
+        span = (f"; the trace runs from {timebase.first:.6f} to {timebase.last:.6f} s, {timebase.describe()}"
+                if timebase.outside() else "")
+        raise TraceArgError(f"{name}: no frame carries {', '.join(empty)}{window} ({got.frames} frames "
+                            f"read, {got.failed} of those messages did not decode{span})")
+    timebase.warn_outside(name)
     for label in empty:
         print(f"notice: {name}: no frame carries {label}{window}; plotted empty", file=sys.stderr)
     if got.failed:
         print(f"notice: {name}: {got.failed} frames of the plotted messages did not decode "
               f"(too short, or a multiplexer value the DBC does not define); left out", file=sys.stderr)
-    t0, x_label = time_axis(got.first_t)
+    t0, x_label = 0.0, timebase.axis_label()       # the frames' times are on the time base already
     layout = groups(got.series, args.subplots)
     title = args.title or name
     try:
@@ -251,7 +245,7 @@ def run(args: argparse.Namespace) -> int:
         raise TraceArgError(f"-o {args.output}: cannot write: {exc.strerror or exc}") from None
     samples = sum(len(s.t) for s in got.series)
     times = [t for s in got.series if s.t for t in (s.t[0], s.t[-1])]
-    span = f"{min(times) - t0:.6f} to {max(times) - t0:.6f} s" if times else "no samples"
+    span = f"{min(times):.6f} to {max(times):.6f} s" if times else "no samples"
     print(f"wrote {args.output}: {len(got.series)} signals, {samples} samples, {span}"
-          f"{'' if t0 == 0.0 else f' after t0 = {t0:.6f} s'}")
+          f"{f' ({timebase.describe()})' if timebase.shifted else ''}")
     return 0

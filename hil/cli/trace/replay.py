@@ -1,8 +1,9 @@
 """`railhil trace replay TRACE` — send a trace's frames onto a python-can bus at their recorded times.
 
-Frame k is due at ``(t_k − t_first) / speed`` seconds after the replay starts (t = the trace's own
-timestamps of the frames selected by --start/--end/--id); the sender sleeps on the monotonic clock
-until then (absolute deadlines, so errors do not accumulate) and hands the frame to ``bus.send``.
+Frame k is due at ``(t_k − t_first) / speed`` seconds after the replay starts (t = the timestamps of
+the frames selected by --start/--end/--id, on the trace's time base: hil.cli.trace.timebase); the
+sender sleeps on the monotonic clock until then (absolute deadlines, so errors do not accumulate) and
+hands the frame to ``bus.send``.
 ``--speed 0`` or ``--max-speed`` sends back to back.  Error frames cannot be sent and are counted.
 
 Report (stdout; ``--format json`` for a machine):
@@ -50,7 +51,8 @@ import can
 import can.cli
 import numpy as np
 
-from hil.cli.trace.common import Output, TraceArgError, check_window, notice_skipped, parse_id
+from hil.cli.trace.common import Output, TraceArgError, notice_skipped, parse_id
+from hil.cli.trace.timebase import TimeBase, add_time_arguments
 from hil.errors import BusError
 from hil.trace.readers import Salvage, open_trace
 
@@ -84,10 +86,7 @@ def add_parser(tsub: argparse._SubParsersAction) -> None:
     p.add_argument("--speed", type=float, default=1.0, metavar="FACTOR",
                    help="replay speed: 1 = as recorded (default), 2 = twice as fast, 0 = as fast as possible")
     p.add_argument("--max-speed", action="store_true", help="send back to back, ignoring the timestamps")
-    p.add_argument("--start", type=float, default=None, metavar="S",
-                   help="only frames with timestamp >= S (the trace's own time, seconds)")
-    p.add_argument("--end", type=float, default=None, metavar="S",
-                   help="only frames with timestamp <= S (the trace's own time, seconds)")
+    add_time_arguments(p)
     p.add_argument("--id", dest="ids", action="append", default=[], metavar="ID",
                    help="only frames with this arbitration id, hex (0x123) or decimal; repeatable")
     p.add_argument("--verify", action="store_true",
@@ -586,7 +585,7 @@ def run(args: argparse.Namespace) -> int:
         raise TraceArgError(f"--send-timeout {args.send_timeout}: expected seconds >= 0")
     if not (math.isfinite(args.verify_wait) and args.verify_wait >= 0):
         raise TraceArgError(f"--verify-wait {args.verify_wait}: expected seconds >= 0")
-    check_window(args.start, args.end)
+    timebase = TimeBase.of(args, args.trace)
     ids = {parse_id(t) for t in args.ids} or None
     cfg = bus_config(args)
     if args.verify and cfg.get("interface") == "virtual":
@@ -602,7 +601,7 @@ def run(args: argparse.Namespace) -> int:
         bus = open_bus(cfg)
         progress = progress_bar(not args.quiet and sys.stderr.isatty())
         frames = Salvage(trace)  # a corrupt or cut file: the frames before the damage are replayed
-        wall0 = send_all(frames, bus, report, args.start, args.end, ids, args.send_timeout, progress)
+        wall0 = send_all(timebase.messages(frames), bus, report, None, None, ids, args.send_timeout, progress)
         if progress is not None:
             progress.close()
             progress = None
@@ -616,6 +615,7 @@ def run(args: argparse.Namespace) -> int:
         if receiver is not None:
             receiver.close()
     notice_skipped(trace)
+    timebase.warn_outside(trace.name)
     out = Output()
     if args.format == "json":
         out.write(json.dumps(report.as_dict(), indent=1) + "\n")

@@ -1,4 +1,7 @@
-"""`railhil trace stats TRACE` — frames per arbitration id: count, rate, period, DLCs, first/last time."""
+"""`railhil trace stats TRACE` — frames per arbitration id: count, rate, period, DLCs, first/last time.
+
+Times (first_s, last_s, --start/--end) are on the trace's time base (hil.cli.trace.timebase): seconds from
+the run's start for a run's trace, from the first frame for any other, as recorded with --absolute."""
 
 from __future__ import annotations
 
@@ -16,6 +19,7 @@ import can
 from hil.can.codec import Codec
 from hil.can.dbc import load_dbc
 from hil.cli.trace.common import Output, id_text, kind_of, notice_skipped, num
+from hil.cli.trace.timebase import TimeBase, add_time_arguments
 from hil.trace.readers import Salvage, open_trace
 
 FORMAT_CHOICES = ("table", "csv", "jsonl")
@@ -33,6 +37,7 @@ def add_parser(tsub: argparse._SubParsersAction) -> None:
     s.add_argument("trace", help="trace file, or '-' for candump -L text on stdin")
     s.add_argument("--dbc", type=Path, default=None, help="DBC file: adds the message names")
     s.add_argument("--format", choices=FORMAT_CHOICES, default="table", help="output format (default table)")
+    add_time_arguments(s)
     s.set_defaults(func=run)
 
 
@@ -85,9 +90,10 @@ def collect_stats(frames: Iterable[can.Message]) -> tuple[dict[tuple, IdStats], 
 
 def run(args: argparse.Namespace) -> int:
     codec = Codec(load_dbc(args.dbc)) if args.dbc is not None else None
+    timebase = TimeBase.of(args, args.trace)
     trace = open_trace(args.trace)
     frames = Salvage(trace)  # a corrupt or cut file: the table of the frames before it, then the error
-    table, total, first, last = collect_stats(frames)
+    table, total, first, last = collect_stats(timebase.messages(frames))
     if total == 0:
         frames.raise_error()  # nothing read: the error alone
     notice_skipped(trace)
@@ -99,6 +105,10 @@ def run(args: argparse.Namespace) -> int:
               f"{len({(r.arbitration_id, r.extended) for r in table.values() if r.kind != 'error'})} ids")
     if args.dbc is not None:
         header += f", names from {args.dbc}"
+    if timebase.windowed:
+        header += f", between {num(args.start, 'g') or '-inf'} and {num(args.end, 'g') or 'inf'} s"
+    if timebase.shifted or timebase.windowed:
+        header += f"; {timebase.describe()}"
     rows = []
     for r in sorted(table.values(), key=IdStats.sort_key):
         fc = None
@@ -143,5 +153,6 @@ def run(args: argparse.Namespace) -> int:
             for row in rows:
                 out.write(json.dumps(row) + "\n")
     out.flush()
+    timebase.warn_outside(name)
     frames.raise_error()
     return 0
