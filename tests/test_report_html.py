@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import html
 import json
 import re
 import shutil
@@ -356,10 +357,10 @@ def test_the_kpi_tables_give_name_value_unit_and_meaning(default_lockstep):
     _, slip = page.row("max slip speed max_slip_speed_mps")
     assert slip[1:7] == [f"{v:.6g}" for v in kpis["max_slip_speed_mps"]] and slip[7] == "m/s"
     assert page.row("bitrate bus.bitrate_bps")[1][1:3] == ["500000", "bit/s"]   # the bus: a table of its own
-    assert "CAN bus (bit-timed lockstep bus)" in page_headings(page)
-    by_node = page.row("frames sent by node frames_sent_by_node")[1]   # a mapping: its own small table
+    assert {"Train (from the plant&#x27;s truth)", "Run and frames", "CAN bus"} <= set(page_headings(page))
+    by_node = page.row("frames sent by node frames_sent_by_node")[1]   # a mapping: one line of pairs
     nodes = json.loads((default_lockstep.out_dir / "kpis.json").read_text())["frames_sent_by_node"]
-    assert by_node[1].split() == [*nodes, *map(str, nodes.values())]
+    assert by_node[1].replace("\xa0", " ") == ", ".join(f"{k} {v}" for k, v in nodes.items())
     assert not any("undescribed" in c for c, _ in page.rows)
 
 
@@ -440,7 +441,9 @@ def test_against_compares_two_seeds_of_the_default_scenario(default_lockstep, se
     code, out, err = railhil(capsys, "report", seed2_run, "--against", ref)
     assert code == 0, err
     page_path = seed2_run / f"report-vs-{ref.name}.html"
-    assert out.strip() == str(page_path)
+    line, path = out.strip().splitlines()                 # the comparison in one line, then the page
+    assert path == str(page_path)
+    assert line.startswith("Train (from the plant's truth): ") and "differ" in line, line
     page = page_of(page_path)
     assert_self_contained(page)
     assert page.row("seed")[1][1:] == ["2", "1"] and page.row("seed")[0] == "changed"   # runs table
@@ -453,7 +456,7 @@ def test_against_compares_two_seeds_of_the_default_scenario(default_lockstep, se
     assert cells[3] == f"{d:+.4g}" and cells[4] == f"{100 * d / abs(b['stopping_distance_m']):+.2f} %"
     assert cls == ("changed" if d else "")
     assert cells[5] == "m"
-    assert "KPIs differ" in page.raw
+    assert "KPIs both runs have differ" in page.raw
     cls, same = page.row("frames lost frames_lost")                     # the same value: Δ 0, not marked
     assert same[3] == "0" and cls == ""
     fig = page.figure()
@@ -470,7 +473,8 @@ def test_against_writes_where_o_says_and_bad_input_is_a_one_line_error(default_l
                                                                      tmp_path, capsys):
     ref = default_lockstep.out_dir
     code, out, err = railhil(capsys, "report", seed2_run, "--against", ref, "-o", tmp_path / "cmp.html")
-    assert code == 0 and out.strip() == str(tmp_path / "cmp.html") and (tmp_path / "cmp.html").is_file()
+    assert code == 0 and out.strip().splitlines()[-1] == str(tmp_path / "cmp.html")
+    assert (tmp_path / "cmp.html").is_file()
     (tmp_path / "empty").mkdir()
     assert_one_line_error(*railhil(capsys, "report", seed2_run, "--against", tmp_path / "nope")[::2],
                           "nope", "no such run folder")
@@ -528,3 +532,67 @@ def test_comparison_renders_in_a_headless_browser(default_lockstep, seed2_run, t
     dom = chromium("--dump-dom", page.as_uri())
     assert "js-plotly-plot" in dom.stdout, dom.stderr[-2000:]
     assert dom.stdout.count('class="trace scatter') == 2 * 3      # car 1 of both runs; the rest hidden
+
+
+#: appended to a copy of a page: once it is drawn, what a reader sees of it on a screen of that width, as
+#: JSON in a <pre id=railhil-layout>: the page's width and height, the elements wider than the page, and
+#: where the verdict, the key figures and the KPIs are
+LAYOUT_SCRIPT = """<script>window.addEventListener('load', function () { setTimeout(function () {
+  var W = document.documentElement.clientWidth, wide = [];
+  document.querySelectorAll('body *').forEach(function (e) {
+    var r = e.getBoundingClientRect();
+    if (r.width > 0 && r.right > W + 1) wide.push(e.tagName + '.' + e.className + ' ' + Math.round(r.right));
+  });
+  function box(sel) { var e = document.querySelector(sel); if (!e) return null;
+    var r = e.getBoundingClientRect(); return [Math.round(r.top + scrollY), Math.round(r.bottom + scrollY)]; }
+  var out = document.createElement('pre'); out.id = 'railhil-layout';
+  out.textContent = JSON.stringify({width: W, height: document.documentElement.scrollHeight, wide: wide,
+    banner: box('.banner'), figures: box('.figures'), kpis: box('#kpis'), kpi_table: box('table.kpis'),
+    signals: box('#signals')});
+  document.body.appendChild(out); }, 500); });</script>"""
+SCREEN = (1280, 800)        # the first screen: what opens without scrolling on a laptop
+MAX_PAGE_PX = 5000
+
+
+def layout(page: Path, tmp_path: Path, width: int = SCREEN[0]) -> dict:
+    """The page drawn by headless Chromium in a window `width` px wide (LAYOUT_SCRIPT)."""
+    copy = tmp_path / f"layout-{page.name}"
+    copy.write_text(page.read_text(encoding="utf-8").replace("</body>", LAYOUT_SCRIPT + "</body>"),
+                    encoding="utf-8")
+    dom = chromium("--hide-scrollbars", f"--window-size={width},{SCREEN[1]}", "--dump-dom", copy.as_uri(),
+                   timeout=240)
+    found = re.search(r'<pre id="railhil-layout">(.*?)</pre>', dom.stdout, re.S)
+    assert found, dom.stderr[-2000:]
+    return json.loads(html.unescape(found.group(1)))
+
+
+def assert_reads_at_a_glance(got: dict) -> None:
+    """No element wider than the page, the verdict and the KPIs on the first screen, the page not too tall."""
+    assert got["width"] == SCREEN[0] and not got["wide"], got["wide"][:10]
+    assert got["banner"][1] < SCREEN[1] and got["figures"][1] < SCREEN[1], got   # the verdict, key figures
+    assert got["kpis"][0] < SCREEN[1] and got["kpi_table"][0] < SCREEN[1], got   # the KPIs begin
+    assert got["signals"][0] < got["height"] and got["height"] < MAX_PAGE_PX, got
+
+
+@needs_chromium
+def test_the_run_report_reads_at_a_glance_on_a_1280_px_screen(default_lockstep, tmp_path):
+    assert_reads_at_a_glance(layout(default_lockstep.out_dir / "report.html", tmp_path))
+
+
+@needs_chromium
+@pytest.mark.realtime
+def test_the_report_of_make_run_reads_at_a_glance_on_a_1280_px_screen(realtime_run, tmp_path):
+    """The page of a real-time run: its nodes in one compact table, lateness.png, the details folded; its E2E
+    start-up discards labelled apart from the errors the verdict counts (none)."""
+    out, _, _ = realtime_run
+    got = layout(out / "report.html", tmp_path)
+    assert_reads_at_a_glance(got)
+    page = page_of(out / "report.html")
+    assert "E2E start-up discards" in page.cells and "E2E discarded" not in page.raw
+    header = next(c for _, c in page.rows if c and c[0] == "node" and "E2E / SecOC errors" in c)
+    errors = header.index("E2E / SecOC errors")
+    rows = [c for _, c in page.rows if len(c) == len(header) and c[0].split()[0] in ("BCU", "PLANT", "DESK")]
+    if verdict_of(page, "E2E / SecOC errors reported") == "pass":             # none reported: every row 0
+        assert rows and all(c[errors] == "0" for c in rows), rows
+    kpis = json.loads((out / "kpis.json").read_text())
+    assert kpis["bus"]["source"] == "trace" and 0.35 < kpis["bus"]["load"] < 0.45, kpis["bus"]

@@ -9,7 +9,8 @@ this command rebuilds them, e.g. for folders of an older railhil.
 
 `--against REF` writes RUN/report-vs-<REF's folder name>.html (or `-o FILE`): both runs' scenario, seed
 and versions, the scenario keys that differ, both runs' verdicts, every KPI with both values and
-Δ = RUN − REF, the signals of both overlaid.  Definitions in hil.report.html.
+Δ = RUN − REF, the signals of both overlaid; it prints the comparison in one line, then the page's path.
+Definitions in hil.report.html.
 """
 
 from __future__ import annotations
@@ -39,8 +40,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                     "folder RUN against the run folder REF instead, the way a regression is reviewed: both "
                     "runs' scenario, seed and versions, the scenario keys that differ, both runs' verdicts, "
                     "every KPI with both values, delta (RUN - REF) and relative delta, changed values "
-                    "highlighted, and the signals of both runs overlaid (RUN solid, REF dashed). Prints "
-                    "the page's path.",
+                    "highlighted, and the signals of both runs overlaid (RUN solid, REF dashed); like is "
+                    "compared with like: the KPIs both runs have are counted, those of one run only "
+                    "listed apart. Prints the comparison in one line (per group of KPIs: the same, or how "
+                    "many differ), then the page's path.",
         epilog="examples: railhil report runs/default-lockstep-20260101-120000   |   "
                "railhil report runs/seed2 --against runs/seed1   (writes runs/seed2/report-vs-seed1.html)",
     )
@@ -57,7 +60,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def report(args: argparse.Namespace) -> int:
-    from hil.report.html import write_comparison, write_report
+    from hil.report.html import comparison_summary, write_comparison, write_report
 
     if args.against is None:
         if args.output is not None:
@@ -69,5 +72,7 @@ def report(args: argparse.Namespace) -> int:
     if len(args.folders) != 1:
         raise ReportArgError(f"--against compares one run folder with REF; got {len(args.folders)} folders: "
                              + " ".join(str(f) for f in args.folders))
-    print(write_comparison(args.folders[0], args.against, args.output))
+    page = write_comparison(args.folders[0], args.against, args.output)
+    print(comparison_summary(args.folders[0], args.against))
+    print(page)
     return 0

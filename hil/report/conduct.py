@@ -39,11 +39,13 @@ def frames_sent_by(decoded: DecodedTrace, db, node: str) -> int:
 
 def node_conduct(decoded: DecodedTrace, db, nodes: list[str], node_stats: dict[str, dict],
                  external: list[str], t0_s: float = 0.0, speed: float = 1.0,
-                 end_s: float = np.inf) -> dict[str, dict]:
+                 end_s: float = np.inf, sent_by: dict[str, list[str]] | None = None) -> dict[str, dict]:
     """{node: {"external", "frames", "first_s", "last_s", "timing", "messages": {name: {...}},
     "protection": {status: count}}} for every node in `nodes`, judged on the frames of the run: from its
     start t0 to its end `end_s` [trace time] (an external device may send before the run began and after
-    it ended, while the recorder still listens)."""
+    it ended, while the recorder still listens).  `sent_by` (hil.runtime.run.messages_sent): the messages
+    each node sends in this run; a node's messages are those, not every message the DBC gives it (the
+    frames of cars the train does not have, of studies the run has not), where it is known."""
     arrays = frame_arrays_of(decoded, t0_s, end_s)
     report = analyse(arrays, db, TOLERANCE)
     by_message = {m.name: m for m in report.messages}
@@ -56,6 +58,9 @@ def node_conduct(decoded: DecodedTrace, db, nodes: list[str], node_stats: dict[s
     out: dict[str, dict] = {}
     for node in nodes:
         sent = [m for m in db.messages if node in m.senders]
+        if sent_by and node in sent_by:
+            names = set(sent_by[node])
+            sent = [m for m in db.messages if m.name in names]
         messages = {}
         protection: dict[str, int] = {}
         for m in sent:

@@ -4,27 +4,33 @@ two run folders (report-vs-<other>.html).
 A run's page is built from the files of its folder only — run.json, kpis.json, truth.csv and the PNG plots
 — so `railhil report RUN_DIR` rebuilds it at any time and `hil.runtime.run.finish_run` writes it after
 every run.  It needs nothing else: no network, no neighbouring file (the PNGs are embedded as base64,
-plotly.js is inlined once per page).  It shows:
+plotly.js is inlined once per page).  It reads at a glance on a 1,280 px screen (tests/test_report_html.py
+draws it in headless Chromium: no element wider than the page, the verdict and the KPIs on the first
+screen, under 5,000 px), in this order:
 
-* the scenario (name, description, seed, the full resolved scenario);
+* what the run ran, from its own resolved scenario (`describe_scenario`), the verdict and the key figures;
 * the verdicts: each check of `run_verdicts` with its value, its criterion and pass / fail;
-* every KPI of kpis.json with its name, value, unit and meaning (hil.report.kpi_info): one table of the
-  single values and one of the per-car values (a column per car) for the train, then the same for each
-  group (the bus, real time, each study); a KPI without a description is shown as such;
+* every KPI of kpis.json with its name, value, unit and meaning (hil.report.kpi_info): the train's (from the
+  plant's truth), the run's and its frames, the bus, each study, single values in one table and per-car
+  values one column per car; a real-time run's KPIs folded (the Real time section has them per node); a
+  KPI without a description is shown as such;
 * the signals: an interactive plotly figure of the truth (speed, cylinder pressure and slip speed of
   every car over time, as plot.png), zoomable; at most MAX_POINTS samples a curve (min/max per bucket,
   so peaks survive the decimation);
-* the static figures: plot.png and each study's <name>.png, as the folder has them;
-* timing: per message on the bit-timed lockstep bus, frames, worst and mean response time [µs] and
-  deadline misses (response longer than the message's cycle time); per node of a real-time run, cycles,
-  late cycles (started after their deadline) and missed cycles;
+* real time: one row per node -- cycles, lateness, misses (the bench's / the machine's), E2E start-up
+  discards apart from the E2E / SecOC errors the verdict counts (`_e2e_by_node`), its frames' timing --
+  and lateness.png; the rest folded;
+* timing: per message on the bit-timed lockstep bus (folded), per node its frames and E2E / SecOC;
 * faults injected and what the receivers' E2E / SecOC checks and the plausibility checks reported;
-* what reproduces the run: railhil and library versions, seed, DBC path and SHA-256, git commit.
+* folded: the static figures (plot.png and each study's), what reproduces the run (railhil and library
+  versions, seed, DBC path and SHA-256, git commit), the resolved scenario.
 
 A comparison page (`write_comparison`: `railhil report RUN --against REF`) puts two run folders side by
-side the way a regression is reviewed: both runs' scenario, seed, mode and versions, the scenario keys
-that differ, both runs' verdicts, every KPI of either with both values, Δ = RUN − REF and Δ relative to
-|REF| (changed values highlighted), and the two runs' signals overlaid (RUN solid, REF dashed).
+side the way a regression is reviewed: both runs' scenario (each described from its own), seed, mode and
+versions, the scenario keys that differ, both runs' verdicts, every KPI both runs have with both values,
+Δ = RUN − REF and Δ relative to |REF| (changed values highlighted; per group how many differ,
+`comparison_summary`), those of one run only listed apart, and the two runs' signals overlaid (RUN solid,
+REF dashed).
 
 A campaign's page (`write_campaign_report`) holds the point counts, the results table (results.csv)
 and the summary plots (plot_<key>.png) of the campaign folder.
@@ -44,7 +50,7 @@ import math
 import platform
 import re
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -56,6 +62,7 @@ from hil.report import kpi_info
 from hil.report.gate import device_gates, external_gates, study_checks
 from hil.report.kpi_info import Kpi
 from hil.report.summary import host_stalls_text
+from hil.scenario import registry
 
 REPORT_NAME = "report.html"
 #: distributions whose versions go into run.json (and the report): what a reproduction needs to match
@@ -181,7 +188,7 @@ def run_verdicts(kpis: dict, meta: dict) -> list[Verdict]:
     if "frames_lost" in kpis:
         out.append(Verdict("frames lost", str(kpis["frames_lost"]), "= 0", kpis["frames_lost"] == 0))
     bus = kpis.get("bus")
-    if bus:
+    if bus and "deadline_misses" in bus:            # the bit-timed lockstep bus (real time: hil.report.bus)
         out.append(Verdict("bus deadline misses", str(bus.get("deadline_misses")), "= 0",
                            bus.get("deadline_misses") == 0))
     steps = _sum_stat(meta, "step_errors")
@@ -256,6 +263,12 @@ table.inner td,table.inner th{padding:.1em .4em}.note{background:#fff6c8;color:#
 tr.undescribed td{background:#fff1d6}tr.changed td{background:#fff6c8}td.delta{white-space:nowrap}
 table.runs td{overflow-wrap:anywhere}table.runs td:first-child{white-space:nowrap}
 nav{font-size:.88em;color:#666}nav a{margin-right:.8em}.plot{width:100%;min-height:400px}
+table.kpis{width:100%}table.kpis td.meaning{max-width:none;font-size:.92em}
+details{margin:.4em 0}summary{cursor:pointer;color:#333}details>*:not(summary){margin-left:.6em}
+.figures{display:flex;flex-wrap:wrap;gap:.4em 1.2em;margin:.4em 0;padding:.4em .8em;background:#f7f7f9;
+border-radius:4px;font-size:.92em}.figures span{white-space:nowrap}
+.figures b{font-variant-numeric:tabular-nums}p.describe{margin:.2em 0;color:#333}
+.nowrap td{white-space:nowrap}
 """
 
 
@@ -331,8 +344,8 @@ def _value_html(v: object) -> str:
         if all(isinstance(x, dict) for x in v.values()):          # {flag: {car: t}}
             return "<table class=inner>" + "".join(
                 f"<tr><th>{_e(k)}</th><td>{_value_html(x)}</td></tr>" for k, x in v.items()) + "</table>"
-        return ("<table class=inner><tr>" + "".join(f"<th>{_e(k)}</th>" for k in v) + "</tr><tr>"
-                + "".join(f"<td class=num>{_value_html(x)}</td>" for x in v.values()) + "</tr></table>")
+        # {node: frames}, {status: count}: one line of "name value" pairs that wraps with the page
+        return ", ".join(f"{_e(k)}&nbsp;{_value_html(x)}" for k, x in v.items())
     return _e(_fmt(v))
 
 
@@ -369,25 +382,36 @@ def _per_car_table(kpis: list[Kpi]) -> str:
         unit, meaning = _unit_meaning(k)
         rows.append(f"<tr><td>{_kpi_name(k)}</td>{_car_cells(k.value, n)}<td>{_e(unit)}</td>"
                     f"<td class=meaning>{_e(meaning)}</td></tr>")
-    return (f"<table><thead><tr><th>per car</th>{head}<th>unit</th><th>meaning</th></tr></thead>"
+    return (f"<table class=kpis><thead><tr><th>per car</th>{head}<th>unit</th><th>meaning</th></tr></thead>"
             f"<tbody>{''.join(rows)}</tbody></table>")
 
 
 def _kpi_section(kpis: dict) -> str:
     """The KPIs of kpis.json (hil.report.kpi_info.groups): per group a table name / value / unit /
-    meaning and a table of the per-car values, one column per car."""
+    meaning and a table of the per-car values, one column per car; a real-time run's per-node figures
+    (kpi_info.OWN_SECTION_PATHS) are in the Real time section instead."""
     parts = []
     for g in kpi_info.groups(kpis):
-        if not g.kpis:
+        shown = [k for k in g.kpis if k.path not in kpi_info.OWN_SECTION_PATHS]
+        if not shown:
             continue
-        single = [k for k in g.kpis if not k.per_car]
-        per_car = [k for k in g.kpis if k.per_car]
-        parts.append(f"<h3>{_e(g.title)}</h3>")
+        single = [k for k in shown if not k.per_car]
+        per_car = [k for k in shown if k.per_car]
+        tables = []
         if single:
-            parts.append("<table><thead><tr><th>KPI</th><th>value</th><th>unit</th><th>meaning</th></tr>"
-                         f"</thead><tbody>{''.join(_kpi_row(k) for k in single)}</tbody></table>")
+            tables.append("<table class=kpis><thead><tr><th>KPI</th><th>value</th><th>unit</th>"
+                          f"<th>meaning</th></tr></thead><tbody>{''.join(_kpi_row(k) for k in single)}"
+                          "</tbody></table>")
         if per_car:
-            parts.append(_per_car_table(per_car))
+            tables.append(_per_car_table(per_car))
+        if g.key == "realtime":          # the Real time section has them per node, at a glance: folded here
+            held = g.kpis and kpis["realtime"].get("held")
+            parts.append(f"<h3>{_e(g.title)}</h3><details><summary>{'held' if held else 'NOT HELD'}: the "
+                         f"{len(shown)} real-time KPIs of kpis.json (per node, the machine probe and each "
+                         f"node on the bus: <a href=\"#realtime\">Real time</a>)</summary>{''.join(tables)}"
+                         "</details>")
+            continue
+        parts.append(f"<h3>{_e(g.title)}</h3>" + "".join(tables))
     missing = kpi_info.undescribed(kpis)
     if missing:
         parts.insert(0, f"<p class=fail>{len(missing)} KPIs without a description: "
@@ -509,6 +533,99 @@ def _us(value) -> str:
     return "—" if value is None else f"{float(value):.0f}"
 
 
+def _e2e_by_node(meta: dict) -> dict[str, dict[str, int]]:
+    """What each node's E2E and SecOC checks reported about the frames it received (run.json node_stats'
+    events), counted as the verdicts count them: `startup` the INITIAL ones (the first frame of each
+    protected message, whose sequence cannot be judged yet: not used, by design, and no error), `errors`
+    every other status but NONEWDATA (the verdict "E2E / SecOC errors reported"), `late` NONEWDATA (the
+    verdict "frames 1.5 cycles late")."""
+    out = {}
+    for node, stats in (meta.get("node_stats") or {}).items():
+        counts = {"startup": 0, "errors": 0, "late": 0}
+        for _, _, status in stats.get("e2e_events") or ():
+            counts["startup" if status == "INITIAL" else "late" if status == "NONEWDATA" else "errors"] += 1
+        out[node] = counts
+    return out
+
+
+E2E_STARTUP = ("E2E start-up discards", "the first frame of each protected message a node receives: its "
+               "counter follows nothing yet (E2E INITIAL), so it is not used; expected once per message and "
+               "receiver, not an error, and not counted in the verdict")
+
+
+def _lateness(us) -> str:
+    """A lateness in whole µs for a cell; 0: within 1 µs of the deadline."""
+    return "—" if us is None else "< 1" if us == 0 else f"{us}"
+
+
+def _realtime_section(run_dir: Path, meta: dict, kpis: dict) -> str:
+    """A real-time run at a glance: per node its cycles, release lateness, misses (the bench's / the
+    machine's) and what its E2E / SecOC checks reported, as the verdict lines count them; lateness.png; the
+    details folded: the processes' scheduling, the sleep calibration, each node's messages on the bus."""
+    rt = kpis.get("realtime") or {}
+    if "nodes" not in rt:
+        return ""
+    e2e = _e2e_by_node(meta)
+    conduct = rt.get("conduct") or {}
+    rows = []
+    for n, v in rt["nodes"].items():
+        c, b = e2e.get(n, {}), conduct.get(n) or {}
+        judged = [m for m in (b.get("messages") or {}).values() if m.get("verdict") != "MISSING"]
+        rows.append([n + (" (wakes)" if v.get("judged_in") == "wakes" else ""), v["cycles"],
+                     f"{v['period_us'] / 1e3:g}", _lateness(v["p50_us"]), _lateness(v["p99_us"]),
+                     _lateness(v["max_us"]), f"{v['misses_bench']} / {v['misses_machine']}",
+                     v["misses_allowed"], c.get("startup", 0), c.get("errors", 0), c.get("late", 0),
+                     (f"{b.get('timing')} ({sum(m['verdict'] == 'PASS' for m in judged)}/{len(judged)})"
+                      if b else "—"), "held" if v["held"] else "NOT HELD"])
+    m = rt.get("machine") or {}
+    if "error" not in m:
+        rows.append(["machine probe", m.get("cycles"), "10", _lateness(m.get("p50_us")),
+                     _lateness(m.get("p99_us")), _lateness(m.get("max_us")), f"— / {m.get('stalls')} stalls",
+                     "—", "—", "—", "—", "—", "(reference)"])
+    header = ["node", "cycles", "period [ms]", "lateness p50 [µs]", "p99 [µs]", "max [µs]",
+              "misses bench / machine", "bench misses allowed", E2E_STARTUP[0], "E2E / SecOC errors",
+              "E2E NONEWDATA", "frames' timing", "verdict"]
+    out = [f"<p>lateness: when a cycle's wait returned after its absolute deadline, in whole µs (&lt; 1: on "
+           f"time to the µs); a miss: a cycle over the node's threshold, the machine's when the probe or the "
+           f"node's host saw a stall then, else the bench's; {_e(E2E_STARTUP[0])}: {_e(E2E_STARTUP[1])}</p>",
+           "<div class=nowrap>" + _table(header, rows, set(range(1, 12))) + "</div>"]
+    late = run_dir / "lateness.png"
+    if late.is_file():
+        out.append(_images([late]))
+    details = [_realtime_table(rt, meta)]
+    messages = _conduct_tables(conduct)
+    if messages:
+        details.append(messages)
+    out.append("<details><summary>per node in full: thresholds, the bench's misses behind another cycle, "
+               "the processes' scheduling, the sleep calibration, each node's messages on the bus</summary>"
+               + "".join(details) + "</details>")
+    return "".join(out)
+
+
+def _conduct_tables(conduct: dict) -> str:
+    """Each node's cyclic messages on the bus against their cycle time (kpis.json realtime.conduct); the
+    messages with no frame in the trace (in run folders that do not say what each node sends: other cars',
+    other studies') folded apart."""
+    rows, silent = [], []
+    for node, c in conduct.items():
+        for name, v in (c.get("messages") or {}).items():
+            if v.get("verdict") == "MISSING":
+                silent.append(f"{node}: {name}")
+                continue
+            rows.append([node, name, v.get("cycle_ms"), v.get("frames"), _ms(v.get("mean_ms")),
+                         _ms(v.get("max_ms")), v.get("missed"), v.get("verdict")])
+    if not rows and not silent:
+        return ""
+    out = ("<h3>Each node's messages on the bus</h3>"
+           + _table(["node", "message", "cycle [ms]", "frames", "mean period [ms]", "max period [ms]",
+                     "missed", "timing"], rows, {2, 3, 4, 5, 6}))
+    if silent:
+        out += (f"<details><summary>{len(silent)} messages the DBC gives these nodes with no frame in the "
+                f"trace (frames of cars or studies this run does not have)</summary><p class=info>"
+                f"{_e(', '.join(silent))}</p></details>")
+    return out
+
+
 def _realtime_table(rt: dict, meta: dict) -> str:
     """A real-time run's lateness per node against the budget, the machine probe beside, and what the OS
     granted each process (kpis.json realtime, run.json realtime)."""
@@ -549,9 +666,6 @@ def _realtime_table(rt: dict, meta: dict) -> str:
 
 def _timing_section(meta: dict, kpis: dict | None = None) -> str:
     parts = []
-    rt = (kpis or {}).get("realtime")
-    if rt and "nodes" in rt:
-        parts.append(_realtime_table(rt, meta))
     bus = meta.get("bus_timing")
     if bus:
         load = bus.get("load")
@@ -568,20 +682,28 @@ def _timing_section(meta: dict, kpis: dict | None = None) -> str:
             f"<td class=num>{_us(m.get('queued_max_us'))}</td>"
             f"<td class=num>{_e(m.get('overwritten'))}</td><td class=num>{_e(m.get('deadline_misses'))}</td>"
             f"{_verdict_cell(m.get('deadline_misses') == 0)}</tr>" for name, m in rows)
-        parts.append("<div class=scroll><table><thead><tr><th>message</th><th>id</th><th>frames</th>"
+        parts.append(f"<details><summary>per message on the bit-timed bus ({len(rows)} messages)</summary>"
+                     "<div class=scroll><table><thead><tr><th>message</th><th>id</th><th>frames</th>"
                      "<th>worst response [µs]</th><th>mean response [µs]</th><th>worst queued [µs]</th>"
                      "<th>overwritten</th><th>deadline misses</th><th>verdict</th></tr></thead><tbody>"
-                     f"{body}</tbody></table></div>")
+                     f"{body}</tbody></table></div></details>")
     stats = meta.get("node_stats") or {}
     if stats:
         realtime = meta.get("mode") == "realtime"
-        header = ["node", "cycles", "frames sent", "frames received", "step errors", "E2E discarded",
-                  "SecOC rejected"] + (["late cycles", "missed cycles"] if realtime else [])
+        e2e = _e2e_by_node(meta)
+        header = ["node", "cycles", "frames sent", "frames received", "step errors", E2E_STARTUP[0],
+                  "E2E / SecOC errors", "E2E NONEWDATA (late)"] + (["late cycles", "missed cycles"]
+                                                                   if realtime else [])
         rows = [[n, s.get("cycles"), s.get("frames_sent"), s.get("frames_received"), s.get("step_errors"),
-                 s.get("e2e_discarded"), s.get("secoc_rejected")]
+                 e2e[n]["startup"], e2e[n]["errors"], e2e[n]["late"]]
                 + ([s.get("late_cycles"), s.get("missed_cycles")] if realtime else [])
                 for n, s in stats.items()]
-        parts.append(_table(header, rows, set(range(1, len(header)))))
+        table = (f"<p>per node: the frames it sent and received; what its E2E / SecOC checks reported "
+                 f"about the frames it received, as the verdicts count them ({_e(E2E_STARTUP[0])}: "
+                 f"{_e(E2E_STARTUP[1])})</p>" + _table(header, rows, set(range(1, len(header)))))
+        parts.append(table if not realtime else
+                     "<details><summary>per node: cycles, frames sent and received, step errors, E2E / "
+                     "SecOC, late and missed cycles</summary>" + table + "</details>")
     return "".join(parts) or "<p class=info>no timing data in run.json</p>"
 
 
@@ -705,10 +827,74 @@ def _versions_of(meta: dict) -> dict:
     return meta.get("versions") or {"python": meta.get("python"), "python-can": meta.get("python_can")}
 
 
+def describe_scenario(scenario: dict) -> str:
+    """What a run ran, in one line, from its resolved scenario (run.json): the train, its speed, what the desk
+    did, the rail, the studies -- so a run with `--set train.initial_speed_kmh=120` reads 120 km/h where the
+    scenario file's description still says 90."""
+    train = scenario.get("train") or {}
+    parts = []
+    if train:
+        speed = train.get("initial_speed_kmh")
+        parts.append(f"{train.get('cars', '?')}-car train at {_fmt(speed)} km/h")
+    for cmd in scenario.get("desk") or []:
+        what = []
+        if cmd.get("brake_step") is not None:
+            what.append(f"brake step {cmd['brake_step']}")
+        if cmd.get("emergency"):
+            what.append("emergency brake")
+        if cmd.get("target_stop_m") is not None:
+            what.append(f"stop at {_fmt(cmd['target_stop_m'])} m")
+        if what:
+            parts.append(f"{' and '.join(what)} at {_fmt(cmd.get('at_s'))} s")
+    rail = [r.get("condition") for r in (scenario.get("track") or {}).get("rail") or [] if r.get("condition")]
+    if rail:
+        parts.append("rail " + " → ".join(rail))
+    studies = [st.name for st in registry.studies() if scenario.get(st.section) is not None]
+    if studies:
+        parts.append("studies: " + ", ".join(studies))
+    if "seed" in scenario:
+        parts.append(f"seed {scenario['seed']}")
+    return "; ".join(parts)
+
+
+def _key_figures(kpis: dict) -> str:
+    """The run's figures a reader looks for first, on one strip: the train's, the frames, the bus, real
+    time, each as the summary line gives it."""
+    items = []
+
+    def add(label: str, value: str) -> None:
+        items.append(f"<span>{_e(label)} <b>{_e(value)}</b></span>")
+
+    if "stopping_distance_m" in kpis:
+        add("stopping distance", f"{kpis['stopping_distance_m']:.2f} m")
+    if kpis.get("time_to_stop_s") is not None:
+        add("time to stop", f"{kpis['time_to_stop_s']:.2f} s")
+    if kpis.get("mean_abs_decel_error_mps2") is not None:
+        add("mean |decel error|", f"{kpis['mean_abs_decel_error_mps2']:.3f} m/s²")
+    if "max_slip_speed_mps" in kpis:
+        add("max slip speed", f"{max(kpis['max_slip_speed_mps'], default=0):.3f} m/s")
+    if "wsp_activations" in kpis:
+        add("WSP activations", f"{sum(kpis['wsp_activations'])}")
+    if "frames_lost" in kpis:
+        add("frames lost", f"{kpis['frames_lost']} of {kpis.get('frames_sent')}")
+    bus = kpis.get("bus") or {}
+    if bus.get("load") is not None:
+        add("bus load", f"{100 * bus['load']:.1f} %")
+    rt = kpis.get("realtime") or {}
+    if "held" in rt and "misses_bench" in rt:
+        add("real time", f"{'held' if rt['held'] else 'NOT HELD'} ({rt['misses_bench']} bench misses)")
+    if kpis.get("end_reason"):
+        add("ended by", f"{kpis['end_reason']} at {_fmt(kpis.get('simulated_s'))} s")
+    return f"<div class=figures>{''.join(items)}</div>" if items else ""
+
+
 def render_run_report(run_dir: Path, interactive: bool = True) -> str:
     """The HTML page of a run folder (module docstring), from its run.json, kpis.json, truth.csv and PNG
     plots; `interactive=False` leaves the plotly figure (and the 4.8 MB of plotly.js) out — a campaign's
-    points, of which there may be hundreds, keep the static figures and say how to get it."""
+    points, of which there may be hundreds, keep the static figures and say how to get it.
+
+    The page reads at a glance on a 1,280 px screen: the verdict, the key figures, the verdicts and the KPIs
+    first, then the signals; a real-time run's nodes in one compact table; the details folded."""
     run_dir = Path(run_dir)
     meta, kpis, scenario = _run_header(run_dir)
     verdicts = run_verdicts(kpis, meta)
@@ -719,7 +905,9 @@ def render_run_report(run_dir: Path, interactive: bool = True) -> str:
               if failed else "<div class='banner pass'>PASS: every check holds</div>")
     vrows = "".join(f"<tr><td>{_e(v.check)}</td><td>{_e(v.value)}</td><td>{_e(v.criterion)}</td>"
                     f"{_verdict_cell(v.passed)}</tr>" for v in verdicts)
-    repro = [["seed", scenario.get("seed")], ["mode", meta.get("mode")], ["DBC", meta.get("dbc")],
+    repro = [["folder", str(run_dir.resolve())], ["seed", scenario.get("seed")], ["mode", meta.get("mode")],
+             ["ended by", f"{kpis.get('end_reason')} after {_fmt(kpis.get('simulated_s'))} s simulated"],
+             ["DBC", meta.get("dbc")],
              ["DBC SHA-256", meta.get("dbc_sha256")], ["git commit", meta.get("git_commit")],
              ["command", meta.get("command")], ["platform", meta.get("platform")],
              ["trace", meta.get("trace", "trace.blf")],
@@ -733,24 +921,38 @@ def render_run_report(run_dir: Path, interactive: bool = True) -> str:
                            f"keeps the static figures below); <code>railhil report {_e(run_dir)}</code> "
                            f"writes it with the zoomable signals</p>"), False
     devices = _devices_section(kpis)
+    realtime = _realtime_section(run_dir, meta, kpis)
+    figures = [f for f in sorted(run_dir.glob("*.png")) if not (realtime and f.name == "lateness.png")]
+    figures_html = (_images(figures) if not interactive else
+                    f"<details><summary>{_e(', '.join(f.name for f in figures) or 'no plot')}: the static "
+                    f"figures ({_e(PLOT_ROLE)})</summary>{_images(figures)}</details>")
     sections = [("verdicts", "Verdicts"), ("kpis", "KPIs"), *([("devices", "Devices")] if devices else []),
-                ("signals", "Signals"), ("figures", "Static figures"), ("timing", "Timing"),
-                ("faults", "Faults"), ("reproduce", "Reproduce"), ("scenario", "Scenario")]
-    body = (f"<h1>{_e(title)}</h1><p>{_e(scenario.get('description', ''))}</p>{banner}"
-            f"<p class=info>folder {_e(run_dir.resolve())}; ended by {_e(kpis.get('end_reason'))} after "
-            f"{_e(_fmt(kpis.get('simulated_s')))} s simulated</p>{_nav(sections)}"
+                ("signals", "Signals"), *([("realtime", "Real time")] if realtime else []),
+                ("timing", "Timing"), ("faults", "Faults"), ("figures", "Static figures"),
+                ("reproduce", "Reproduce"), ("scenario", "Scenario")]
+    described = describe_scenario(scenario)
+    file_says = (f" <span class=info>— the scenario file: {_e(scenario['description'])}</span>"
+                 if scenario.get("description") else "")
+    body = (f"<h1>{_e(title)}</h1>"
+            + (f"<p class=describe>{_e(described)}{file_says}</p>" if described or file_says else "")
+            + f"{banner}{_key_figures(kpis)}{_nav(sections)}"
             f"<h2 id=verdicts>Verdicts</h2><table><thead><tr><th>check</th><th>value</th><th>criterion</th>"
             f"<th>verdict</th></tr></thead><tbody>{vrows}</tbody></table>"
             f"<h2 id=kpis>KPIs</h2>{_kpi_section(kpis)}"
             + (f"<h2 id=devices>Devices</h2>{devices}" if devices else "")
             + f"<h2 id=signals>Signals</h2>{signals}"
-            f"<h2 id=figures>Static figures</h2>{_images(sorted(run_dir.glob('*.png')))}"
-            f"<h2 id=timing>Timing</h2>{_timing_section(meta, kpis)}"
+            + (f"<h2 id=realtime>Real time</h2>{realtime}" if realtime else "")
+            + f"<h2 id=timing>Timing</h2>{_timing_section(meta, kpis)}"
             f"<h2 id=faults>Faults</h2>{_faults_section(kpis, meta)}"
-            f"<h2 id=reproduce>Reproduce</h2>{_table(['', ''], repro)}"
+            f"<h2 id=figures>Static figures</h2>{figures_html}"
+            f"<h2 id=reproduce>Reproduce</h2><details><summary>the folder, seed, DBC and its SHA-256, git "
+            f"commit, command line, versions</summary>{_table(['', ''], repro)}</details>"
             f"<h2 id=scenario>Scenario</h2><details><summary>the resolved scenario (JSON)</summary><pre>"
             f"{_e(json.dumps(scenario, indent=2))}</pre></details>")
     return _page(title, body, plotly)
+
+
+PLOT_ROLE = "plot.png is the Signals figure above as an image; a study adds its own"
 
 
 def write_run_report(run_dir: Path, interactive: bool = True) -> Path:
@@ -811,9 +1013,45 @@ def _cell(v: object) -> str:
     return "<td class=info>(none)</td>" if v is _NONE else f"<td class=num>{_value_html(v)}</td>"
 
 
-def _compare_kpi_section(ka: dict, kb: dict) -> tuple[str, int, int]:
-    """(HTML, KPIs compared, KPIs that differ) of the KPI tables of a comparison: per group, single values
-    with both runs, Δ and Δ relative, and the per-car values (rows run / reference / Δ)."""
+@dataclass
+class GroupCompared:
+    """How one group of KPIs compares between two runs: those both runs have, of them those that differ,
+    and the dotted paths one run has only."""
+
+    title: str
+    compared: int = 0
+    differ: int = 0
+    only: list[str] = field(default_factory=list)
+    max_rel: float = 0.0           # the largest |Δ| / |reference| of the numbers that differ (0: none)
+    numbers_only: bool = True      # whether every KPI that differs is a number (max_rel says it all)
+
+    def add(self, a: object, b: object) -> None:
+        """Count one KPI both runs have (a list of one value per car, or one value)."""
+        self.compared += 1
+        if a == b:
+            return
+        self.differ += 1
+        pairs = list(zip(a, b, strict=False)) if isinstance(a, list) and isinstance(b, list) else [(a, b)]
+        for x, y in pairs:
+            if _is_num(x) and _is_num(y) and y != 0:
+                self.max_rel = max(self.max_rel, abs(x - y) / abs(y))
+            elif x != y:
+                self.numbers_only = False
+
+    def text(self) -> str:
+        if not self.compared:
+            return f"{self.title}: none in both runs"
+        if not self.differ:
+            return f"{self.title}: the same ({self.compared} KPIs)"
+        by = f", by at most {100 * self.max_rel:.2g} %" if self.numbers_only and self.max_rel else ""
+        return f"{self.title}: {self.differ} of {self.compared} differ{by}"
+
+
+def _compare_kpi_section(ka: dict, kb: dict) -> tuple[str, list[GroupCompared]]:
+    """(HTML, each group compared) of the KPI tables of a comparison: per group, single values with both
+    runs, Δ and Δ relative, and the per-car values (rows run / reference / Δ).  Like is compared with like:
+    a KPI counts when both runs have it; those one run has only (a real-time run's per-node figures against
+    a lockstep run) are listed apart, under their group."""
     order: list[str] = []
     titles: dict[str, str] = {}
     pairs: dict[str, dict[str, list]] = {}
@@ -824,33 +1062,38 @@ def _compare_kpi_section(ka: dict, kb: dict) -> tuple[str, int, int]:
                 titles[g.key], pairs[g.key] = g.title, {}
             for k in g.kpis:
                 pairs[g.key].setdefault(k.path, [None, None])[side] = k
-    parts, total, changed = [], 0, 0
+    parts, stats = [], []
     for key in order:
+        group = GroupCompared(titles[key])
         single, per_car = [], []
         for a, b in pairs[key].values():
             k = a or b
             va, vb = (a.value if a else _NONE), (b.value if b else _NONE)
             unit, meaning = _unit_meaning(k)
+            if va is _NONE or vb is _NONE:
+                group.only.append(f"{k.path} ({'run' if vb is _NONE else 'reference'} only)")
+                continue
             if (a and a.per_car) or (b and b.per_car):
-                total += 1
-                changed += va != vb
+                group.add(va, vb)
                 per_car.append((k, va, vb, unit))
                 continue
-            fa = _flat(va, k.path) if va is not _NONE else {}
-            fb = _flat(vb, k.path) if vb is not _NONE else {}
+            fa, fb = _flat(va, k.path), _flat(vb, k.path)
             for path in dict.fromkeys([*fa, *fb]):
                 x, y = fa.get(path, _NONE), fb.get(path, _NONE)
-                total += 1
-                changed += x != y
-                d, rel = _delta(x, y, unit) if x is not _NONE and y is not _NONE else ("changed", "")
+                if x is _NONE or y is _NONE:
+                    group.only.append(f"{path} ({'run' if y is _NONE else 'reference'} only)")
+                    continue
+                group.add(x, y) if unit not in ("id", "text") else group.add(str(x), str(y))
+                d, rel = _delta(x, y, unit)
                 name = (k.info.name if k.info else k.key) + path[len(k.path):]
                 cls = " class=changed" if x != y else (" class=undescribed" if k.info is None else "")
                 single.append(f"<tr{cls}><td>{_e(name)} <code class=key>{_e(path)}</code></td>{_cell(x)}"
                               f"{_cell(y)}<td class='num delta'>{_e(d)}</td><td class='num delta'>{_e(rel)}"
                               f"</td><td>{_e(unit)}</td><td class=meaning>{_e(meaning)}</td></tr>")
-        parts.append(f"<h3>{_e(titles[key])}</h3>")
+        stats.append(group)
+        parts.append(f"<h3>{_e(titles[key])}</h3><p class=info>{_e(group.text())}</p>")
         if single:
-            parts.append("<table><thead><tr><th>KPI</th><th>run</th><th>reference</th><th>Δ</th>"
+            parts.append("<table class=kpis><thead><tr><th>KPI</th><th>run</th><th>reference</th><th>Δ</th>"
                          "<th>Δ rel.</th><th>unit</th><th>meaning</th></tr></thead>"
                          f"<tbody>{''.join(single)}</tbody></table>")
         if per_car:
@@ -870,7 +1113,10 @@ def _compare_kpi_section(ka: dict, kb: dict) -> tuple[str, int, int]:
                             + "".join(f"<td class='num delta'>{_e(d)}</td>" for d in deltas) + "</tr>")
             parts.append(f"<table><thead><tr><th>per car</th><th></th>{head}<th>unit</th></tr></thead>"
                          f"<tbody>{''.join(rows)}</tbody></table>")
-    return "".join(parts), total, changed
+        if group.only:
+            parts.append(f"<details><summary>{len(group.only)} KPIs of one run only, not compared</summary>"
+                         f"<p class=info>{_e(', '.join(group.only))}</p></details>")
+    return "".join(parts), stats
 
 
 def _flat_json(v: object, prefix: str = "") -> dict[str, object]:
@@ -900,7 +1146,8 @@ def render_comparison(run_dir: Path, ref_dir: Path) -> str:
     va, vb = _versions_of(meta_a), _versions_of(meta_b)
     runs = [("folder", str(run_dir.resolve()), str(ref_dir.resolve())),
             ("scenario", sa.get("name"), sb.get("name")),
-            ("description", sa.get("description"), sb.get("description")),
+            ("what it ran", describe_scenario(sa), describe_scenario(sb)),
+            ("description (the scenario file's)", sa.get("description"), sb.get("description")),
             ("seed", sa.get("seed"), sb.get("seed")), ("mode", meta_a.get("mode"), meta_b.get("mode")),
             ("ended by", ka.get("end_reason"), kb.get("end_reason")),
             ("simulated [s]", ka.get("simulated_s"), kb.get("simulated_s")),
@@ -924,16 +1171,21 @@ def render_comparison(run_dir: Path, ref_dir: Path) -> str:
                         else "<td class=info>—</td><td></td>" for v in (a, b))
         diff = (a.passed if a else None) != (b.passed if b else None) or (a and b and a.value != b.value)
         vrows.append(f"<tr{' class=changed' if diff else ''}><td>{_e(check)}</td>{cells}</tr>")
-    kpi_html, total, changed = _compare_kpi_section(ka, kb)
+    kpi_html, groups = _compare_kpi_section(ka, kb)
+    total, changed = sum(g.compared for g in groups), sum(g.differ for g in groups)
+    only = sum(len(g.only) for g in groups)
     title = f"railhil comparison: {la} against {lb}"
+    by_group = "; ".join(g.text() for g in groups if g.compared)
+    apart = f"; {only} KPIs of one run only, listed apart" if only else ""
     if regressions:
         banner = ("<div class='banner fail'>REGRESSION: fails here, passes in the reference: "
                   f"{_e(', '.join(regressions))}</div>")
     elif changed:
-        banner = (f"<div class='banner note'>{changed} of {total} KPIs differ; no check that passes in the "
-                  f"reference fails here</div>")
+        banner = (f"<div class='banner note'>{changed} of the {total} KPIs both runs have differ — "
+                  f"{_e(by_group)}{_e(apart)}; no check that passes in the reference fails here</div>")
     else:
-        banner = f"<div class='banner pass'>the same: none of {total} KPIs differs</div>"
+        banner = (f"<div class='banner pass'>the same: none of the {total} KPIs both runs have differs"
+                  f"{_e(apart)}</div>")
     ca, why_a = _read_truth(run_dir)
     cb, why_b = _read_truth(ref_dir)
     signals, plotly = _signals_section([(la, ca, why_a), (lb, cb, why_b)],
@@ -952,6 +1204,21 @@ def render_comparison(run_dir: Path, ref_dir: Path) -> str:
             f"<h2 id=kpis>KPIs</h2>{kpi_html}"
             f"<h2 id=signals>Signals</h2>{signals}")
     return _page(title, body, plotly)
+
+
+def comparison_summary(run_dir: Path, ref_dir: Path) -> str:
+    """The comparison of two run folders in one line, as its page's banner: the regressions, else per group
+    the KPIs both runs have and how many differ, and how many one run has only."""
+    meta_a, ka, _ = _run_header(Path(run_dir))
+    meta_b, kb, _ = _run_header(Path(ref_dir))
+    verd_a = {v.check: v for v in run_verdicts(ka, meta_a)}
+    verd_b = {v.check: v for v in run_verdicts(kb, meta_b)}
+    regressions = [c for c in verd_a if verd_a[c].passed is False and c in verd_b and verd_b[c].passed]
+    _, groups = _compare_kpi_section(ka, kb)
+    only = sum(len(g.only) for g in groups)
+    line = "; ".join(g.text() for g in groups if g.compared)
+    line += f"; {only} KPIs of one run only, not compared" if only else ""
+    return (f"REGRESSION: {', '.join(regressions)}; " if regressions else "") + line
 
 
 def write_comparison(run_dir: Path, ref_dir: Path, out: Path | None = None) -> Path:

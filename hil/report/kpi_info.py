@@ -12,7 +12,8 @@ that is a list of one value per car (car 1 first).  Units are SI as the key's su
 `1` a ratio or fraction, `count` a number of things, `yes/no` a flag, `text` a name or a choice, `id`
 an identifier (the seed).
 
-`groups(kpis)` sorts a kpis.json into the tables the report shows, each KPI with its entry or None;
+`groups(kpis)` sorts a kpis.json into the tables the report shows (the train's KPIs from the plant's truth,
+the run's and its frames, the bus, real time, each study), each KPI with its entry or None;
 `undescribed(kpis)` lists the dotted paths that have no entry (tests/test_report_html.py fails on any,
 so a KPI added without a description is caught).
 """
@@ -92,16 +93,25 @@ FOUNDATION: dict[str, tuple] = {
     "simulated_s": ("simulated time", "s", "simulated time at the end of the run"),
     "end_reason": ("ended by", "text",
                    "standstill, max_duration, interrupted, failed or observed (a real-time node died)"),
-    # the bit-timed lockstep bus
+    # the bus: the bit-timed lockstep bus's figures, or a real-time run's from its trace (hil.report.bus)
     "bus.bitrate_bps": ("bitrate", "bit/s", "the bus's bit rate (the DBC's Baudrate unless the scenario sets "
                                             "one)"),
-    "bus.load": ("bus load", "1", "fraction of the run's time the bus carried frames (0 to 1)"),
+    "bus.load": ("bus load", "1", "fraction of the run's time its frames took on the bus, each frame with "
+                                  "its real stuff bits (0 to 1); the bits on the wire"),
+    "bus.load_worst_case": ("bus load at worst-case stuffing", "1",
+                            "the same frames, each at its worst-case stuffed length (Davis 2007): how "
+                            "railhil timing's average and the response-time analysis count them, so a few "
+                            "points above bus load"),
     "bus.worst_response_us": ("worst response time", "µs",
                               "largest response of any message: end of the frame − start of its release "
-                              "window"),
+                              "window (real time: estimated from the trace, each frame against its cycle's "
+                              "grid; a lower estimate)"),
     "bus.worst_response_message": ("worst-response message", "text", "the message with that response"),
     "bus.deadline_misses": ("deadline misses", "count",
                             "frames whose response was longer than their message's cycle time, all messages"),
+    "bus.source": ("bus figures from", "text",
+                   "bus model: the bit-timed lockstep bus, release by release; trace: a real-time run's "
+                   "recorded frames"),
     # a real-time run (hil.runtime.outcome.realtime_verdict)
     "realtime.held": ("real time held", "yes/no",
                       "every simulated node's deadline misses that were the bench's (not the machine's) "
@@ -153,8 +163,16 @@ FOUNDATION: dict[str, tuple] = {
                           "nodes not simulated: their frames came from the bus (a device under test)"),
 }
 
+#: the train's KPIs, from the plant's truth: what a run is about, equal in a lockstep run and its real-time
+#: twin; the foundation's other top-level KPIs are the run's (frames, mode, seed, ...)
+TRAIN = ("stopped", "stopping_distance_m", "time_to_stop_s", "brake_start_s", "mean_abs_decel_error_mps2",
+         "max_slip_speed_mps", "max_slip_ratio", "wsp_activations", "wsp_time_s", "max_abs_coupler_dl_m")
 #: the foundation's groups of KPIs (a dict in kpis.json) and their titles
-GROUPS = {"bus": "CAN bus (bit-timed lockstep bus)", "realtime": "Real time"}
+GROUPS = {"bus": "CAN bus", "realtime": "Real time"}
+#: members of a group that the report shows in a section of their own, not in the KPI tables: a real-time
+#: run's per-node lateness, the machine probe and each node's conduct on the bus (report.html's "Real time")
+OWN_SECTION_PATHS = ("realtime.nodes", "realtime.conduct", "realtime.machine", "realtime.histogram_edges_us",
+                     "realtime.lateness_us", "realtime.max_lag_ms", "realtime.missed_cycles")
 #: kpis.json keys the report shows in a section of their own, not in the KPI tables: each device on its own
 #: CAN matrix (hil.report.devices; report.html's "Devices")
 OWN_SECTION = ("devices",)
@@ -203,7 +221,10 @@ def groups(kpis: dict) -> list[Group]:
     top = [k for k in _ordered(kpis, {k: v for k, v in FOUNDATION.items() if "." not in k})
            if k not in OWN_SECTION
            and not (isinstance(kpis[k], dict) and (k in GROUPS or study_info(k) is not None))]
-    out = [Group("", "Train and run", [Kpi(k, k, kpis[k], info_of(FOUNDATION.get(k))) for k in top])]
+    out = [Group("", "Train (from the plant's truth)",
+                 [Kpi(k, k, kpis[k], info_of(FOUNDATION.get(k))) for k in top if k in TRAIN]),
+           Group("run", "Run and frames",
+                 [Kpi(k, k, kpis[k], info_of(FOUNDATION.get(k))) for k in top if k not in TRAIN])]
     for key, title in GROUPS.items():
         if isinstance(kpis.get(key), dict):
             members = kpis[key]

@@ -45,9 +45,7 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
             lines += study.part("kpis").summary_lines(kpis[study.name])
     bus = kpis.get("bus")
     if bus:
-        lines.append(f"bus ({bus['bitrate_bps'] // 1000} kbit/s)       load {100 * bus['load']:.1f} %, "
-                     f"worst response {bus['worst_response_us']:.0f} us ({bus['worst_response_message']}), "
-                     f"{bus['deadline_misses']} deadline misses")
+        lines.append(bus_line(bus))
     rt = kpis.get("realtime")
     if rt and "budget" in rt:
         lines += realtime_lines(rt)
@@ -56,6 +54,20 @@ def summary_lines(kpis: dict, files: Iterable[Path]) -> list[str]:
     lines.append("files: " + ", ".join(str(f) for f in files))
     lines.append(verdict_line(gates(kpis)))
     return lines
+
+
+def bus_line(bus: dict) -> str:
+    """The bus line (kpis.json `bus`): the load measured (each frame with its real stuff bits) and at
+    worst-case stuffing (each frame at its longest, as `railhil timing` and the response-time analysis
+    count it), the worst response -- the bus model's, or in real time the one estimated from the trace --
+    and the bus model's deadline misses."""
+    load = "load —" if bus.get("load") is None else f"load {100 * bus['load']:.1f} % measured"
+    if bus.get("load_worst_case") is not None:
+        load += f", {100 * bus['load_worst_case']:.1f} % at worst-case stuffing"
+    where = ", estimated from the trace" if bus.get("source") == "trace" else ""
+    misses = f", {bus['deadline_misses']} deadline misses" if "deadline_misses" in bus else ""
+    return (f"bus ({bus['bitrate_bps'] // 1000} kbit/s)       {load}; worst response "
+            f"{bus['worst_response_us']:.0f} us ({bus['worst_response_message']}{where}){misses}")
 
 
 def host_stalls_text(machine: dict) -> str:

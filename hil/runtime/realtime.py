@@ -1008,7 +1008,7 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
                           progress: Callable[[int, dict], None] | None = None,
                           external: tuple[str, ...] = ()):
     from hil.can.codec import loaded_dbc
-    from hil.runtime.run import dbc_path_of, device_trace_name, finish_run, trace_name
+    from hil.runtime.run import dbc_path_of, device_trace_name, finish_run, messages_sent, trace_name
 
     if scenario.faults:                           # not silently dropped: say where they work
         kinds = ", ".join(sorted({f.kind for f in scenario.faults}))
@@ -1046,7 +1046,8 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
                                               external=external, device_traces=device_traces)
     report = finish_run(scenario, outcome, out_dir, db, codec, trace_t0_s=epoch_t0,
                         trace_speed=scenario.realtime.speed,
-                        extra={"bus": {k: str(v) for k, v in cfg.items()}, "failure": failure})
+                        extra={"bus": {k: str(v) for k, v in cfg.items()}, "failure": failure},
+                        sent_by=messages_sent(nodes))
     if failure is not None:                      # nothing recorded is lost: the folder is written first
         raise NodeDied(f"{failure}; what was recorded is in {out_dir}")
     return report

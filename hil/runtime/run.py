@@ -21,6 +21,7 @@ import numpy as np
 
 from hil.can.codec import Codec, loaded_dbc
 from hil.can.dbc import DEFAULT_DBC
+from hil.report.bus import trace_bus_kpis, worst_case_load
 from hil.report.conduct import frames_sent_by, node_conduct, silence_reported
 from hil.report.devices import device_kpis
 from hil.report.html import REPORT_NAME, run_metadata, write_run_report
@@ -127,11 +128,19 @@ def dbc_path_of(scenario: Scenario) -> Path:
     return Path(scenario.dbc) if scenario.dbc else DEFAULT_DBC
 
 
+def messages_sent(nodes) -> dict[str, list[str]]:
+    """The DBC messages each node of a run sends (its binding's tx), by node: run.json's `messages_sent`,
+    from which `railhil timing` and the report know the frames a run sends by design."""
+    return {node.name: [msg for msg, _ in node.binding.tx] for node in nodes}
+
+
 def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec: Codec,
                trace_t0_s: float = 0.0, trace_speed: float = 1.0, extra: dict | None = None,
-               interactive_report: bool = True, plots: bool = True) -> RunReport:
+               interactive_report: bool = True, plots: bool = True,
+               sent_by: dict[str, list[str]] | None = None) -> RunReport:
     """Write the run folder of a finished run: truth.csv, kpis.json (the trace read back once), run.json,
-    and with `plots` plot.png, the studies' figures and report.html."""
+    and with `plots` plot.png, the studies' figures and report.html.  `sent_by`: the messages each node
+    sends (`messages_sent`), kept in run.json; a real-time run's nodes are judged on those."""
     trace = out_dir / trace_name(scenario)
     cols = outcome.truth.columns()
     truth_csv = out_dir / "truth.csv"
@@ -155,6 +164,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
                       codec=codec, trace_t0_s=trace_t0_s, trace_speed=trace_speed, mode=outcome.mode,
                       decoded=decoded)
     kpis.update(study_kpis(view))                    # each study's own, under its name
+    run_end_s = trace_t0_s + outcome.end_us / 1e6 / trace_speed     # the run's end in the trace's time
     if outcome.bus is not None:
         worst = max(outcome.bus["messages"].items(), key=lambda kv: kv[1]["response_max_us"],
                     default=(None, {"response_max_us": 0.0}))
@@ -164,7 +174,13 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
             "worst_response_us": worst[1]["response_max_us"],
             "worst_response_message": worst[0],
             "deadline_misses": sum(m["deadline_misses"] for m in outcome.bus["messages"].values()),
+            "load_worst_case": worst_case_load(decoded, trace_t0_s, run_end_s, outcome.bus["bitrate_bps"]),
+            "source": "bus model",
         }
+    elif outcome.mode == "realtime":           # no bus model: the figures the trace shows (hil.report.bus)
+        bus = trace_bus_kpis(decoded, db, trace_t0_s, run_end_s, scenario.bus.bitrate)
+        if bus is not None:
+            kpis["bus"] = bus
     detected: dict[str, int] = {}              # what the receivers' E2E / SecOC checks reported
     for stats in outcome.node_stats.values():
         for _, _, status in stats.get("e2e_events") or ():
@@ -176,11 +192,10 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     flagged = plausibility_events(decoded, db, codec, scenario.train.cars, trace_t0_s, trace_speed)
     if flagged or outcome.faults is not None:
         kpis["plausibility_flags"] = flagged       # first time [s] each sensor / car was flagged
-    run_end_s = trace_t0_s + outcome.end_us / 1e6 / trace_speed     # the run's end in the trace's time
     if outcome.mode == "realtime":
         kpis["realtime"] = realtime_verdict(outcome)
         conduct = node_conduct(decoded, db, list(outcome.frames_by_node), outcome.node_stats, external,
-                               trace_t0_s, trace_speed, run_end_s)
+                               trace_t0_s, trace_speed, run_end_s, sent_by)
         for name in external:
             conduct[name]["reported_silent_s"] = silence_reported(decoded, db, name, conduct[name]["last_s"],
                                                                   trace_t0_s, trace_speed)
@@ -208,6 +223,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
         "platform": platform.platform(),
         "trace": trace.name,
         "trace_t0_s": trace_t0_s,
+        **({"messages_sent": sent_by} if sent_by else {}),
         "node_stats": outcome.node_stats,
         "bus_timing": outcome.bus,
         "faults": outcome.faults,
@@ -288,4 +304,4 @@ def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None,
         outcome = run_lockstep(scenario, db, codec, writer, progress=progress, dbc_name=str(dbc_path),
                                setup=setup, device_writers=device_writers)
     return finish_run(scenario, outcome, out_dir, db, codec, interactive_report=interactive_report,
-                      plots=plots)
+                      plots=plots, sent_by=messages_sent(setup.nodes))
