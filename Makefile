@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test test-slow fuzz bench profile soak lint docs lock vcan clean
+.PHONY: run test test-slow fuzz bench profile soak lint docs docs-figures lock vcan clean
 
 # the versions CI tested come from constraints.txt (make lock writes it)
 $(STAMP): pyproject.toml constraints.txt
@@ -73,6 +73,12 @@ lock: $(STAMP)
 ## make docs: the docs site under docs/ built strictly into site/ (a warning is an error)
 docs: $(STAMP)
 	$(VENV)/bin/mkdocs build --strict
+
+## make docs-figures: the docs' figures and printed outputs made again by the code as it is (docs/img/plot.png,
+## the lockstep run's printed summary and kpis.json in README.md and docs/, make run's output in getting
+## started, docs/img/report.png in headless Chromium); a lockstep and a real-time run, about a minute
+docs-figures: $(STAMP)
+	$(PY) docs/hooks/figures.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check $(LINT_PATHS)

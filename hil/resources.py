@@ -11,6 +11,7 @@ A scenario may be named instead of given by path: `railhil run default` is the s
 
 from __future__ import annotations
 
+import difflib
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -91,9 +92,21 @@ def shipped_scenarios() -> list[ShippedScenario]:
     return out
 
 
+def unknown_scenario(name: str) -> str:
+    """What to say of a scenario name that is no shipped scenario: the closest shipped names (difflib, as
+    for scenario keys and DBC names), else every shipped name."""
+    names = [s.name for s in shipped_scenarios()]
+    stem = Path(name).name.removesuffix(".toml")
+    close = difflib.get_close_matches(stem, names, n=3, cutoff=0.6)
+    if close:
+        return (f"did you mean {' or '.join(close)}? (`railhil scenarios` describes the {len(names)} shipped "
+                f"scenarios)")
+    return f"shipped: {', '.join(names)}; `railhil scenarios` describes them"
+
+
 def resolve_scenario(ref: str | Path) -> Path:
     """The scenario file `ref` names: a path that exists, else a shipped scenario's name (`default`,
-    `default.toml`).  Neither: a ScenarioError that lists the shipped names."""
+    `default.toml`).  Neither: a ScenarioError with the closest shipped names (`unknown_scenario`)."""
     path = Path(ref)
     if path.exists():
         return path
@@ -102,6 +115,5 @@ def resolve_scenario(ref: str | Path) -> Path:
         shipped = scenarios_dir() / (text if text.endswith(".toml") else f"{text}.toml")
         if shipped.is_file():
             return shipped
-    names = ", ".join(s.name for s in shipped_scenarios())
-    raise ScenarioError(f"{ref}: no such scenario file, and no shipped scenario of that name (shipped: "
-                        f"{names}; `railhil scenarios` describes them)")
+    raise ScenarioError(f"{ref}: no such scenario file, and no shipped scenario of that name; "
+                        f"{unknown_scenario(text)}")

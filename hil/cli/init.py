@@ -49,7 +49,13 @@ def with_local_dbc(text: str, dbc_name: str) -> str:
 def run(args: argparse.Namespace) -> int:
     import tomllib
 
-    from hil.resources import DEFAULT_DBC_NAME, default_dbc, scenarios_dir, shipped_scenarios
+    from hil.resources import (
+        DEFAULT_DBC_NAME,
+        default_dbc,
+        scenarios_dir,
+        shipped_scenarios,
+        unknown_scenario,
+    )
 
     shipped = {s.name: s for s in shipped_scenarios()}
     names = args.scenarios or ["default"]
@@ -57,8 +63,8 @@ def run(args: argparse.Namespace) -> int:
         names = list(shipped)
     unknown = [n for n in names if n.removesuffix(".toml") not in shipped]
     if unknown:
-        raise InitError(f"--scenario {unknown[0]!r}: no shipped scenario of that name; shipped: "
-                        f"{', '.join(shipped)}")
+        raise InitError(f"--scenario {unknown[0]!r}: no shipped scenario of that name; "
+                        f"{unknown_scenario(unknown[0])}")
     out: Path = args.dir
     if out.exists() and not out.is_dir():
         raise InitError(f"{out}: exists and is not a folder; expected a folder to write the copies into")

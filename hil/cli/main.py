@@ -50,6 +50,33 @@ COMMANDS = {
 }
 
 
+def version_line() -> str:
+    """`railhil --version`: railhil's version and those of the libraries that read and write its frames,
+    from the installed distributions' metadata (nothing imported)."""
+    import platform
+    from importlib.metadata import PackageNotFoundError, version
+
+    def of(dist: str) -> str:
+        try:
+            return version(dist)
+        except PackageNotFoundError:
+            return "not installed"
+
+    return (f"railhil {of('railhil')} (python-can {of('python-can')}, cantools {of('cantools')}, "
+            f"Python {platform.python_version()})")
+
+
+class VersionAction(argparse.Action):
+    """--version: the line of `version_line`, made only when asked for."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(version_line())
+        parser.exit()
+
+
 def command_of(argv: list[str]) -> str | None:
     """The subcommand named on a command line: its first word that is not an option (the top-level
     options take no value)."""
@@ -64,6 +91,8 @@ def build_parser(load: list[str] | tuple[str, ...] | None = None) -> argparse.Ar
         description="HIL testbench for railway brake electronics over CAN.",
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    parser.add_argument("--version", action=VersionAction,
+                        help="print railhil's version and python-can's, cantools' and Python's, and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name, (module, help_line) in COMMANDS.items():
