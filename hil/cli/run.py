@@ -139,6 +139,19 @@ def with_devices(scenario, given: list[str]):
     return scenario
 
 
+def fmu_lines(scenario) -> list[str]:
+    """The summary's line per FMU the run stepped in a node's place (run.json `fmus` has its SHA-256)."""
+    from hil.fmi.fmu import open_fmu, scenario_fmus
+
+    lines = []
+    for node, path in scenario_fmus(scenario).items():
+        info = open_fmu(path)
+        tool = f", by {info.generation_tool}" if info.generation_tool else ""
+        lines.append(f"{'FMU ' + node:<23} {info.model_name} ({Path(path).name}, FMI {info.fmi_version} "
+                     f"co-simulation{tool})")
+    return lines
+
+
 def run(args: argparse.Namespace) -> int:
     overrides = {"seed": args.seed} if args.seed is not None else None
     sets = list(args.sets) + ([f"realtime.hosting={args.hosting}"] if args.hosting else [])
@@ -180,7 +193,8 @@ def run(args: argparse.Namespace) -> int:
             report = run_scenario_lockstep(scenario, out, progress=progress)
         finally:
             progress.close()
-    for line in report.summary():                # its last line: the verdict (hil.report.gate)
+    summary = report.summary()                   # its last line: the verdict (hil.report.gate)
+    for line in summary[:1] + fmu_lines(scenario) + summary[1:]:
         print(line)
     if report.outcome.reason == "interrupted":
         return 130

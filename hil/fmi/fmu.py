@@ -145,6 +145,22 @@ def checking_only() -> bool:
     return _CHECK_ONLY.get()
 
 
+def scenario_fmus(scenario) -> dict[str, str]:
+    """The FMUs a scenario runs, by the node they are: {"PLANT": path, "BECU3": path}."""
+    out = {"PLANT": scenario.plant.fmu} if scenario.plant.fmu else {}
+    out.update({name: t.fmu for name, t in scenario.nodes.items() if t.fmu})
+    return out
+
+
+def describe(path: str | Path) -> dict:
+    """What run.json keeps of an FMU: its file and SHA-256, model, FMI version and the tool that made it."""
+    import hashlib
+
+    info = open_fmu(path)
+    return {"file": str(info.path), "sha256": hashlib.sha256(info.path.read_bytes()).hexdigest(),
+            "model": info.model_name, "fmi": info.fmi_version, "generation_tool": info.generation_tool}
+
+
 def closest(name: str, names: Sequence[str]) -> str:
     """'; closest: a, b' for a name not found among `names`."""
     close = difflib.get_close_matches(name, list(names), n=3, cutoff=0.5)

@@ -21,6 +21,8 @@ import numpy as np
 
 from hil.can.codec import Codec, loaded_dbc
 from hil.can.dbc import DEFAULT_DBC
+from hil.fmi.fmu import describe as describe_fmu
+from hil.fmi.fmu import scenario_fmus
 from hil.report.bus import trace_bus_kpis, worst_case_load
 from hil.report.conduct import frames_sent_by, node_conduct, silence_reported
 from hil.report.devices import device_kpis
@@ -228,6 +230,8 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
         "bus_timing": outcome.bus,
         "faults": outcome.faults,
         **({"devices": outcome.devices} if outcome.devices else {}),
+        **({"fmus": {node: describe_fmu(path) for node, path in scenario_fmus(scenario).items()}}
+           if scenario_fmus(scenario) else {}),
         "wall_s": round(outcome.wall_s, 3),
         **({"realtime": realtime_meta(outcome.realtime)} if outcome.realtime else {}),
         **run_metadata(dbc_path_of(scenario), scenario.seed),   # versions, DBC SHA-256, git commit
