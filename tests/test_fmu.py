@@ -76,7 +76,8 @@ def test_the_exported_plant_imported_back_gives_the_native_run_byte_for_byte(exp
     assert fmu["stopping_distance_m"] == pytest.approx(native["stopping_distance_m"], rel=1e-3)
     assert sha256(tmp_path / "trace.blf") == sha256(exported["native"] / "trace.blf")
     assert sha256(tmp_path / "truth.csv") == sha256(exported["native"] / "truth.csv")
-    assert "FMU PLANT               RailhilPlant (train.fmu, FMI 2.0 co-simulation, by PythonFMU" in proc.stdout
+    line = "FMU PLANT               RailhilPlant (train.fmu, FMI 2.0 co-simulation, by PythonFMU"
+    assert line in proc.stdout
     recorded = json.loads((tmp_path / "run.json").read_text())["fmus"]["PLANT"]
     assert recorded["sha256"] == sha256(exported["plant"]) and recorded["model"] == "RailhilPlant"
 
