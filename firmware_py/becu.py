@@ -54,6 +54,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import NamedTuple
 
+from firmware_py.constants import G_MPS2
 from firmware_py.cycle import CycleTimer
 from firmware_py.decel_feedback import FbState
 from firmware_py.governor import (
@@ -177,7 +178,7 @@ def vent_watchdog(vent_s: float, tripped: bool, venting: bool, recovered: bool, 
 # Steepest gradient a scenario may declare: hil.scenario's GradientPoint.permille is bounded to ±60 ‰.
 # On it the accelerometer legitimately reads g·sin(atan(0.060)) = 0.588 m/s² more than the axle's
 # acceleration, so the bias limit must lie above that.
-STEEPEST_GRADIENT_MPS2 = 9.81 * 0.060 / math.sqrt(1.0 + 0.060 ** 2)
+STEEPEST_GRADIENT_MPS2 = G_MPS2 * 0.060 / math.sqrt(1.0 + 0.060 ** 2)
 
 
 @dataclass(frozen=True)
@@ -367,7 +368,6 @@ def cyl_sensor_check(s: CylCheck, reading_Pa: float, prev_Pa: float, before_Pa: 
     return CylCheck(evidence > p.cyl_frozen_dp_Pa, evidence, s.moved_Pa + rate * span_s, True, s.base_Pa)
 
 
-G_MPS2 = 9.81                 # standard gravity [m/s²]
 # the spin-up check's smoothing of the wheel reading, a fraction per fresh reading: τ = 50 ms at 10 ms
 # readings, a third of the plant's reading noise, below the 12 mm/s a wheel spinning up at 1.25 m/s² gains
 # a reading (chosen)
@@ -576,7 +576,7 @@ class BecuParams:
     # eq. (16) gains, issue #4's set: K_P = 5 bar/g, K_I = 40 bar/(g s), in Pa per m/s² (1 bar = 1e5 Pa,
     # g = 9.81 m/s²); output bounded to 0 ≤ u ≤ p̄, eq. (5b)
     decel_pi: PIParams = field(default_factory=lambda: PIParams(
-        kp=5e5 / 9.81, ki=40e5 / 9.81, out_min=0.0, out_max=450e3))
+        kp=5e5 / G_MPS2, ki=40e5 / G_MPS2, out_min=0.0, out_max=450e3))
     # reference governor of seed 001 eq. (9), decel mode only; a GovernorSchedule picks its model by SpeedEst
     governor: GovernorParams | GovernorSchedule | None = None
     # the car's running resistance as the governor knows it, Davis (c0 [N], c1 [N s/m], c2 [N s²/m²]), eq.

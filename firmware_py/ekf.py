@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-G_MPS2 = 9.81
+from firmware_py.constants import G_MPS2
 
 
 class Ekf:

@@ -36,6 +36,7 @@ import math
 from dataclasses import dataclass, field
 
 from firmware_py.becu import Wsp, WspParams, wsp_transition
+from firmware_py.constants import G_MPS2
 from firmware_py.pi import PI, PIParams
 from firmware_py.preview import EstimatorParams, PreviewBecu, RefParams, k2
 
@@ -47,7 +48,7 @@ class SlipCtlParams:
     alpha_c_per_s: float = 5.0         # α_c: the slip dynamics the loop asks for [1/s] (chosen: 1/α_c = 4 Tp)
     ki_per_s2: float = 1.0             # k_i of the integral term [1/s²] (chosen)
     mass_kg: float = 40_000.0          # car mass: N = m g [kg]
-    g_mps2: float = 9.81
+    g_mps2: float = G_MPS2
     wheel_radius_m: float = 0.46       # r [m]
     inertia_kgm2: float = 600.0        # J of the car's lumped wheelset [kg m²]
     brake_gain_Nm_per_Pa: float = 0.08 # g_b of the squeeze line τ = g_b (p − p_0), seed 001 eq. (6)

@@ -35,8 +35,6 @@ from plant_sim.dynamics import (
 from plant_sim.errors import PlantConfigError
 from plant_sim.params import TrainParams
 
-G_MPS2 = 9.81                       # gravity [m/s²]
-
 
 @dataclass(frozen=True)
 class RailEvent:

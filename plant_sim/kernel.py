@@ -295,4 +295,4 @@ def warm_up(st: np.ndarray, tr: np.ndarray, car: np.ndarray, k: np.ndarray, recs
         step_cars(st.copy(), tr.copy(), car, k.copy(), recs, np.zeros(n), np.zeros(n, dtype=np.int64),
                   np.zeros(n))
         z = np.zeros(n)
-        readings(z, z, z, z, 9.81, np.ones(3), np.ones(3), np.zeros((3, n)), np.zeros((3, n)))
+        readings(z, z, z, z, 1.0, np.ones(3), np.ones(3), np.zeros((3, n)), np.zeros((3, n)))

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 from plant_sim.errors import PlantConfigError
 
+G_MPS2 = 9.81       # standard gravity [m/s²], as the papers round it: the one definition of plant_sim
+
 
 def theta_from_peak(sigma_opt: float, mu_opt: float, theta2: float = 0.0) -> tuple[float, float, float]:
     """θ = (θ1, θ2, θ3) of μ̄(θ, σ) = √σ / (θ1 + θ2 σ + θ3 σ²) whose peak is (σ̄°, μ̄°) = (sigma_opt, mu_opt).
@@ -140,7 +142,7 @@ class TrainParams:
     davis_c2_lead_Ns2_per_m2: float = 8.0
     wheel_radius_m: float = 0.46          # r, representative value, chosen: new metro wheel Ø 920 mm
     wheel_inertia_kgm2: float = 600.0     # J of one lumped wheelset per car (4 axles incl. discs), chosen
-    g_mps2: float = 9.81                  # gravity
+    g_mps2: float = G_MPS2                # gravity
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "masses_kg", tuple(float(m) for m in self.masses_kg))

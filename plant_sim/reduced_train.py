@@ -30,10 +30,8 @@ import numpy as np
 
 from plant_sim.adhesion import mu_bar_scalar, mu_scalar
 from plant_sim.errors import PlantConfigError
-from plant_sim.params import AdhesionParams
+from plant_sim.params import G_MPS2, AdhesionParams
 from plant_sim.track import Track
-
-G_MPS2 = 9.81             # gravity [m/s²], seed 000 eq. (3)
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,6 @@ import pytest
 
 from hil.cli.main import main
 from hil.typetest.metrics import (
-    G_MPS2,
     MetricParams,
     air_litres,
     demand_from_dry,
@@ -23,6 +22,7 @@ from hil.typetest.metrics import (
     wsp_activations,
 )
 from hil.typetest.programme import ProgrammeError, load_programme, runs
+from plant_sim.params import G_MPS2
 
 DT = 0.01
 T_CMD = 0.5

@@ -21,13 +21,19 @@ from firmware_py.pi import PIParams
 from hil.can.secoc import SecOcError, key_from_hex
 from hil.resources import read_toml
 from hil.scenario import registry
-from plant_sim.params import AdhesionParams, BrakeParams, PadParams, PlantParams, SensorParams, TrainParams
+from plant_sim.params import (  # G_MPS2: bar/g -> Pa per m/s² of seed 001's K_P, K_I (1 bar = 1e5 Pa)
+    G_MPS2,
+    AdhesionParams,
+    BrakeParams,
+    PadParams,
+    PlantParams,
+    SensorParams,
+    TrainParams,
+)
 from plant_sim.track import Track
 
 if TYPE_CHECKING:
     from hil.scenario.model import ScenarioBase as Scenario
-
-G_MPS2 = 9.81          # bar/g -> Pa per m/s²: 1 bar = 1e5 Pa, g = 9.81 m/s² (seed 001's unit of K_P, K_I)
 
 
 def build_track(scenario: Scenario) -> Track:

@@ -33,7 +33,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-G_MPS2 = 9.81                     # as plant_sim.params (m/s²)
 STANDSTILL_MPS = 0.01             # a car below this speed stands [m/s] (as the runtime's standstill)
 PLATEAU_SHARE = 0.95              # the build-up ends when the dry deceleration first reaches 95 % of it
 PLATEAU_SPEEDS = (0.2, 0.8)       # the plateau: the median dry deceleration while v is 20-80 % of v0

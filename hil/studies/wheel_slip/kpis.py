@@ -9,11 +9,11 @@ import numpy as np
 
 from hil.report.kpis import MOVING_MPS, RunView, per_car, rounded
 from plant_sim.adhesion import mu_slip_speed_scalar
+from plant_sim.params import G_MPS2
 
 if TYPE_CHECKING:
     from hil.scenario.model import ScenarioBase as Scenario
 
-G_MPS2 = 9.81           # g, the unit of seed 001's decelerations (plant_sim.params.TrainParams.g_mps2)
 SETTLE_BAND = 0.02      # settled: within ±2 % of the steady-state deceleration from then on (chosen)
 
 # Seed 001's published figures (Danielson & Di Cairano, ACC 2020, §IV-A), printed next to ours

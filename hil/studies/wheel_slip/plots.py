@@ -8,7 +8,8 @@ import numpy as np
 
 from hil.report.kpis import RunView, per_car
 from hil.report.plots import pyplot, wsp_intervals
-from hil.studies.wheel_slip.kpis import G_MPS2, scheduled_limit
+from hil.studies.wheel_slip.kpis import scheduled_limit
+from plant_sim.params import G_MPS2
 
 
 def run_plots(run: RunView) -> list[Path]:
