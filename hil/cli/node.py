@@ -91,9 +91,11 @@ def run(args: argparse.Namespace) -> int:
         bus_flags,
         describe_bus,
         enlarge_receive_buffer,
+        held_can_logs,
         hosted_nodes,
         idle_hold,
         os_setup,
+        pass_on,
         resolve_bus_config,
     )
     from hil.runtime.rtos import NODE_PRIORITY, sleep_lateness
@@ -107,7 +109,9 @@ def run(args: argparse.Namespace) -> int:
     codec, nodes, releases = hosted_nodes(names, scenario, str(dbc_path_of(scenario)))
     cfg = resolve_bus_config(bus_config_from_args(args), scenario, external=True)
     try:
-        bus = can.Bus(**cfg)
+        with held_can_logs() as held:         # python-can's own line about it: not beside the error
+            bus = can.Bus(**cfg)
+        pass_on(held)
     except Exception as exc:      # bad input on this command line: exit 2, one line
         why = " ".join(str(exc).split())
         raise NodeArgError(f"cannot open the python-can bus {describe_bus(cfg)}: {why}") from None

@@ -35,6 +35,7 @@ from __future__ import annotations
 import bisect
 import functools
 import gc
+import logging
 import math
 import multiprocessing as mp
 import os
@@ -45,7 +46,8 @@ import socket
 import sys
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -146,9 +148,35 @@ def watch_command(cfg: dict, dbc_path: str) -> str:
     return f"cantools monitor {dbc_path} {bus_flags(cfg)}"
 
 
+@contextmanager
+def held_can_logs() -> Iterator[list[logging.LogRecord]]:
+    """python-can's log records while a bus opens, held back: python-can's socketcan logs `Could not access
+    SocketCAN device vcan9 ([Errno 19] No such device)` and then raises, which would add a loose line to the
+    one-line error that says the same.  The caller passes them on once the bus is open (`pass_on`)."""
+    held: list[logging.LogRecord] = []
+    handler = logging.Handler()
+    handler.emit = held.append
+    logger = logging.getLogger("can")
+    propagate, logger.propagate = logger.propagate, False
+    logger.addHandler(handler)
+    try:
+        yield held
+    finally:
+        logger.removeHandler(handler)
+        logger.propagate = propagate
+
+
+def pass_on(held: list[logging.LogRecord]) -> None:
+    for record in held:
+        logging.getLogger(record.name).handle(record)
+
+
 def open_bus(cfg: dict) -> can.BusABC:
     try:
-        return can.Bus(**cfg)
+        with held_can_logs() as held:
+            bus = can.Bus(**cfg)
+        pass_on(held)
+        return bus
     except Exception as exc:
         hint = ""
         if cfg.get("interface") == "socketcan":
@@ -443,7 +471,14 @@ def _recorder_process(trace_path: str, cfg: dict, go, stop, results, name: str =
                 stopping = stop.wait(RECORDER_BATCH_S)
                 if stopping:
                     time.sleep(0.2)              # let in-flight frames of the last cycle arrive
-                frames += io.take(record)
+                try:
+                    frames += io.take(record)
+                except can.CanOperationError:
+                    # a SocketCAN device set down reports ENETDOWN first, then the frames still in the
+                    # socket: they go into the trace too, then the error ends the recorder
+                    with suppress(can.CanOperationError):
+                        io.take(record)
+                    raise
                 if stopping:
                     break
                 if time.monotonic() > next_check:
