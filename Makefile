@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test test-slow fuzz bench profile soak lint docs docs-figures lock vcan clean
+.PHONY: run test test-slow test-vcan fuzz bench profile soak lint docs docs-figures lock vcan clean
 
 # the versions CI tested come from constraints.txt (make lock writes it)
 $(STAMP): pyproject.toml constraints.txt
@@ -25,16 +25,25 @@ run: $(STAMP)
 ## the CPUs. Under 15 minutes on a 2-core machine: what takes longer is marked slow
 ## (worksteal: an idle worker takes queued tests from the busy one, so that no long test ends the run alone)
 TEST_JOBS ?= auto
-LINT_PATHS = firmware_py plant_sim hil tests bench dbc examples
+LINT_PATHS = firmware_py plant_sim hil tests bench dbc examples tools
 test: $(STAMP)
 	$(VENV)/bin/ruff check $(LINT_PATHS)
-	$(PY) -m pytest -q -rs -n $(TEST_JOBS) --dist worksteal -m "not slow and not realtime"
-	$(PY) -m pytest -q -rs -m "realtime and not slow"
+	$(PY) -m pytest -q -rs -n $(TEST_JOBS) --dist worksteal -m "not slow and not realtime and not socketcan"
+	$(PY) -m pytest -q -rs -m "realtime and not slow and not socketcan"
 
 ## make test-slow: the long suites too
 test-slow: $(STAMP)
-	$(PY) -m pytest -q -rs -n $(TEST_JOBS) --dist worksteal -m "not realtime"
-	$(PY) -m pytest -q -rs -m realtime
+	$(PY) -m pytest -q -rs -n $(TEST_JOBS) --dist worksteal -m "not realtime and not socketcan"
+	$(PY) -m pytest -q -rs -m "realtime and not socketcan"
+
+## make test-vcan: the SocketCAN tests (marked socketcan: tests/test_socketcan.py) on vcan0 and vcan1, on this
+## machine where its kernel has SocketCAN, else in a Debian kernel booted under qemu by virtme-ng with this
+## checkout and its .venv inside, read-only (software emulation; VCAN_KVM=1 for KVM); tools/vcan_suite.py.
+## Installs what it needs where missing: Debian's qemu-system-x86, linux-image-amd64, busybox-static and
+## can-utils (apt-get, as root or through sudo) and virtme-ng (the vcan extra). The suite's JUnit XML:
+## runs/test-vcan/junit.xml. Under 15 minutes on a 2-core machine
+test-vcan: $(STAMP)
+	$(PY) tools/vcan_suite.py
 
 ## make fuzz: 10^6 fuzzed frames through decode + SecOC + E2E, twice: the protocol layers alone and the
 ## node runtime of the default train (RAILHIL_FUZZ_FRAMES=N for more, RAILHIL_FUZZ_SEED=S for another seed)
