@@ -101,27 +101,22 @@ class Port:
     outputs: dict[str, Quantity]      # what the bench takes
 
 
+def _controller_signals(msg: Message) -> list[Quantity]:
+    """The signals of a message that a node's controller fills or reads (not the bench's E2E, SecOC or alive
+    counter)."""
+    filled = bench_filled_signals(msg)
+    return [signal_quantity(msg, sig.name) for sig in msg.signals if sig.name not in filled]
+
+
 def node_port(db: Database, rx_messages: list[str], tx_messages: list[str]) -> Port:
     """A node's port: every signal of the messages it receives (and their ages), every signal of the messages
     it sends that the node's controller fills (not E2E, SecOC or alive counters: the bench fills those)."""
     inputs: dict[str, Quantity] = {}
     for name in rx_messages:
         msg = db.get_message_by_name(name)
-        filled = bench_filled_signals(msg)
-        for sig in msg.signals:
-            if sig.name not in filled:
-                q = signal_quantity(msg, sig.name)
-                inputs[q.name] = q
-        q = age_quantity(msg)
-        inputs[q.name] = q
-    outputs: dict[str, Quantity] = {}
-    for name in tx_messages:
-        msg = db.get_message_by_name(name)
-        filled = bench_filled_signals(msg)
-        for sig in msg.signals:
-            if sig.name not in filled:
-                q = signal_quantity(msg, sig.name)
-                outputs[q.name] = q
+        for q in (*_controller_signals(msg), age_quantity(msg)):
+            inputs[q.name] = q
+    outputs = {q.name: q for name in tx_messages for q in _controller_signals(db.get_message_by_name(name))}
     return Port(inputs, outputs)
 
 
@@ -133,18 +128,13 @@ def truth_name(column: str, k: int) -> str:
 def plant_port(db: Database, n_cars: int) -> Port:
     """The plant's port for an n-car train: the BECUs' pressure commands in, the sensor frames and truth
     out."""
-    inputs: dict[str, Quantity] = {}
-    for k in range(1, n_cars + 1):
-        msg = db.get_message_by_name(f"BECU{k}_PRESS_CMD")
-        for sig in COMMANDS:
-            q = signal_quantity(msg, sig)
-            inputs[q.name] = q
-    outputs: dict[str, Quantity] = {}
-    for k in range(1, n_cars + 1):
-        msg = db.get_message_by_name(f"PLANT_CAR{k}_SENSORS")
-        for sig in SENSORS:
-            q = signal_quantity(msg, sig)
-            outputs[q.name] = q
+    def of(message: str, signals: tuple[str, ...]) -> dict[str, Quantity]:
+        quantities = [signal_quantity(db.get_message_by_name(message.format(k=k)), sig)
+                      for k in range(1, n_cars + 1) for sig in signals]
+        return {q.name: q for q in quantities}
+
+    inputs = of("BECU{k}_PRESS_CMD", COMMANDS)
+    outputs = of("PLANT_CAR{k}_SENSORS", SENSORS)
     for column, (unit, description) in TRUTH_COLUMNS.items():
         count = n_cars - 1 if column in COUPLER_COLUMNS else n_cars
         for k in range(1, count + 1):

@@ -251,6 +251,13 @@ class TimeBase:
                         msg.timestamp = round(float(msg.timestamp) - self.origin, NS_DIGITS)
             block = replace(block, t=np.round(t - self.origin, NS_DIGITS), stamps=None, special=None)
         t = block.t
+        keep = self._window(t)
+        if window and not keep.all():
+            block = block.take(np.flatnonzero(keep))
+        return block
+
+    def _window(self, t: np.ndarray) -> np.ndarray:
+        """Which of the times `t` (on the base) lie in the window; counted, and the span seen noted."""
         self._see(float(t.min()), float(t.max()))
         keep = np.ones(len(t), dtype=bool)
         if self.start is not None:
@@ -258,9 +265,7 @@ class TimeBase:
         if self.end is not None:
             keep &= t <= self.end
         self.selected += int(keep.sum())
-        if window and not keep.all():
-            block = block.take(np.flatnonzero(keep))
-        return block
+        return keep
 
     def arrays(self, arrays: FrameArrays) -> FrameArrays:
         """The frames of `arrays` within the window, their times on the base."""
@@ -268,13 +273,7 @@ class TimeBase:
             return arrays
         self.bind(float(arrays.t[0]))
         t = np.round(arrays.t - self.origin, NS_DIGITS) if self.origin else arrays.t
-        self._see(float(t.min()), float(t.max()))
-        keep = np.ones(len(t), dtype=bool)
-        if self.start is not None:
-            keep &= t >= self.start
-        if self.end is not None:
-            keep &= t <= self.end
-        self.selected += int(keep.sum())
+        keep = self._window(t)
         if keep.all() and not self.origin:
             return arrays
         return replace(arrays, t=t[keep], arbitration_id=arrays.arbitration_id[keep],
