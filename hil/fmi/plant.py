@@ -77,7 +77,11 @@ class FmuPlant:
         self.sim = None if checking_only() else CoSimulation(info, "PLANT", wiring.start)
         # inputs: the bench's commands, in the order of the wiring's connections
         self._in_refs = refs(info, [c.target for c in wiring.inputs])
-        self._in_sources = [c.source for c in wiring.inputs]
+        # each input's command, as (row of ValveCmd / WspValve / CylPressureSet, car): found once, not by
+        # its name every step
+        ports = {f"BECU{k + 1}_PRESS_CMD.{sig}": (row, k)
+                 for k in range(n) for row, sig in enumerate(COMMANDS)}
+        self._in_at = [ports[c.source] for c in wiring.inputs]
         self._in_ab = [(c.a, c.b) for c in wiring.inputs]
         self._last_in: list[float] | None = None
         # outputs: read all at once per sample
@@ -95,6 +99,7 @@ class FmuPlant:
         self._u = np.zeros(n)
         self._w = np.zeros(n, dtype=np.int64)
         self._ps = np.zeros(n)
+        self._no_set = np.zeros(n)             # the set-points of a "valve" plant, which has none
 
     # the plant's interface (plant_sim.plant.Plant) as the plant node uses it
     @property
@@ -128,17 +133,14 @@ class FmuPlant:
     def step(self, valve_cmd, wsp_valve, pressure_set=None) -> None:
         u = np.asarray(valve_cmd, dtype=float)
         w = np.asarray(wsp_valve)
-        ps = np.zeros(self.n) if pressure_set is None else np.asarray(pressure_set, dtype=float)
+        ps = self._no_set if pressure_set is None else np.asarray(pressure_set, dtype=float)
         if u.shape != (self.n,) or w.shape != (self.n,) or ps.shape != (self.n,):
             raise FmuError(f"FmuPlant.step: need {self.n} valve commands, WSP states and set-points, got "
                            f"shapes {u.shape}, {w.shape} and {ps.shape}")
         self._u[:], self._w[:], self._ps[:] = u, w, ps
-        by_port = {}
-        for k in range(self.n):
-            values = (u[k], w[k], ps[k])
-            for sig, value in zip(COMMANDS, values, strict=True):
-                by_port[f"BECU{k + 1}_PRESS_CMD.{sig}"] = float(value)
-        values = [a * by_port[src] + b for src, (a, b) in zip(self._in_sources, self._in_ab, strict=True)]
+        rows = (self._u, self._w, self._ps)
+        values = [a * float(rows[row][k]) + b
+                  for (row, k), (a, b) in zip(self._in_at, self._in_ab, strict=True)]
         if values != self._last_in:
             self.sim.set(self._in_refs, values)
             self._last_in = values

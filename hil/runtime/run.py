@@ -216,6 +216,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     figures = _draw(view, outcome.mode) if plots else []
     if plots and "realtime" in kpis:
         figures.append(plot_lateness(kpis["realtime"], out_dir / LATENESS_NAME))
+    fmus = scenario_fmus(scenario)            # the FMUs in nodes' places (hil.fmi), kept with their SHA-256
     meta = {
         "scenario": scenario.model_dump(mode="json"),
         "mode": outcome.mode,
@@ -230,8 +231,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
         "bus_timing": outcome.bus,
         "faults": outcome.faults,
         **({"devices": outcome.devices} if outcome.devices else {}),
-        **({"fmus": {node: describe_fmu(path) for node, path in scenario_fmus(scenario).items()}}
-           if scenario_fmus(scenario) else {}),
+        **({"fmus": {node: describe_fmu(path) for node, path in fmus.items()}} if fmus else {}),
         "wall_s": round(outcome.wall_s, 3),
         **({"realtime": realtime_meta(outcome.realtime)} if outcome.realtime else {}),
         **run_metadata(dbc_path_of(scenario), scenario.seed),   # versions, DBC SHA-256, git commit
