@@ -1,4 +1,5 @@
-"""Golden reference of the default scenario in lockstep: the trace byte for byte, the KPIs field by field.
+"""Golden references in lockstep: every shipped scenario's trace.blf and truth.csv byte for byte
+(golden_traces.json), and the default scenario's KPIs field by field.
 
 A lockstep run is deterministic (same scenario, same seed -> the same trace.blf), so any change to what
 the run computes shows here: a faster codec, bus model or node runtime must leave both untouched.
@@ -9,7 +10,8 @@ release whose BLF writer lays bytes out differently), refresh the references:
     .venv/bin/python tests/test_golden.py
 
 runs the default scenario and prints the two constants below; paste them here, and say in the commit
-why the golden run changed.
+why the golden run changed.  `.venv/bin/python tests/test_golden.py --all` runs every scenario of
+scenarios/ and writes golden_traces.json anew (about 20 s); `git diff` then shows which runs changed.
 """
 
 from __future__ import annotations
@@ -41,6 +43,9 @@ GOLDEN_KPIS = {
 KPI_TOLERANCE = 1e-9      # the run is deterministic: equal up to float formatting
 
 REFRESH = "if the change is intended, refresh the references: .venv/bin/python tests/test_golden.py"
+ROOT = Path(__file__).resolve().parents[1]
+GOLDEN_TRACES = Path(__file__).with_name("golden_traces.json")
+SHIPPED = sorted((ROOT / "scenarios").glob("*.toml"))
 
 
 def test_default_trace_is_byte_for_byte_the_golden_one(default_lockstep):
@@ -60,6 +65,27 @@ def test_default_kpis_are_the_golden_ones(default_lockstep, key):
         assert got == expected, f"KPI {key}: {got!r} != {expected!r}; {REFRESH}"
 
 
+def _run_files(scenario: Path, out: Path) -> dict[str, str]:
+    """Run `scenario` in lockstep into `out` (no figures): sha256 of each trace (.blf) and truth (.csv) it
+    wrote, by file name."""
+    from hil.runtime.run import run_scenario_lockstep
+    from hil.scenario import load_scenario
+
+    report = run_scenario_lockstep(load_scenario(scenario), out, plots=False)
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(report.out_dir.iterdir()) if p.suffix in (".blf", ".csv")}
+
+
+@pytest.mark.parametrize("scenario", SHIPPED, ids=[p.stem for p in SHIPPED])
+def test_every_shipped_scenario_gives_its_golden_trace_and_truth(scenario, tmp_path):
+    golden = json.loads(GOLDEN_TRACES.read_text())
+    assert scenario.stem in golden, (f"scenario {scenario.name} has no golden trace; run .venv/bin/python "
+                                     "tests/test_golden.py --all and commit golden_traces.json")
+    got = _run_files(scenario, tmp_path / "run")
+    assert got == golden[scenario.stem], (f"the lockstep run of {scenario.name} changed: "
+                                          f"{got} != {golden[scenario.stem]}; --all: {REFRESH}")
+
+
 def _current() -> tuple[str, dict]:
     """Run the default scenario now: (trace sha256, the golden subset of its KPIs)."""
     root = Path(__file__).resolve().parents[1]
@@ -74,7 +100,20 @@ def _current() -> tuple[str, dict]:
     return digest, {key: kpis.get(key) for key in GOLDEN_KPIS}
 
 
-if __name__ == "__main__":
+def _write_every_golden_trace() -> None:
+    sys.path.insert(0, str(ROOT))
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for scenario in SHIPPED:
+            out[scenario.stem] = _run_files(scenario, Path(tmp) / scenario.stem)
+            print(scenario.stem, out[scenario.stem], flush=True)
+    GOLDEN_TRACES.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
+    print(f"wrote {GOLDEN_TRACES}")
+
+
+if __name__ == "__main__" and "--all" in sys.argv[1:]:
+    _write_every_golden_trace()
+elif __name__ == "__main__":
     sha, values = _current()
     print(f'GOLDEN_TRACE_SHA256 = "{sha}"\n')
     print("GOLDEN_KPIS = {")
