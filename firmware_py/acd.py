@@ -53,6 +53,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from enum import IntEnum
 
+from firmware_py.bcu import Demand, Train
 from firmware_py.limits import clip, finite_or
 
 # WGS-84 defining constants (NIMA TR8350.2, 3rd ed., table 3.1) and the IUGG mean radius
@@ -455,3 +456,51 @@ def pair_on_sections(trains: Iterable[TrainPosition]) -> dict[str, tuple[str | N
             follower = order[k - 1].train if k > 0 else None
             out[t.train] = (leader, follower)
     return out
+
+
+@dataclass(frozen=True)
+class AcdRequestParams:
+    """The BCU's side of the ACD (`AcdBrakeRequest`)."""
+
+    timeout_us: int = 300_000        # the ACD's request (100 ms cycle) is stale after 3 cycles (chosen)
+    full_service_mps2: float = 1.0   # the most a SERVICE request may ask: the BCU's brake step 7 [m/s²]
+
+
+class AcdBrakeRequest:
+    """The BCU obeys the ACD (seed 002 §V, steps 10–12) as one of its demand sources
+    (firmware_py.bcu.DemandSource): ACD_BRAKE_REQ.Request = EMERGENCY is an emergency request
+    (BCU_EMERGENCY.Source = 2); SERVICE asks for RequestedDecel, bounded to full service (a bad deceleration
+    asks for full service).  An ACD not heard from for `timeout_us` makes the train Degraded; its last
+    request stays in force until the train stands (a lost or deleted request never releases a brake the
+    ACD asked for, issue #19), and an ACD silent while asking for nothing requests nothing."""
+
+    INPUTS = ("ACD_BRAKE_REQ.Request", "ACD_BRAKE_REQ.RequestedDecel")
+    OUTPUTS: tuple[str, ...] = ()
+    SOURCE = 2                       # BCU_EMERGENCY.Source of an emergency the ACD asked for
+
+    def __init__(self, params: AcdRequestParams) -> None:
+        self.p = params
+        self._last = (False, 0.0)    # the ACD's last usable request (emergency, decel)
+
+    def demand(self, now_us: int, rx: Mapping[str, float], train: Train, out: dict[str, float]) -> Demand:
+        emergency, decel, silent = self._request(now_us, rx, train.standstill)
+        return Demand(decel, decel > 0.0, self.SOURCE if emergency else 0, silent)
+
+    def _request(self, now_us: int, rx: Mapping[str, float], standstill: bool) -> tuple[bool, float, bool]:
+        """(emergency requested, service deceleration requested [m/s²], silent) from ACD_BRAKE_REQ."""
+        age_us = getattr(rx, "age_us", None)
+        age = age_us(self.INPUTS[0], now_us) if age_us is not None else 0
+        request, ok = finite_or(rx[self.INPUTS[0]], 0.0)
+        if age is None or age > self.p.timeout_us or not ok:
+            if standstill:
+                self._last = (False, 0.0)
+            return (*self._last, age is not None)          # never heard from: not (yet) silent
+        full = self.p.full_service_mps2
+        decel, ok_decel = finite_or(rx[self.INPUTS[1]], full)
+        if round(request) == 2:
+            self._last = (True, 0.0)
+        elif round(request) == 1:                          # a bad deceleration asks for full service
+            self._last = (False, clip(decel if ok_decel else full, 0.0, full))
+        else:
+            self._last = (False, 0.0)
+        return (*self._last, False)

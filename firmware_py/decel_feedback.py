@@ -26,11 +26,13 @@ correct and by how much:
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum
 
+from firmware_py.bcu import BcuMode, Train
 from firmware_py.ekf import DecelEstimator, DecelEstimatorParams
-from firmware_py.limits import clip
+from firmware_py.limits import clip, finite_or
 from firmware_py.pi import PI, PIParams
 
 
@@ -214,3 +216,101 @@ class DecelFeedback:
         """μ(v0, t + T_q)/μ_d0 from the coefficient set (1 without one)."""
         fs = self.p.friction_set
         return 1.0 if fs is None else fs.at(self.v0_kmh, self.brake_t_s + self.p.tq_s)
+
+
+class TrainFeedback:
+    """The function in the BCU, as a follower of its demand (firmware_py.bcu.Follower): it reads the front
+    and rear cars' accelerometers (PLANT_CAR1/n_SENSORS.AccelLong, §6.1) and every car's WspActive, and
+    sends its state and the slope estimate in BCU_STATUS (FbState, SlopeEst) and the pressure correction φ
+    with its state in the authenticated BCU_BRAKE_CORR (FbState, FrictionPhi); the BECUs apply φ while
+    FbState is ENGAGED or HELD (`PhiCorrection`)."""
+
+    OUTPUTS = ("FbState", "FrictionPhi", "SlopeEst")
+
+    def __init__(self, params: FeedbackParams, n_cars: int) -> None:
+        self.feedback = DecelFeedback(params)
+        self.accel_keys = ("PLANT_CAR1_SENSORS.AccelLong", f"PLANT_CAR{n_cars}_SENSORS.AccelLong")
+        self.wsp_keys = tuple(f"BECU{i}_STATUS.WspActive" for i in range(1, n_cars + 1))
+        self.speed_key = "BECU1_STATUS.SpeedEst"
+        self.INPUTS = self.accel_keys + self.wsp_keys
+        self.out: FeedbackOutput | None = None      # last FeedbackOutput (diagnostic)
+        self._speed_rx_us: int | None = None
+
+    def follow(self, now_us: int, rx: Mapping[str, float], train: Train, out: dict[str, float]) -> None:
+        accel = [finite_or(rx[key], math.nan)[0] for key in self.accel_keys]
+        if not all(a == a for a in accel):             # an accelerometer not heard from: use the other
+            good = [a for a in accel if a == a]
+            accel = [good[0]] * 2 if good else [0.0, 0.0]
+        wsp = any(finite_or(rx[key], 0.0)[0] >= 0.5 for key in self.wsp_keys)
+        # a fresh speed estimate for the EKF: when a new BECU1_STATUS arrived (every cycle for a plain
+        # mapping, which has no reception times)
+        train_speed = train.speed_mps if train.known_mps else 0.0
+        speed: float | None = train_speed if train_speed > 0.0 else None
+        age_us = getattr(rx, "age_us", None)
+        if age_us is not None and speed is not None:
+            age = age_us(self.speed_key, now_us)
+            t_rx = None if age is None else now_us - age
+            if t_rx == self._speed_rx_us:
+                speed = None
+            self._speed_rx_us = t_rx
+        wanted = train.step_decel_mps2
+        service = train.mode == BcuMode.SERVICE and wanted > 0.0
+        target = train.target_mps2
+        fb = self.out = self.feedback.step(train.dt_s, target, target == wanted, service,
+                                           train.mode == BcuMode.EMERGENCY, wsp, accel[0], accel[1], speed,
+                                           train_speed)
+        out.update(FbState=int(fb.state), FrictionPhi=fb.phi,
+                   SlopeEst=clip(fb.slope, -0.064, 0.06375))          # the DBC signal's range
+
+
+# the BCU's feedback states in which its φ is a correction to apply (HELD keeps the engaged one)
+PHI_STATES = (float(FbState.ENGAGED), float(FbState.HELD))
+
+
+@dataclass(frozen=True)
+class PhiParams:
+    """A BECU's side of the deceleration feedback (`PhiCorrection`)."""
+
+    # output gate on the BCU's pressure correction φ (eq. (34)): the authority the BCU has over this car's
+    # service-brake pressure, -38 %/+67 % (chosen; the BCU's own limits are the same)
+    limits: tuple[float, float] = (0.6, 1.6)
+    # φ older than this is not applied: 3 cycles of BCU_BRAKE_CORR (100 ms, DBC), as the BCU judges a
+    # silent car after 3 of its status cycles; a lost or deleted correction falls back to φ = 1
+    timeout_us: int = 300_000
+
+
+class PhiCorrection:
+    """The pressure correction φ as a set-point stage of a BECU's pipeline (firmware_py.becu.SetpointStage):
+    eq. (34), P_c = preload + (P_c0 − preload)/φ on the force part of the set-point (above the return-spring
+    preload, where the torque is proportional to the pressure, eq. (24)), φ gated to `PhiParams.limits`.
+    φ = 1 unless BCU_BRAKE_CORR's FbState says the feedback is ENGAGED or HELD (HELD keeps the engaged
+    correction, §5), and when φ is not received, older than `timeout_us`, not finite, in emergency or on
+    loss of command (§5: not for emergency braking).  `preload_Pa`, `p_max_Pa`: the BECU's brake data."""
+
+    INPUTS = ("FrictionPhi", "FbState")        # BCU_BRAKE_CORR
+    OUTPUTS: tuple[str, ...] = ()
+
+    def __init__(self, params: PhiParams, preload_Pa: float, p_max_Pa: float) -> None:
+        self.p, self.preload_Pa, self.p_max_Pa = params, preload_Pa, p_max_Pa
+
+    def setpoint(self, now_us: int, rx, p_set_Pa: float, loop, out: dict[str, float]) -> float:
+        phi, phi_ok = finite_or(rx.get("FrictionPhi", 1.0), 1.0)
+        engaged = finite_or(rx.get("FbState", 0.0), 0.0)[0] in PHI_STATES and not self.stale(now_us, rx)
+        if phi_ok and engaged and not (loop.emergency or loop.lost):
+            return self.apply(p_set_Pa, phi)
+        return p_set_Pa
+
+    def apply(self, p_set_Pa: float, phi: float) -> float:
+        """Eq. (34) on the force part of the set-point, φ gated to `limits`."""
+        pre = self.preload_Pa
+        if phi == 1.0 or p_set_Pa <= pre:
+            return p_set_Pa
+        lo, hi = self.p.limits
+        return clip(pre + (p_set_Pa - pre) / clip(phi, lo, hi), 0.0, self.p_max_Pa)
+
+    def stale(self, now_us: int, rx) -> bool:
+        """φ was received more than `timeout_us` ago (a plain mapping, as in unit tests, has no reception
+        times: never stale)."""
+        age_us = getattr(rx, "age_us", None)
+        age = age_us("FrictionPhi", now_us) if age_us is not None else None
+        return age is not None and age > self.p.timeout_us

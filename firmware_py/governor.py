@@ -70,6 +70,7 @@ from dataclasses import dataclass
 import numba
 from numba.extending import register_jitable
 
+from firmware_py.limits import clip
 from firmware_py.pi import PIParams, pi_step_scalar
 
 
@@ -340,3 +341,73 @@ def governor_params(*, dt_s: float, mass_kg: float, wheel_radius_m: float, inert
         a_lo=math.exp(-k * slope_hi_N_per_mps * dt_s), a_hi=math.exp(-k * slope_lo_N_per_mps * dt_s),
         phi=math.exp(-dt_s / tp_s), alpha_squeeze=alpha_squeeze, beta_squeeze=beta_squeeze,
         alpha_release=alpha_release, beta_release=beta_release, pi=pi, **options)
+
+
+@dataclass(frozen=True)
+class ReferenceGovernorParams:
+    """The reference governor as a BECU's reference stage (`ReferenceGovernor`)."""
+
+    model: GovernorParams | GovernorSchedule        # the car's model; a schedule picks one by SpeedEst
+    # the car's running resistance as the governor knows it, Davis (c0 [N], c1 [N s/m], c2 [N s²/m²]), eq.
+    # (4) seed 003: the measured deceleration's force less R(SpeedEst) is the friction; None: R = 0 (seed 001)
+    running_resistance: tuple[float, float, float] | None = None
+    observer_gain: float = 0.1                      # the cylinder observer's correction per cycle (chosen)
+
+
+# the signals of the governor in the BECU's frames (BECUn_STATUS, BECUn_DIAG)
+GOVERNOR_OUTPUTS = ("GovernorActive", "GovernedDecel", "GovernorMargin", "GovernorFeasible")
+
+
+class ReferenceGovernor:
+    """Seed 001's reference governor (eq. 9) as a reference stage of a BECU's pipeline
+    (firmware_py.becu.ReferenceStage), before the deceleration PI (eq. 16): it limits the demand to the
+    largest reference the closed loop keeps the slip below s̄ with.  Its state estimate: a cylinder observer
+    (the lag of eq. (4) run on the set-point the BECU sent, corrected towards the measured pressure) and the
+    play model (10a) on the observed pressure (on the raw measurement, sensor noise would ratchet the
+    estimated torque up)."""
+
+    INPUTS: tuple[str, ...] = ()
+    OUTPUTS = GOVERNOR_OUTPUTS
+
+    def __init__(self, params: ReferenceGovernorParams) -> None:
+        self.p = params
+        self.p_hat = 0.0              # observed cylinder pressure [Pa]
+        self.torque_est = 0.0         # brake torque: the play model run on the observed pressure [N m]
+        self.r_gov: float | None = None              # last governed reference [m/s²]
+        self.decision: GovernorDecision | None = None   # last decision (diagnostic)
+        warm_up()                     # the compiled prediction ready before the first cycle
+
+    def reference(self, now_us: int, rx, loop, out: dict[str, float]) -> float:
+        p = self.p
+        gp = p.model.at(loop.v_ref_mps) if isinstance(p.model, GovernorSchedule) else p.model
+        p_hat = loop.setpoint_sent_Pa + (self.p_hat - loop.setpoint_sent_Pa) * gp.phi
+        self.p_hat = p_hat + p.observer_gain * (loop.pressure_Pa - p_hat)
+        self.torque_est = play(self.torque_est, self.p_hat, gp)
+        c = p.running_resistance
+        v = max(loop.v_ref_mps, 0.0) if math.isfinite(loop.v_ref_mps) else 0.0
+        res = c[0] + v * (c[1] + c[2] * v) if c is not None else 0.0        # eq. (4), seed 003
+        friction = gp.mass_kg * loop.decel_mps2 - res
+        x = GovernorState(loop.integrator, self.p_hat, self.torque_est, friction, res)
+        decision = self.decision = govern(x, loop.demand_mps2, gp, self.r_gov)
+        r = self.r_gov = decision.r_mps2
+        out["GovernorActive"] = int(decision.active)
+        out["GovernedDecel"] = r if decision.active else loop.demand_mps2
+        out["GovernorMargin"] = clip(decision.margin_Nm, -65536.0, 65534.0)
+        out["GovernorFeasible"] = int(decision.feasible)
+        return r
+
+
+class Ungoverned:
+    """The reference stage of a BECU without the governor: the demand passes; the governor's signals in the
+    BECU's frames say what the DBC gives them for that case (GovernedDecel = the demand, GovernorActive 0,
+    GovernorMargin 0, GovernorFeasible 1)."""
+
+    INPUTS: tuple[str, ...] = ()
+    OUTPUTS = GOVERNOR_OUTPUTS
+
+    def reference(self, now_us: int, rx, loop, out: dict[str, float]) -> float:
+        out["GovernorActive"] = 0
+        out["GovernedDecel"] = loop.demand_mps2
+        out["GovernorMargin"] = 0.0
+        out["GovernorFeasible"] = 1
+        return loop.demand_mps2

@@ -35,10 +35,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from firmware_py.becu import Wsp, WspParams, wsp_transition
 from firmware_py.constants import G_MPS2
 from firmware_py.pi import PI, PIParams
 from firmware_py.preview import EstimatorParams, PreviewBecu, RefParams, k2
+from firmware_py.wsp import Wsp, WspParams, wsp_transition
 
 
 @dataclass(frozen=True)

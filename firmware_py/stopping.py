@@ -46,11 +46,14 @@ decelerations positive when braking; time an integer count of microseconds.
 from __future__ import annotations
 
 import math
+import statistics
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum
 
+from firmware_py.bcu import BcuMode, Demand, Train
 from firmware_py.brake_valve import BrakeValve, BrakeValveParams, ValvePosition
-from firmware_py.limits import clip
+from firmware_py.limits import clip, finite_or
 from firmware_py.pi import PI, PIParams
 
 METHODS = ("adaptive", "adaptive_diff", "pi")
@@ -433,3 +436,78 @@ class StoppingController:
             self._next_scan_us += p.scan_us * max(1, (now_us - self._next_scan_us) // p.scan_us + 1)
         self.command = self.valve.step(dt_s, self.valve_position)
         return curve.state(now_us)[1]
+
+
+# the BCU_STOP frame's signals and StopState in BCU_STATUS
+STOP_OUTPUTS = ("StopState", "DistanceToGo", "RefSpeed", "StopCommand", "BalisesSeen", "SearchQ")
+BTM_INPUTS = ("BalisePos", "PassageAge", "BaliseCount", "BaliseValid")   # car 1's balise reader, PLANT_BTM
+
+
+class StoppingDemand:
+    """Precise stopping as a demand source of the BCU (firmware_py.bcu.DemandSource): it reads DESK_TARGET
+    (TargetStopValid, TargetStopPos), keeps an odometer on the train speed estimate (re-anchored on car 1's
+    balise passages, PLANT_BTM, on a track with balises), and asks for the service brake along the
+    theoretical braking curve; it sends where it believes the train is against its target and curve
+    (BCU_STOP) and its state (BCU_STATUS.StopState)."""
+
+    OUTPUTS = STOP_OUTPUTS
+
+    def __init__(self, p: StoppingParams, n_cars: int) -> None:
+        self.p = p
+        self.controller = StoppingController(p)
+        self.INPUTS = ("TargetStopValid", "TargetStopPos") + (BTM_INPUTS if p.balises else ())
+        self.speed_keys = tuple(f"BECU{i}_STATUS.SpeedEst" for i in range(1, n_cars + 1))
+        self.out: StopOutput | None = None     # last StopOutput (diagnostic)
+        self.balises_seen = 0                  # balise passages the odometer re-anchored on
+        self._balise_count: float | None = None
+        self._odo_rx_us: int | None = None
+
+    def demand(self, now_us: int, rx: Mapping[str, float], train: Train, out: dict[str, float]) -> Demand:
+        """The cycle: a fresh speed sample to the odometer (its reception time: the newest BECUn_STATUS;
+        every cycle for a plain mapping), the balise, then the controller.  The odometer integrates the
+        median of the cars' estimates: the maximum (the train speed, safe against sliding wheels) is biased
+        upwards by the estimates' noise, and that bias integrates."""
+        age_us = getattr(rx, "age_us", None)
+        if age_us is None:
+            t_rx: int | None = now_us
+        else:
+            ages = [a for a in (age_us(k, now_us) for k in self.speed_keys) if a is not None]
+            t_rx = now_us - min(ages) if ages else None
+        odo_speed = statistics.median(train.known_mps) if train.known_mps else math.nan
+        if t_rx is not None and t_rx != self._odo_rx_us and odo_speed == odo_speed:
+            self.controller.odometer.sample(t_rx, odo_speed)
+            self._odo_rx_us = t_rx
+        if self.p.balises:
+            self._balise(now_us, rx)
+        valid, _ = finite_or(rx["TargetStopValid"], 0.0)
+        target_m, ok = finite_or(rx["TargetStopPos"], 0.0)
+        speed = train.speed_mps
+        so = self.out = self.controller.step(
+            now_us, train.dt_s, target_valid=valid >= 0.5 and ok, target_m=target_m,
+            emergency=train.desk_emergency or train.mode == BcuMode.EMERGENCY, standstill=train.standstill,
+            train_speed_mps=speed if speed == speed else 0.0)
+        out.update(StopState=int(so.state),
+                   DistanceToGo=so.distance_to_go_m if so.distance_to_go_m == so.distance_to_go_m else 0.0,
+                   RefSpeed=so.ref_speed_mps if so.ref_speed_mps == so.ref_speed_mps else 0.0,
+                   StopCommand=so.command_mps2, BalisesSeen=self.balises_seen % 16,
+                   SearchQ=min(so.quality, 127.5) if so.quality == so.quality else 0.0)
+        braking = so.state in (StopState.FOLLOWING, StopState.STOPPED)    # or holding the train at the stop
+        return Demand(so.command_mps2 if braking else 0.0, braking)
+
+    def _balise(self, now_us: int, rx: Mapping[str, float]) -> None:
+        """A new balise passage in PLANT_BTM (its count changed) re-anchors the odometer: the passage time
+        is the frame's reception time (every cycle for a plain mapping) minus its PassageAge."""
+        valid, _ = finite_or(rx["BaliseValid"], 0.0)
+        count, ok = finite_or(rx["BaliseCount"], math.nan)
+        if valid < 0.5 or not ok or count == self._balise_count:
+            return
+        self._balise_count = count
+        pos, ok_pos = finite_or(rx["BalisePos"], math.nan)
+        age_s, ok_age = finite_or(rx["PassageAge"], math.nan)
+        if not (ok_pos and ok_age):
+            return
+        age_us = getattr(rx, "age_us", None)
+        rx_age = age_us("BaliseCount", now_us) if age_us is not None else 0
+        t_pass = now_us - (rx_age or 0) - age_s * 1e6
+        self.controller.odometer.anchor(pos, t_pass)
+        self.balises_seen += 1

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from firmware_py.acd import AcdMode, braking_distance_m
+from firmware_py.acd import AcdBrakeRequest, AcdMode, AcdRequestParams, braking_distance_m
 from firmware_py.bcu import Bcu, BcuParams
 from hil.errors import ScenarioError
 from hil.runtime.node import RxTable
@@ -114,6 +114,11 @@ def test_centre_pairs_on_the_section_relays_and_unpairs_when_the_leader_leaves()
 STEPS = BcuParams().step_decel_mps2
 
 
+def acd_bcu() -> Bcu:
+    """A two-car BCU that obeys the ACD, as hil/studies/anticollision/nodes.py fits it."""
+    return Bcu(2, sources=[AcdBrakeRequest(AcdRequestParams(full_service_mps2=STEPS[-1]))])
+
+
 def bcu_rx(bcu: Bcu, now_us: int = 0, **values) -> RxTable:
     rx = RxTable(bcu.inputs)
     for i in range(1, bcu.n_cars + 1):
@@ -124,7 +129,7 @@ def bcu_rx(bcu: Bcu, now_us: int = 0, **values) -> RxTable:
 
 
 def test_bcu_follows_the_acd_service_request_and_its_emergency():
-    bcu = Bcu(2, BcuParams(acd=True))
+    bcu = acd_bcu()
     assert "ACD_BRAKE_REQ.Request" in bcu.inputs and "ACD_BRAKE_REQ.Request" not in Bcu(2).inputs
     out = {}
     for k in range(200):                                # 2 s: the jerk limit has ramped up
@@ -138,17 +143,17 @@ def test_bcu_follows_the_acd_service_request_and_its_emergency():
                 **{"ACD_BRAKE_REQ.Request": 2, "ACD_BRAKE_REQ.RequestedDecel": 1.3})
     out = bcu.step(2_000_000, rx)
     assert out["EmergencyActive"] == 1 and out["Source"] == 2           # the ACD demanded the emergency
-    quiet = Bcu(2, BcuParams(acd=True))                 # nothing heard from the ACD yet: the desk alone
+    quiet = acd_bcu()                 # nothing heard from the ACD yet: the desk alone
     out = quiet.step(0, bcu_rx(quiet, 0, BrakeStep=7, EmergencyReq=0))
     assert out["Source"] == 0 and out["Degraded"] == 0 and out["Mode"] == 1
 
 
 def test_bcu_ignores_a_stale_acd_request_and_says_degraded():
-    bcu = Bcu(2, BcuParams(acd=True))
+    bcu = acd_bcu()
     rx = bcu_rx(bcu, 0, BrakeStep=0, EmergencyReq=0,
                 **{"ACD_BRAKE_REQ.Request": 2, "ACD_BRAKE_REQ.RequestedDecel": 1.3})
     assert bcu.step(0, rx)["EmergencyActive"] == 1
-    bcu = Bcu(2, BcuParams(acd=True))                   # the same request, heard 0.5 s ago: stale
+    bcu = acd_bcu()                   # the same request, heard 0.5 s ago: stale
     for i in range(1, 3):
         rx.update([("SpeedEst", f"BECU{i}_STATUS.SpeedEst")], {"SpeedEst": 20.0}, 500_000)
     out = bcu.step(500_000, rx)
@@ -158,7 +163,7 @@ def test_bcu_ignores_a_stale_acd_request_and_says_degraded():
 def test_an_acd_falling_silent_while_it_brakes_keeps_its_request_until_standstill():
     """A lost or deleted ACD_BRAKE_REQ never releases a brake the ACD asked for (issue #19): its last
     request holds, Degraded, until the train stands; then, still silent, it requests nothing."""
-    bcu = Bcu(2, BcuParams(acd=True))
+    bcu = acd_bcu()
     for k in range(200):                                 # 2 s of SERVICE 0.6 m/s²: ramped up
         rx = bcu_rx(bcu, k * 10_000, BrakeStep=0, EmergencyReq=0,
                     **{"ACD_BRAKE_REQ.Request": 1, "ACD_BRAKE_REQ.RequestedDecel": 0.6})

@@ -11,12 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from firmware_py.becu import Becu
+from firmware_py.becu import Becu, BecuParams
 from firmware_py.decel_feedback import (
     DecelFeedback,
     FbState,
     FeedbackParams,
     FrictionSet,
+    PhiCorrection,
+    PhiParams,
     band_timer,
     feedback_transition,
 )
@@ -231,6 +233,12 @@ def test_coefficient_set_grid_and_an_untested_class():
 
 
 # ------------------------------------------------------------------------------------------------- BECU
+def phi_becu() -> Becu:
+    """A BECU with the correction φ fitted, as hil/studies/decel_feedback/nodes.py fits it."""
+    p = BecuParams()
+    return Becu(p, setpoint_stages=[PhiCorrection(PhiParams(), p.brake_preload_Pa, p.p_max_Pa)])
+
+
 def becu_rx(phi, emergency=0.0, fb_state=FbState.ENGAGED):
     return {"AxleSpeed": 16.0 / 0.46, "CylPressure": 0.0, "AccelLong": 0.0, "TargetDecel": 1.32,
             "BCU_DEMAND.Mode": 1, "EmergencyActive": emergency, "FrictionPhi": phi,
@@ -241,12 +249,12 @@ def becu_rx(phi, emergency=0.0, fb_state=FbState.ENGAGED):
     (1.0, 0.0, 1.0),
     (0.8, 0.0, 1 / 0.8),           # weak pads: more pressure above the preload
     (1.25, 0.0, 1 / 1.25),
-    (0.3, 0.0, 1 / 0.6),           # gated to the BECU's phi_limits
+    (0.3, 0.0, 1 / 0.6),           # gated to PhiParams.limits
     (float("nan"), 0.0, 1.0),      # not received yet
     (0.8, 1.0, None),              # emergency: no correction (the emergency set-point)
 ])
 def test_becu_applies_phi_to_the_force_part(phi, emergency, factor):
-    becu = Becu()
+    becu = phi_becu()
     out = becu.step(0, becu_rx(phi, emergency))
     pre = becu.p.brake_preload_Pa
     if factor is None:
@@ -261,7 +269,7 @@ def test_becu_applies_phi_to_the_force_part(phi, emergency, factor):
                                                (FbState.ENGAGED, True), (FbState.HELD, True)])
 def test_becu_ignores_phi_unless_the_feedback_is_engaged_or_held(fb_state, applied):
     """A φ the BCU does not report as a correction in force (OFF, MONITOR) changes nothing (issue #19)."""
-    becu = Becu()
+    becu = phi_becu()
     out = becu.step(0, becu_rx(0.8, fb_state=fb_state))
     nominal = becu.pressure_for_decel(1.32)
     assert (out["CylPressureSet"] != pytest.approx(nominal)) is applied
@@ -349,11 +357,11 @@ def test_becu_drops_a_phi_older_than_three_correction_cycles():
     `phi_timeout_us` (3 cycles of 100 ms): the last φ received is not applied for ever."""
     from hil.runtime.node import RxTable
 
-    becu = Becu()
-    rx = RxTable(Becu.INPUTS + Becu.PHI_INPUTS)
+    becu = phi_becu()
+    rx = RxTable(becu.inputs)
     values = becu_rx(0.8)
     every = [(k, k) for k in Becu.INPUTS]
-    rx.update([(k, k) for k in Becu.PHI_INPUTS], values, 0)
+    rx.update([(k, k) for k in PhiCorrection.INPUTS], values, 0)
     nominal = becu.pressure_for_decel(1.32)
     applied = []
     for k in range(0, 50):                                 # 10 ms cycles, only the car's inputs refreshed

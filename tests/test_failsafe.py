@@ -4,7 +4,7 @@ command, after holding the cylinder for a bounded time), on plant truth."""
 import numpy as np
 from conftest import DEFAULT
 
-from firmware_py.becu import WspParams
+from firmware_py.wsp import WspParams
 from hil.runtime.plant_node import FAILSAFE_HOLD_S
 from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario, parse_scenario

@@ -23,7 +23,9 @@ import pytest
 from conftest import ROOT
 
 from firmware_py.bcu import Bcu, BcuParams, disagreement
-from firmware_py.becu import Becu, BecuParams, RefSpeed, RefSpeedParams, SensorCheckParams, reference_speed
+from firmware_py.becu import Becu, BecuParams
+from firmware_py.reference_speed import RefMode, RefSpeed, RefSpeedParams, reference_speed
+from firmware_py.sensor_checks import SensorCheckParams
 from hil.can.codec import loaded_dbc
 from hil.report.kpis import read_run_trace
 from hil.runtime.node import RxTable
@@ -113,7 +115,7 @@ def table_lines(rows: list[dict]) -> list[str]:
 
 
 # ------------------------------------------------------------------------------- the reference speed
-def drive(wheel, accel, *, wsp_fill=None, torque_free=None, p=RP, gate=GATE):
+def drive(wheel, accel, *, wsp_fill=None, torque_free=None, p=RP, gate=GATE, mode=RefMode.FILTERED):
     """Run reference_speed over arrays of axle readings [m/s] and accelerations [m/s²], one per cycle;
     returns the estimates and the sliding flags."""
     n = len(wheel)
@@ -121,7 +123,8 @@ def drive(wheel, accel, *, wsp_fill=None, torque_free=None, p=RP, gate=GATE):
     torque_free = np.zeros(n, bool) if torque_free is None else torque_free
     s, est, sliding = RefSpeed(), np.empty(n), np.empty(n, bool)
     for k in range(n):
-        s = reference_speed(s, wheel[k], accel[k], DT, True, bool(wsp_fill[k]), bool(torque_free[k]), gate, p)
+        s = reference_speed(s, wheel[k], accel[k], DT, True, bool(wsp_fill[k]), bool(torque_free[k]), gate, p,
+                            mode=mode)
         est[k], sliding[k] = s.v_mps, s.sliding
     return est, sliding
 
@@ -166,19 +169,19 @@ def test_an_accelerometer_error_within_the_fault_limit_is_no_slide():
 
 
 def test_the_accelerometer_reference_of_seed_001_runs_is_lifted_only():
-    """gate 0 (BecuParams.wheel_trust_slip_mps = 0, rg_* scenarios): the accelerometer's integral, lifted
+    """RefMode.LIFTED ([becu] wheel_trust_slip_mps = 0, rg_* scenarios): the accelerometer's integral, lifted
     to a wheel that reads above it, never pulled down by one below."""
-    est, _ = drive(np.array([10.0, 9.0, 9.0, 12.0, 11.0]), np.zeros(5), gate=0.0)
+    est, _ = drive(np.array([10.0, 9.0, 9.0, 12.0, 11.0]), np.zeros(5), mode=RefMode.LIFTED)
     assert est.tolist() == [10.0, 10.0, 10.0, 12.0, 12.0]
 
 
 def test_the_accelerometer_reference_runs_through_a_gap_in_the_sensor_frames():
-    """gate 0 (the rg_* scenarios): the bus is blocked for 2 s while the car decelerates at 1.76 m/s², so
-    no sensor frame arrives.  The estimate runs on the last acceleration, not lifted to the last (stale)
-    wheel reading every cycle: when the frames come back it is within 0.05 m/s of the car and WSP does
-    not vent the rolling wheel (lifted to the stale reading, it stood 3.5 m/s above the car and WSP vented
-    for the watchdog's 5 s: rg_low_adhesion's babbling cell of the threat matrix, issue #19)."""
-    becu = Becu(BecuParams(wheel_trust_slip_mps=0.0))
+    """RefMode.LIFTED (the rg_* scenarios): the bus is blocked for 2 s while the car decelerates at 1.76 m/s²,
+    so no sensor frame arrives. The estimate runs on the last acceleration, not lifted to the last (stale)
+    wheel reading every cycle: when the frames come back it is within 0.05 m/s of the car and WSP does not
+    vent the rolling wheel (lifted to the stale reading, it stood 3.5 m/s above the car and WSP vented for
+    the watchdog's 5 s: rg_low_adhesion's babbling cell of the threat matrix, issue #19)."""
+    becu = Becu(BecuParams(reference=RefMode.LIFTED))
     rx = RxTable(Becu.INPUTS)
     names = [(n, n) for n in Becu.INPUTS]
     a, v0, wsp = -1.76, 58.0, []

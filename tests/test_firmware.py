@@ -4,10 +4,11 @@ import math
 
 import pytest
 
-from firmware_py.bcu import Bcu, BcuMode, BcuParams, bcu_mode_transition
-from firmware_py.becu import Becu, Wsp, WspParams, wsp_transition
+from firmware_py.bcu import Bcu, BcuMode, bcu_mode_transition
+from firmware_py.becu import Becu
 from firmware_py.pi import PI, PIParams
-from firmware_py.stopping import StoppingParams, StopState
+from firmware_py.stopping import StoppingDemand, StoppingParams, StopState
+from firmware_py.wsp import Wsp, WspParams, wsp_transition
 
 
 def test_pi_integrates_and_saturates_without_windup():
@@ -79,7 +80,8 @@ def test_bcu_precise_stopping_brakes_along_the_curve_and_gives_way_to_emergency(
     it coasts (ARMED) until the curve at 0.6 m/s² begins (333 m before the point: at once here, with the
     steeper a_c = 20²/(2·300)), then sends a service demand near a_c; emergency takes over.  The train
     decelerates as demanded (an ideal brake), its position is the sum of its speeds."""
-    bcu = Bcu(2, BcuParams(stopping=StoppingParams(method="pi")))
+    stopping = StoppingDemand(StoppingParams(method="pi"), 2)
+    bcu = Bcu(2, sources=[stopping])
     rx = {"BrakeStep": 0, "EmergencyReq": 0, "BECU1_STATUS.SpeedEst": 20.0, "BECU2_STATUS.SpeedEst": 20.0,
           "TargetStopValid": 1, "TargetStopPos": 300.0}
     out, v, x = {}, 20.0, 0.0
@@ -88,23 +90,24 @@ def test_bcu_precise_stopping_brakes_along_the_curve_and_gives_way_to_emergency(
         out = bcu.step(k * 10_000, rx)
         v_next = v - out["TargetDecel"] * 0.01
         x, v = x + 0.005 * (v + v_next), v_next
-    assert bcu.stop_out.state == StopState.FOLLOWING and out["Mode"] == BcuMode.SERVICE
+    assert stopping.out.state == StopState.FOLLOWING and out["Mode"] == BcuMode.SERVICE
     assert out["TargetDecel"] == pytest.approx(20.0 ** 2 / (2 * 300.0), rel=0.1)
-    assert bcu.stopping.odometer.position(300 * 10_000) == pytest.approx(x, abs=0.3)
+    assert stopping.controller.odometer.position(300 * 10_000) == pytest.approx(x, abs=0.3)
     out = bcu.step(3_000_000, {**rx, "EmergencyReq": 1})
-    assert out["Mode"] == BcuMode.EMERGENCY and bcu.stop_out.state == StopState.OFF
+    assert out["Mode"] == BcuMode.EMERGENCY and stopping.out.state == StopState.OFF
     assert out["TargetDecel"] == 1.3
 
 
 def test_bcu_without_target_does_not_brake():
-    bcu = Bcu(2, BcuParams(stopping=StoppingParams(method="adaptive_diff")))
+    stopping = StoppingDemand(StoppingParams(method="adaptive_diff"), 2)
+    bcu = Bcu(2, sources=[stopping])
     rx = {"BrakeStep": 0, "EmergencyReq": 0, "BECU1_STATUS.SpeedEst": 20.0, "BECU2_STATUS.SpeedEst": 20.0,
           "TargetStopValid": 0, "TargetStopPos": 0.0}
     out = {}
     for k in range(100):
         out = bcu.step(k * 10_000, rx)
     assert out["Mode"] == BcuMode.RELEASED and out["TargetDecel"] == 0.0
-    assert bcu.stop_out.state == StopState.OFF
+    assert stopping.out.state == StopState.OFF
 
 
 def rx_becu(**kw):

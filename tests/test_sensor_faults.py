@@ -19,20 +19,19 @@ import pytest
 from conftest import ROOT
 
 from firmware_py.bcu import BcuParams, disagreeing_cars
-from firmware_py.becu import (
+from firmware_py.becu import Becu
+from firmware_py.sensor_checks import (
     STEEPEST_GRADIENT_MPS2,
     AccelCheck,
-    Becu,
     CylCheck,
     SensorCheckParams,
     SpeedCheck,
-    Wsp,
     accel_bias_check,
     cyl_sensor_check,
     speed_sensor_check,
     valve_pressure_rate,
-    vent_watchdog,
 )
+from firmware_py.wsp import Wsp, vent_watchdog
 from hil.can.dbc import load_dbc
 from hil.can.e2e import Status
 from hil.runtime.node import StuckSignal
@@ -311,7 +310,8 @@ def test_the_becu_runs_the_pressure_loop_on_its_model_once_the_transducer_failed
         if out["CylSensorFault"] and failed_at is None:
             failed_at = k * 0.01
     assert failed_at is not None and failed_at <= 0.1
-    assert becu.p_model == pytest.approx(out["CylPressureSet"], rel=0.01) and abs(out["ValveCmd"]) < 0.01
+    assert becu.checks.p_model == pytest.approx(out["CylPressureSet"], rel=0.01)
+    assert abs(out["ValveCmd"]) < 0.01
     assert out["CylPressureSet"] <= p_true <= 1.15 * out["CylPressureSet"]
     assert out["SpeedSensorFault"] == 0 and out["AccelSensorFault"] == 0
 

@@ -234,7 +234,7 @@ def test_governor_judged_against_the_dump_strategys_demand(tmp_path, capsys):
 
 
 def test_slip_wsp_ceiling_is_learnt_at_the_slide_onset_rises_in_fill_and_is_released():
-    from firmware_py.becu import Wsp, WspParams, slip_ceiling
+    from firmware_py.wsp import Wsp, WspParams, slip_ceiling
 
     p = WspParams(mode="slip", ceiling_fraction=0.9, ceiling_rise_Pa_per_s=20e3, ceiling_release_s=1.5)
     c = slip_ceiling(math.inf, Wsp.FILL, Wsp.FILL, 3e5, 0.0, 0.01, p)
@@ -247,7 +247,7 @@ def test_slip_wsp_ceiling_is_learnt_at_the_slide_onset_rises_in_fill_and_is_rele
 
 
 def test_slip_wsp_vents_early_at_a_slides_onset_only():
-    from firmware_py.becu import Wsp, WspParams, early_vent, vent_threshold
+    from firmware_py.wsp import Wsp, WspParams, early_vent, vent_threshold
 
     p = WspParams(mode="slip")
     v = 20.0
@@ -291,7 +291,9 @@ def test_pressure_loop_restarts_when_wsp_hands_the_cylinder_back():
     latency): a slide vents it, the wheel comes back, the refill must settle on the set-point. With the
     integrator that earlier refills wound up kept through the vent, the cylinder overshot (0.17 bar here)
     and the brake's hysteresis kept the torque."""
-    from firmware_py.becu import Becu, BecuParams, Wsp, valve_pressure_rate
+    from firmware_py.becu import Becu, BecuParams
+    from firmware_py.sensor_checks import valve_pressure_rate
+    from firmware_py.wsp import Wsp
 
     p = BecuParams()
     becu = Becu(p)

@@ -7,9 +7,12 @@ same in both modes and a node that has a real device opens it only in real time.
 
 The foundation's train is PLANT, DESK, BCU and BECU1..n.  Each study that is part of the scenario
 (hil.scenario.registry) may add or replace nodes (its nodes.py `node_names(scenario, names)` and
-`build_node(...)`, None for a node it leaves to the foundation) and add frames to the BCU's binding
-(`bcu_messages(scenario, rx, tx)`) and to each BECU's (`becu_messages(scenario, rx, tx)`); the parameters
-of every controller come from hil.scenario.params.
+`build_node(...)`, None for a node it leaves to the foundation), add frames to the BCU's binding
+(`bcu_messages(scenario, rx, tx)`) and to each BECU's (`becu_messages(scenario, rx, tx)`), and fit stages
+into the BCU's pipeline (`bcu_stages(scenario, params, sources, followers)`, firmware_py.bcu) and into each
+BECU's (`becu_stages(scenario, car, params, reference, setpoint)`, firmware_py.becu; asked of every study,
+so that a study whose signals ride in the BECU's frames fills them in every run).  The parameters of every
+controller come from hil.scenario.params, a stage's from its study.
 """
 
 from __future__ import annotations
@@ -173,7 +176,10 @@ def build_foundation_node(name: str, scenario: Scenario, db: Database, codec: Co
         rx_msgs, tx_msgs = [], ["DESK_CMD", "DESK_TARGET"]
         period, offset, inputs, outputs = 100_000, DESK_OFFSET_US, ctrl.inputs, ctrl.outputs
     elif name == "BCU":
-        ctrl = Bcu(n, params.bcu_params(scenario))
+        bcu_params = params.bcu_params(scenario)
+        sources, followers = [], []                # the stages the studies fit (firmware_py.bcu)
+        registry.call(scenario, "nodes", "bcu_stages", bcu_params, sources, followers)
+        ctrl = Bcu(n, bcu_params, sources, followers)
         rx_msgs = (["DESK_CMD"] + [f"BECU{i}_STATUS" for i in range(1, n + 1)]
                    + [f"BECU{i}_DIAG" for i in range(1, n + 1)])
         tx_msgs = ["BCU_DEMAND", "BCU_EMERGENCY", "BCU_STATUS"]
@@ -185,16 +191,17 @@ def build_foundation_node(name: str, scenario: Scenario, db: Database, codec: Co
         inputs, outputs = ctrl.inputs, ctrl.outputs
     elif name.startswith("BECU") and name[4:].isdigit() and 1 <= int(name[4:]) <= n:
         i = int(name[4:])
-        ctrl = Becu(params.becu_params(scenario, i))
+        becu_params = params.becu_params(scenario, i)
+        reference, setpoint = [], []               # the stages the studies fit (firmware_py.becu)
+        registry.call_every(scenario, "nodes", "becu_stages", i, becu_params, reference, setpoint)
+        ctrl = Becu(becu_params, reference, setpoint)
         rx_msgs, tx_msgs = becu_messages(i)
         for study in registry.active(scenario):    # the frames of the BCU functions the car takes part in
             hook = getattr(study.part("nodes"), "becu_messages", None)
             if hook is not None:
                 hook(scenario, rx_msgs, tx_msgs)
         period, offset = ctrl.p.cycle_us, BECU_OFFSET_US + 500 * (i - 1)
-        inputs, outputs = ctrl.INPUTS, ctrl.OUTPUTS
-        if "BCU_BRAKE_CORR" in rx_msgs:
-            inputs += ctrl.PHI_INPUTS
+        inputs, outputs = ctrl.inputs, ctrl.outputs
     else:
         raise BindingError(f"no node {name!r} in this scenario; nodes are {', '.join(node_names(scenario))}")
     binding = Binding.build(db, name, inputs, outputs, rx_msgs, tx_msgs, dbc_name)

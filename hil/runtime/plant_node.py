@@ -116,7 +116,7 @@ def _message(db: Database, name: str, dbc_name: str):
 
 FAILSAFE_CYCLES = 3        # pressure-command cycles without a usable frame before the fail-safe applies
 # how long the actuators hold a car's cylinder where its last command left it before they fill it [s]: the
-# WSP safety timer's five seconds (firmware_py.becu.WspParams.max_vent_s, patent CA 2025196), the longest an
+# WSP safety timer's five seconds (firmware_py.wsp.WspParams.max_vent_s, patent CA 2025196), the longest an
 # electronic fault may keep a cylinder below the demand before the brake applies regardless.  Scenario key
 # [plant] failsafe_hold_s; 0 fills at once
 FAILSAFE_HOLD_S = 5.0

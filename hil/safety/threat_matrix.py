@@ -90,13 +90,13 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from cantools.database.can import Database
 
+from firmware_py.decel_feedback import PhiParams
 from hil.can.codec import Codec, loaded_dbc
 from hil.report.kpis import RunView
 from hil.runtime.desk import DeskScript
 from hil.runtime.node import authentic_length, e2e_config
 from hil.scenario import Scenario, parse_scenario, registry
 from hil.scenario.faults import MESSAGE_THREATS, NODE_FAULTS
-from hil.scenario.params import becu_params
 
 __all__ = ["FAMILIES", "ROGUE_CLAIMS", "THREATS", "Baseline", "Cell", "CellSpec", "Frame", "ScenarioMatrix",
            "as_rows", "cells_of", "fault_for", "plan", "protected_frames", "run_baseline", "run_cell",
@@ -127,7 +127,8 @@ def _stop_point_beyond(scenario: Scenario) -> float:
 
 
 def _phi_limit(scenario: Scenario) -> float:
-    return becu_params(scenario, 1).phi_limits[1]
+    """The largest correction φ a BECU applies (PhiParams.limits)."""
+    return PhiParams().limits[1]
 
 
 #: masquerade: what the rogue frame claims, by the first of these signals the message carries — the

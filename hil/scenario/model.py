@@ -316,9 +316,9 @@ class BecuSpec(_Strict):
     wsp_resume: Literal["freeze", "handover"] = "freeze"
     # "dump": WSP vents to zero and refills to the demand; "slip": it vents at a slide's onset and only until
     # the wheel turns back, holds, and refills no higher than a ceiling learnt from the pressure at the
-    # slide's onset (firmware_py.becu.slip_ceiling, early_vent)
+    # slide's onset (firmware_py.wsp.slip_ceiling, early_vent)
     wsp_mode: Literal["dump", "slip"] = "dump"
-    # the slip mode's pressure ceiling (firmware_py.becu.WspParams; None: its defaults): the fraction of the
+    # the slip mode's pressure ceiling (firmware_py.wsp.WspParams; None: its defaults): the fraction of the
     # pressure at the slide's onset it starts at, its rise in FILL [bar/s], and the time in FILL without a
     # new slide after which it is dropped [s]
     wsp_ceiling_fraction: Annotated[float, Field(gt=0, le=1)] | None = None

@@ -3,9 +3,8 @@ the controllers.
 
 Every value comes from plant_sim's or firmware_py's defaults unless the scenario says otherwise, so a
 scenario without a key runs the foundation's train unchanged.  A study with a section in the scenario
-adds what its section sets: the registry calls its `scenario.bcu_params(scenario, kw)` and
-`scenario.becu_params(scenario, car, kw)` (hil/studies/<name>/scenario.py) on the keyword arguments
-being built here; its own nodes' parameters are in the same file of its folder.
+builds its own nodes' and stages' parameters (hil/studies/<name>/scenario.py) from the scenario and the
+parameter sets built here.
 """
 
 from __future__ import annotations
@@ -16,11 +15,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from firmware_py.bcu import BcuParams
-from firmware_py.becu import BecuParams
+from firmware_py.becu import BecuParams, Control, WspResume
 from firmware_py.pi import PIParams
+from firmware_py.reference_speed import RefMode
+from firmware_py.wsp import WspMode
 from hil.can.secoc import SecOcError, key_from_hex
 from hil.resources import read_toml
-from hil.scenario import registry
 from plant_sim.params import (  # G_MPS2: bar/g -> Pa per m/s² of seed 001's K_P, K_I (1 bar = 1e5 Pa)
     G_MPS2,
     AdhesionParams,
@@ -93,14 +93,13 @@ def plant_params(scenario: Scenario) -> PlantParams:
 
 
 def bcu_params(scenario: Scenario) -> BcuParams:
-    """BcuParams: the scenario's [bcu] step table and jerk limit, then what the active studies add (the
-    deceleration feedback, precise stopping, the anti-collision device's requests)."""
+    """BcuParams: the scenario's [bcu] step table and jerk limit (the stages the studies fit into the BCU
+    bring their own parameters: their nodes.py `bcu_stages`)."""
     kw: dict = {}
     if scenario.bcu.step_decel_mps2 is not None:
         kw["step_decel_mps2"] = tuple(scenario.bcu.step_decel_mps2)
     if scenario.bcu.jerk_limit_mps3 is not None:
         kw["jerk_limit_mps3"] = scenario.bcu.jerk_limit_mps3
-    registry.call(scenario, "scenario", "bcu_params", kw)
     return BcuParams(**kw)
 
 
@@ -119,15 +118,16 @@ SLIP_WSP_REFILL = 0.25
 
 
 def becu_params(scenario: Scenario, car: int) -> BecuParams:
-    """BecuParams of car `car` (1-based): the foundation's BECU unless [becu] says otherwise, then what
-    the active studies add (the reference governor)."""
+    """BecuParams of car `car` (1-based): the foundation's BECU unless [becu] says otherwise (the stages
+    the studies fit into it bring their own parameters: their nodes.py `becu_stages`)."""
     b = scenario.becu
     d = BecuParams()
     kw: dict = {}
     if not (b.control == "pressure" and b.wsp_vent_slip_mps is None and b.wheel_trust_slip_mps is None):
         pp = plant_params(scenario)
-        kw = {"control": b.control, "car_mass_kg": pp.train.masses_kg[car - 1], "wsp_resume": b.wsp_resume,
-              "wheel_radius_m": pp.train.wheel_radius_m, "p_max_Pa": pp.brake.p_max_Pa}
+        kw = {"control": Control(b.control), "car_mass_kg": pp.train.masses_kg[car - 1],
+              "wsp_resume": WspResume(b.wsp_resume), "wheel_radius_m": pp.train.wheel_radius_m,
+              "p_max_Pa": pp.brake.p_max_Pa}
         kw["decel_pi"] = PIParams(kp=b.kp_bar_per_g * 1e5 / G_MPS2, ki=b.ki_bar_per_g_s * 1e5 / G_MPS2,
                                   out_min=0.0, out_max=pp.brake.p_max_Pa)     # eq. (16), 0 ≤ u ≤ p̄ (5b)
         if b.wsp_vent_slip_mps is not None:                           # seed 001 §II-C: vent, then track
@@ -135,7 +135,9 @@ def becu_params(scenario: Scenario, car: int) -> BecuParams:
                 d.wsp, vent_slip_mps=b.wsp_vent_slip_mps, vent_slip_per_speed=0.0,
                 hold_fraction=b.wsp_refill_slip_mps / b.wsp_vent_slip_mps,
                 refill_fraction=b.wsp_refill_slip_mps / b.wsp_vent_slip_mps)
-        if b.wheel_trust_slip_mps is not None:
+        if b.wheel_trust_slip_mps == 0.0:                             # the scenario's word for seed
+            kw["reference"] = RefMode.LIFTED                          # 001's accelerometer reference
+        elif b.wheel_trust_slip_mps is not None:
             kw["wheel_trust_slip_mps"] = b.wheel_trust_slip_mps
     if b.wsp_mode == "slip":
         ceiling = {}                                                  # the ceiling's keys, if given
@@ -145,9 +147,8 @@ def becu_params(scenario: Scenario, car: int) -> BecuParams:
             ceiling["ceiling_rise_Pa_per_s"] = b.wsp_ceiling_rise_bar_per_s * 1e5
         if b.wsp_ceiling_release_s is not None:
             ceiling["ceiling_release_s"] = b.wsp_ceiling_release_s
-        kw["wsp"] = dataclasses.replace(kw.get("wsp", d.wsp), mode="slip", hold_fraction=SLIP_WSP_HOLD,
+        kw["wsp"] = dataclasses.replace(kw.get("wsp", d.wsp), mode=WspMode.SLIP, hold_fraction=SLIP_WSP_HOLD,
                                         refill_fraction=SLIP_WSP_REFILL, **ceiling)
-    registry.call(scenario, "scenario", "becu_params", car, kw)
     return BecuParams(**kw) if kw else d
 
 

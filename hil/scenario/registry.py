@@ -87,6 +87,13 @@ def by_name(name: str) -> Study:
     raise KeyError(f"no study {name!r}; the studies are {', '.join(s.cli_name for s in studies())}")
 
 
+def call_every(scenario, part: str, hook: str, *args) -> list:
+    """`hook(scenario, *args)` of part `part` of every study that defines it, part of the scenario or not,
+    in registry order: for the hooks that fill a study's signals in the foundation's frames in every run
+    (a study's own `hook` says what it does when its section is absent)."""
+    return [fn(scenario, *args) for s in studies() if (fn := getattr(s.part(part), hook, None)) is not None]
+
+
 def call(scenario, part: str, hook: str, *args) -> list:
     """`hook(scenario, *args)` of part `part` of every active study that defines it, in registry order;
     the results in a list."""

@@ -20,9 +20,10 @@ What the [acd] section adds to a run (seed 002 §IV–§V, §IX, §X):
   counted and ignored (hil.links.nmea).  Fixes with a GGA/binary HDOP above `max_hdop` are dropped (the
   instability episodes report HDOP 4, plant_sim.gps).  The firmware (firmware_py.acd, steps 1–12,
   with or without §X's prediction) sends ACD_BRAKE_REQ to the BCU.
-- **BCU**: the foundation's Bcu with `BcuParams.acd` (scenario.py's `bcu_params` sets it):
-  an EMERGENCY request is an emergency request (BCU_EMERGENCY.Source = 2, ACD); a SERVICE request asks
-  for RequestedDecel, and the demand is the largest of the desk's step, precise stopping and the ACD's.
+- **BCU**: the foundation's Bcu with the ACD's requests as a demand source (`bcu_stages`,
+  firmware_py.acd.AcdBrakeRequest): an EMERGENCY request is an emergency request (BCU_EMERGENCY.Source =
+  2, ACD); a SERVICE request asks for RequestedDecel, and the demand is the largest of the desk's step,
+  precise stopping and the ACD's.
 
 After a run, kpis.py judges it on plant truth; reproduce.py runs the randomized campaign.
 """
@@ -39,9 +40,12 @@ from cantools.database.can import Database
 
 from firmware_py.acd import (
     Acd,
+    AcdBrakeRequest,
+    AcdRequestParams,
     TrainPosition,
     pair_on_sections,
 )
+from firmware_py.bcu import BcuParams, DemandSource, Follower
 from hil.can.codec import Codec
 from hil.links.gpsserial import GpsLinkReader, GpsLinkWriter, PtyLink, ServedPty, open_port
 from hil.links.nmea import DEFAULT_UTC0, ReceivedFix
@@ -733,3 +737,9 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
 def bcu_messages(scenario: Scenario, rx: list[str], tx: list[str]) -> None:
     """The BCU receives the ACD's brake requests."""
     rx.append("ACD_BRAKE_REQ")
+
+
+def bcu_stages(scenario: Scenario, bcu: BcuParams, sources: list[DemandSource],
+               followers: list[Follower]) -> None:
+    """The BCU obeys the ACD's brake requests (seed 002 steps 10-12), up to its full service step."""
+    sources.append(AcdBrakeRequest(AcdRequestParams(full_service_mps2=bcu.step_decel_mps2[-1])))

@@ -299,8 +299,3 @@ def resolve_paths(scenario: Scenario, base: Path) -> Scenario:
         except RailhilError as exc:
             raise ScenarioError(str(exc)) from None
     return scenario.model_copy(update={"acd": spec})
-
-
-def bcu_params(scenario: Scenario, kw: dict) -> None:
-    """The BCU obeys the ACD's brake requests (hil.scenario.params.bcu_params; seed 002 steps 10-12)."""
-    kw["acd"] = True

@@ -15,7 +15,6 @@ if TYPE_CHECKING:
 
 PAD_MU_NOMINAL = PadParams().mu_nominal   # μ_d0 of seed 004 eq. (32), the plant's pad model
 # seed 004 §5.2: the band and the time outside it that engages the loop (firmware_py.decel_feedback)
-# seed 004 §5.2: the band and the time outside it that engages the loop (firmware_py.decel_feedback)
 BAND = (0.9, 1.1)
 
 ENGAGE_AFTER_S = 0.5

@@ -74,7 +74,7 @@ def friction_set(scenario: Scenario) -> FrictionSet | None:
     return _bench_set(pad, bench, scenario.decel_feedback.friction_set_fill)
 
 
-def bcu_params(scenario: Scenario, kw: dict) -> None:
-    """The deceleration feedback of the BCU (hil.scenario.params.bcu_params)."""
+def feedback_params(scenario: Scenario) -> FeedbackParams:
+    """The deceleration feedback of the BCU (nodes.py fits it)."""
     df = scenario.decel_feedback
-    kw["feedback"] = FeedbackParams(enabled=df.closed_loop, tq_s=df.tq_s, friction_set=friction_set(scenario))
+    return FeedbackParams(enabled=df.closed_loop, tq_s=df.tq_s, friction_set=friction_set(scenario))

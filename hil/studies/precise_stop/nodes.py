@@ -1,11 +1,16 @@
 """The node bindings of precise stopping (seed 002): it runs inside the foundation BCU.
 
-It adds no node; the BCU it is fitted to (scenario.py `bcu_params`) receives the desk's target stop point
+It adds no node; the BCU it is fitted to (a demand source, firmware_py.stopping.StoppingDemand, with
+scenario.py's `stopping_params`) receives the desk's target stop point
 (DESK_TARGET) and, on a track with balises, car 1's balise reader (PLANT_BTM), and sends where it believes
 the train is against its target and curve (BCU_STOP, frames.py).
 """
 
 from __future__ import annotations
+
+from firmware_py.bcu import BcuParams, DemandSource, Follower
+from firmware_py.stopping import StoppingDemand
+from hil.studies.precise_stop.scenario import stopping_params
 
 
 def node_names(scenario, names: list[str]) -> list[str]:
@@ -23,3 +28,10 @@ def bcu_messages(scenario, rx: list[str], tx: list[str]) -> None:
         return
     rx += ["DESK_TARGET"] + (["PLANT_BTM"] if scenario.track.balises else [])
     tx.append("BCU_STOP")
+
+
+def bcu_stages(scenario, bcu: BcuParams, sources: list[DemandSource], followers: list[Follower]) -> None:
+    """The stopping function as a demand source of the BCU (none with a PLC in the DESK's place)."""
+    params = stopping_params(scenario)
+    if params is not None:
+        sources.append(StoppingDemand(params, scenario.train.cars))

@@ -68,9 +68,10 @@ LEGACY_KEYS = {
 }
 
 
-def bcu_params(scenario: Scenario, kw: dict) -> None:
-    """The stopping function of the BCU (hil.scenario.params.bcu_params): the odometer's reference point is
-    the train's front passing the start position at t = 0."""
+def stopping_params(scenario: Scenario) -> StoppingParams | None:
+    """The stopping function of the BCU (nodes.py fits it): the odometer's reference point is the train's
+    front passing the start position at t = 0.  None with method = "plc": the stopping program runs on a
+    PLC in the DESK's place, and the BCU obeys its brake valve."""
     full = step_decel_mps2(scenario)[7]
     ps = scenario.precise_stop
     if ps.method == PLC:
@@ -78,8 +79,8 @@ def bcu_params(scenario: Scenario, kw: dict) -> None:
             raise ScenarioError("precise_stop.method = 'plc': the stopping program runs on a PLC in the "
                                 "DESK's place; give the device (--device DESK=FILE, e.g. "
                                 "examples/plc_precise_stop/plc_precise_stop.toml, or [devices.DESK])")
-        return                                  # the BCU obeys the PLC's brake valve: no function fitted
-    kw["stopping"] = StoppingParams(
+        return None
+    return StoppingParams(
         method=ps.method, planned_decel_mps2=ps.planned_decel_mps2, max_decel_mps2=full, hold_decel_mps2=full,
         start_position_m=scenario.train.start_position_m, start_time_us=0,
         pi=dataclasses.replace(StoppingParams().pi, out_max=full), balises=bool(scenario.track.balises))

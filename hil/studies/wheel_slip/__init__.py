@@ -3,8 +3,8 @@ the deceleration reference of the BECU's PI, so that the wheel-slide protection 
 
 Paper: seed 001, C. Danielson, S. Di Cairano, "A Reference Governor for Wheel-Slip Prevention in
 Railway Vehicles with Pneumatic Brakes" (../shared/seeds/001_5c39e1b23503103a.txt).  Controller:
-firmware_py/governor.py in the foundation BECU (firmware_py/becu.py); the plant's slip-speed adhesion
-curve and pneumatic brake: plant_sim.  Docs: docs/studies/wheel-slip.md.
+firmware_py/governor.py, a reference stage of the foundation BECU (firmware_py/becu.py); the plant's
+slip-speed adhesion curve and pneumatic brake: plant_sim.  Docs: docs/studies/wheel-slip.md.
 """
 
 from hil.scenario.registry import Study

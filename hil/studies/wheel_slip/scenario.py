@@ -1,5 +1,5 @@
 """The scenario section [wheel_slip] (seed 001: the reference governor against wheel slip) and the
-governor's parameters it sets in each BECU.
+governor's parameters of each BECU (`reference_governor_params`; nodes.py fits it).
 
     [wheel_slip]
     governor = true          # false: the same run without the governor (the paper's comparison)
@@ -28,7 +28,7 @@ import numpy as np
 from pydantic import Field
 
 from firmware_py.becu import BecuParams
-from firmware_py.governor import GovernorParams, GovernorSchedule, governor_params
+from firmware_py.governor import GovernorParams, GovernorSchedule, ReferenceGovernorParams, governor_params
 from firmware_py.pi import PIParams
 from hil.scenario.base import Strict
 from hil.scenario.params import plant_params
@@ -167,12 +167,17 @@ def becu_governor_params(scenario: Scenario, pp: PlantParams, car: int, pi: PIPa
         **_brake_and_cycle(pp, pi, ws.margin))
 
 
-def becu_params(scenario: Scenario, car: int, kw: dict) -> None:
-    """The governor in each BECU (hil.scenario.params.becu_params): built on the BECU's deceleration PI."""
-    if scenario.wheel_slip.governor:
-        pp = plant_params(scenario)
-        build = becu_governor_params if scenario.plant.adhesion == "slip_speed" else becu_governor_schedule
-        kw["governor"] = build(scenario, pp, car, kw["decel_pi"])
-        if scenario.train.running_resistance:        # the car's Davis coefficients, as the plant's
-            cc = car_constants(pp.train)
-            kw["running_resistance"] = (cc.c0_N, cc.c1_Ns_per_m, cc.c2_Ns2_per_m2[car - 1])
+def reference_governor_params(scenario: Scenario, car: int,
+                              becu: BecuParams) -> ReferenceGovernorParams | None:
+    """The governor of car `car`'s BECU, built on that BECU's deceleration PI (eq. 16), with the car's Davis
+    coefficients, as the plant's, when the train has running resistance; None when [wheel_slip] governor
+    is false (the paper's comparison)."""
+    if not scenario.wheel_slip.governor:
+        return None
+    pp = plant_params(scenario)
+    build = becu_governor_params if scenario.plant.adhesion == "slip_speed" else becu_governor_schedule
+    resistance = None
+    if scenario.train.running_resistance:
+        cc = car_constants(pp.train)
+        resistance = (cc.c0_N, cc.c1_Ns_per_m, cc.c2_Ns2_per_m2[car - 1])
+    return ReferenceGovernorParams(build(scenario, pp, car, becu.decel_pi), running_resistance=resistance)
