@@ -125,12 +125,14 @@ class Loop(NamedTuple):
 
 
 class ReferenceStage(Protocol):
-    """A limiter before the loop: the demand -> the deceleration reference the loop tracks."""
+    """A limiter before the loop: the reference so far (the demand, through the stages before it) -> the
+    deceleration reference the loop tracks [m/s²]."""
 
     INPUTS: tuple[str, ...]     # its input signals (rx keys), bound beside the BECU's own
     OUTPUTS: tuple[str, ...]    # the output signals it writes into `out` every cycle
 
-    def reference(self, now_us: int, rx: Mapping[str, float], loop: Loop, out: dict[str, float]) -> float: ...
+    def reference(self, now_us: int, rx: Mapping[str, float], r_mps2: float, loop: Loop,
+                  out: dict[str, float]) -> float: ...
 
 
 class SetpointStage(Protocol):
@@ -314,7 +316,7 @@ class Becu:
                     lost) if stages else None
         r = decel
         for stage in self.reference_stages:
-            r = stage.reference(now_us, rx, loop, out)
+            r = stage.reference(now_us, rx, r, loop, out)
         if p.control == Control.DECEL:
             p_set = self.decel_control(r, -accel_used, dt_s, overridden)
         else:

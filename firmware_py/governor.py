@@ -377,7 +377,8 @@ class ReferenceGovernor:
         self.decision: GovernorDecision | None = None   # last decision (diagnostic)
         warm_up()                     # the compiled prediction ready before the first cycle
 
-    def reference(self, now_us: int, rx, loop, out: dict[str, float]) -> float:
+    def reference(self, now_us: int, rx, r_mps2: float, loop, out: dict[str, float]) -> float:
+        """The largest admissible reference towards `r_mps2`, the request r⁰ of eq. (9a)."""
         p = self.p
         gp = p.model.at(loop.v_ref_mps) if isinstance(p.model, GovernorSchedule) else p.model
         p_hat = loop.setpoint_sent_Pa + (self.p_hat - loop.setpoint_sent_Pa) * gp.phi
@@ -388,26 +389,26 @@ class ReferenceGovernor:
         res = c[0] + v * (c[1] + c[2] * v) if c is not None else 0.0        # eq. (4), seed 003
         friction = gp.mass_kg * loop.decel_mps2 - res
         x = GovernorState(loop.integrator, self.p_hat, self.torque_est, friction, res)
-        decision = self.decision = govern(x, loop.demand_mps2, gp, self.r_gov)
+        decision = self.decision = govern(x, r_mps2, gp, self.r_gov)
         r = self.r_gov = decision.r_mps2
         out["GovernorActive"] = int(decision.active)
-        out["GovernedDecel"] = r if decision.active else loop.demand_mps2
+        out["GovernedDecel"] = r if decision.active else r_mps2
         out["GovernorMargin"] = clip(decision.margin_Nm, -65536.0, 65534.0)
         out["GovernorFeasible"] = int(decision.feasible)
         return r
 
 
 class Ungoverned:
-    """The reference stage of a BECU without the governor: the demand passes; the governor's signals in the
-    BECU's frames say what the DBC gives them for that case (GovernedDecel = the demand, GovernorActive 0,
-    GovernorMargin 0, GovernorFeasible 1)."""
+    """The reference stage of a BECU without the governor: the reference passes; the governor's signals in
+    the BECU's frames say what the DBC gives them for that case (GovernedDecel = the demand it passed,
+    GovernorActive 0, GovernorMargin 0, GovernorFeasible 1)."""
 
     INPUTS: tuple[str, ...] = ()
     OUTPUTS = GOVERNOR_OUTPUTS
 
-    def reference(self, now_us: int, rx, loop, out: dict[str, float]) -> float:
+    def reference(self, now_us: int, rx, r_mps2: float, loop, out: dict[str, float]) -> float:
         out["GovernorActive"] = 0
-        out["GovernedDecel"] = loop.demand_mps2
+        out["GovernedDecel"] = r_mps2
         out["GovernorMargin"] = 0.0
         out["GovernorFeasible"] = 1
-        return loop.demand_mps2
+        return r_mps2
