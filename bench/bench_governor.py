@@ -26,7 +26,7 @@ if str(ROOT) not in sys.path:
 from firmware_py.governor import GovernorState, govern, play  # noqa: E402
 from firmware_py.pi import pi_step  # noqa: E402
 from hil.scenario import load_scenario  # noqa: E402
-from hil.scenario.params import becu_params  # noqa: E402
+from hil.scenario.params import run_params  # noqa: E402
 from hil.studies.wheel_slip.scenario import reference_governor_params  # noqa: E402
 
 CASES = (  # (label, scenario, simulated seconds)
@@ -38,7 +38,7 @@ CASES = (  # (label, scenario, simulated seconds)
 def closed_loop_times(scenario: str, seconds: float, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """(time per govern() call [s], predictions per call) over a closed-loop run of the BECU's model."""
     sc = load_scenario(ROOT / "scenarios" / scenario)
-    gp = reference_governor_params(sc, 1, becu_params(sc, 1)).model
+    gp = reference_governor_params(sc, 1, run_params(sc)).model
     r0 = sc.bcu.step_decel_mps2[7]
     rng = random.Random(seed)
     i = p = tau = f = 0.0

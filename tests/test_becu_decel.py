@@ -17,7 +17,7 @@ from firmware_py.reference_speed import RefMode
 from firmware_py.wsp import Wsp, WspParams, wsp_transition
 from hil.errors import ScenarioError
 from hil.scenario import load_scenario, parse_scenario
-from hil.scenario.params import becu_params
+from hil.scenario.params import run_params
 from hil.studies.wheel_slip.scenario import reference_governor_params
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -114,21 +114,21 @@ def test_bad_keys_give_one_line_errors(sections, match):
 
 def test_default_scenario_builds_the_foundations_becu():
     sc = load_scenario(ROOT / "scenarios" / "default.toml")
-    assert becu_params(sc, 1) == BecuParams()
+    assert run_params(sc).becu(1) == BecuParams()
 
 
 def test_slip_wsp_ceiling_keys_reach_the_becu():
-    bp = becu_params(_scenario(becu={"wsp_mode": "slip", "wsp_ceiling_fraction": 0.85,
-                                     "wsp_ceiling_rise_bar_per_s": 0.4, "wsp_ceiling_release_s": 0.6}), 1)
+    bp = run_params(_scenario(becu={"wsp_mode": "slip", "wsp_ceiling_fraction": 0.85,
+                                    "wsp_ceiling_rise_bar_per_s": 0.4, "wsp_ceiling_release_s": 0.6})).becu(1)
     assert (bp.wsp.mode, bp.wsp.ceiling_fraction, bp.wsp.ceiling_release_s) == ("slip", 0.85, 0.6)
     assert bp.wsp.ceiling_rise_Pa_per_s == pytest.approx(40e3)
-    assert becu_params(_scenario(becu={"wsp_mode": "slip"}), 1).wsp.ceiling_release_s == 0.45   # defaults
+    assert run_params(_scenario(becu={"wsp_mode": "slip"})).becu(1).wsp.ceiling_release_s == 0.45   # defaults
 
 
 def test_rg_scenario_builds_the_governor_from_the_plant():
     sc = load_scenario(ROOT / "scenarios" / "rg_low_adhesion.toml")
-    bp = becu_params(sc, 1)
-    gp = reference_governor_params(sc, 1, bp).model
+    bp = run_params(sc).becu(1)
+    gp = reference_governor_params(sc, 1, run_params(sc)).model
     assert bp.control == "decel" and gp is not None and gp.pi == bp.decel_pi
     # steady-state limit = μ(s̄) g less the margin, μ(0.1) = 0.1822 for the curve
     assert gp.decel_max_mps2 / G == pytest.approx(0.18222 * (1 - 0.005), abs=1e-4)

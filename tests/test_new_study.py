@@ -84,7 +84,7 @@ STUDY_FILES = {
             return None
 
 
-        def becu_stages(scenario, car, becu, reference, setpoint):
+        def becu_stages(scenario, car, run, reference, setpoint):
             if scenario.demand_clamp is not None:
                 reference.append(DemandClamp(clamp_params(scenario)))
     ''',

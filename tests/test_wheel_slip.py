@@ -170,14 +170,15 @@ def test_rail_curve_governor_is_scheduled_on_the_speed_below_the_design_rails_pe
     speed rises (k1(v)), s̄(v) below the peak slip speed of the design rail and of every more adherent one,
     the friction lag bounds [a̲ = 0, ā < 1]."""
     from firmware_py.governor import GovernorSchedule
-    from hil.scenario.params import becu_params, plant_params
+    from hil.scenario.params import run_params
     from hil.studies.wheel_slip.scenario import design_slip_mps, reference_governor_params
     from plant_sim.adhesion import mu_theta_scalar, sigma_opt
     from plant_sim.params import RAIL_CONDITIONS
 
     sc = _rail_governor(120.0)
-    pp = plant_params(sc)
-    sched = reference_governor_params(sc, 1, becu_params(sc, 1)).model
+    run = run_params(sc)
+    pp = run.plant
+    sched = reference_governor_params(sc, 1, run).model
     assert isinstance(sched, GovernorSchedule)
     assert sched.speeds_mps[0] == 0.0 and sched.speeds_mps[-1] >= 120 / 3.6
     normal = pp.train.masses_kg[0] * pp.train.g_mps2

@@ -16,6 +16,7 @@ import can.cli
 from hil.errors import BusError
 from hil.report.gate import gates
 from hil.scenario import load_scenario
+from hil.scenario.params import kmh
 
 BUS_KEYS = ("channel", "interface", "bitrate", "fd", "data_bitrate", "can_filters", "timing", "bus_kwargs")
 
@@ -101,7 +102,7 @@ class Progress:
     def __call__(self, now_us: int, truth: dict) -> None:
         if self.bar is not None:
             self.bar.n = round(now_us / 1e6, 1)
-            self.bar.set_postfix_str(f"v={float(truth['v_mps'].max()) * 3.6:.1f} km/h "
+            self.bar.set_postfix_str(f"v={kmh(float(truth['v_mps'].max())):.1f} km/h "
                                      f"x={float(truth['x_m'][0]):.1f} m")
 
     def close(self) -> None:

@@ -119,7 +119,7 @@ class PlantSlave(Fmi2Slave):
     def _dt_us(self) -> int:
         from hil.scenario import params
 
-        return params.plant_params(self.scenario).dt_us
+        return params.run_params(self.scenario).plant.dt_us
 
     def exit_initialization_mode(self) -> None:
         from hil.runtime.assembly import build_plant

@@ -63,6 +63,7 @@ from hil.report.gate import device_gates, external_gates, study_checks
 from hil.report.kpi_info import Kpi
 from hil.report.summary import host_stalls_text
 from hil.scenario import registry
+from hil.scenario.params import KMH_PER_MPS
 
 REPORT_NAME = "report.html"
 #: distributions whose versions go into run.json (and the report): what a reproduction needs to match
@@ -74,7 +75,7 @@ MAX_POINTS = 2000            # samples a curve of the interactive figures keeps 
 CAR_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
                "#bcbd22", "#17becf")
 #: the truth columns of the interactive figures: (column prefix, scale, y-axis title), as plot.png
-SIGNALS = (("v_mps", 3.6, "speed [km/h]"), ("p_Pa", 1e-3, "cylinder pressure [kPa]"),
+SIGNALS = (("v_mps", KMH_PER_MPS, "speed [km/h]"), ("p_Pa", 1e-3, "cylinder pressure [kPa]"),
            ("slip_speed_mps", 1.0, "slip speed v − rω [m/s]"))
 #: no plotly logo, no "Share chart" button (plotly.js 3 uploads the data to Plotly Cloud with it)
 PLOTLY_CONFIG = {"displaylogo": False, "responsive": True, "showSendToCloud": False, "plotlyServerURL": ""}

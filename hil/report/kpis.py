@@ -29,6 +29,7 @@ from hil.can.codec import Codec
 from hil.errors import RailhilError
 from hil.runtime.plant_node import STANDSTILL_MPS
 from hil.scenario import registry
+from hil.scenario.params import run_params
 from hil.trace.columns import BlockReader, FrameBlock
 from hil.trace.decoded import DecodedTrace
 from hil.trace.readers import TraceError
@@ -166,7 +167,7 @@ def rounded(x: float | None, nd: int = 4) -> float | None:
 
 def train_decel(scenario: Scenario, cols: dict[str, np.ndarray]) -> np.ndarray:
     """The train's deceleration −v̇ [m/s²], mass-weighted over the cars, per truth sample."""
-    masses = np.asarray(scenario.train.masses())
+    masses = np.asarray(run_params(scenario).plant.train.masses_kg)
     return -(per_car(cols, "a_mps2", scenario.train.cars) @ masses) / masses.sum()
 
 
@@ -282,7 +283,7 @@ def compute_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[
     slip = per_car(cols, "slip_speed_mps", n)
     ratio = per_car(cols, "slip_ratio", n)
     wsp = per_car(cols, "wsp_valve", n)
-    masses = np.asarray(scenario.train.masses())
+    masses = np.asarray(run_params(scenario).plant.train.masses_kg)
     t_brake = brake_start_s if brake_start_s is not None else float(t[0])
     moving = v > MOVING_MPS
 

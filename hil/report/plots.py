@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hil.scenario import registry
+from hil.scenario.params import kmh
 
 if TYPE_CHECKING:
     from hil.report.kpis import RunView
@@ -36,7 +37,7 @@ def plot_run(scenario: Scenario, cols: dict[str, np.ndarray], path: Path, title:
     t = cols["t_s"]
     fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
     for i in range(1, n + 1):
-        axes[0].plot(t, cols[f"v_mps_{i}"] * 3.6, label=f"car {i}", lw=1)
+        axes[0].plot(t, kmh(cols[f"v_mps_{i}"]), label=f"car {i}", lw=1)
         axes[1].plot(t, cols[f"p_Pa_{i}"] / 1e3, lw=1)
         axes[2].plot(t, cols[f"slip_speed_mps_{i}"], lw=1)
     axes[0].set_ylabel("speed [km/h]")

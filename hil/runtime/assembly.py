@@ -9,10 +9,10 @@ The foundation's train is PLANT, DESK, BCU and BECU1..n.  Each study that is par
 (hil.scenario.registry) may add or replace nodes (its nodes.py `node_names(scenario, names)` and
 `build_node(...)`, None for a node it leaves to the foundation), add frames to the BCU's binding
 (`bcu_messages(scenario, rx, tx)`) and to each BECU's (`becu_messages(scenario, rx, tx)`), and fit stages
-into the BCU's pipeline (`bcu_stages(scenario, params, sources, followers)`, firmware_py.bcu) and into each
-BECU's (`becu_stages(scenario, car, params, reference, setpoint)`, firmware_py.becu; asked of every study,
-so that a study whose signals ride in the BECU's frames fills them in every run).  The parameters of every
-controller come from hil.scenario.params, a stage's from its study.
+into the BCU's pipeline (`bcu_stages(scenario, run, sources, followers)`, firmware_py.bcu) and into each
+BECU's (`becu_stages(scenario, car, run, reference, setpoint)`, firmware_py.becu; asked of every study, so
+that a study whose signals ride in the BECU's frames fills them in every run).  The parameters of every
+controller come from hil.scenario.params (`run`: the run's RunParams), a stage's from its study.
 """
 
 from __future__ import annotations
@@ -71,15 +71,13 @@ def becu_messages(i: int) -> tuple[list[str], list[str]]:
 def build_plant(scenario: Scenario, db: Database | None = None) -> Plant:
     """railhil's plant of the scenario, or the FMU of its [plant] fmu (hil.fmi.plant.FmuPlant, which the plant
     node steps the same way; `db`: the run's DBC, for the FMU's port)."""
+    run = params.run_params(scenario)
     if scenario.plant.fmu is not None:
         from hil.can.codec import loaded_dbc
         from hil.fmi.plant import fmu_plant
 
-        return fmu_plant(scenario, db if db is not None else loaded_dbc(scenario.dbc)[0],
-                         params.plant_params(scenario))
-    return Plant(params.plant_params(scenario), params.build_track(scenario),
-                 v0_mps=scenario.train.initial_speed_kmh / 3.6, x0_m=scenario.train.start_position_m,
-                 seed=scenario.seed)
+        return fmu_plant(scenario, db if db is not None else loaded_dbc(scenario.dbc)[0], run.plant)
+    return Plant(run.plant, run.track, v0_mps=run.initial_speed_mps, x0_m=run.start_position_m, seed=run.seed)
 
 
 _REALTIME: ContextVar[bool] = ContextVar("railhil_building_for_realtime", default=False)
@@ -166,7 +164,7 @@ def build_foundation_node(name: str, scenario: Scenario, db: Database, codec: Co
     n = scenario.train.cars
     if name == "PLANT":
         plant = build_plant(scenario, db)
-        ctrl = PlantController(plant, n, db, dbc_name, balises=scenario.track.balises,
+        ctrl = PlantController(plant, n, db, dbc_name, balises=params.run_params(scenario).balises,
                                failsafe_hold_s=scenario.plant.failsafe_hold_s)
         rx_msgs = [f"BECU{i}_PRESS_CMD" for i in range(1, n + 1)]
         tx_msgs = [f"PLANT_CAR{i}_SENSORS" for i in range(1, n + 1)] + (["PLANT_BTM"] if ctrl.btm else [])
@@ -176,10 +174,10 @@ def build_foundation_node(name: str, scenario: Scenario, db: Database, codec: Co
         rx_msgs, tx_msgs = [], ["DESK_CMD", "DESK_TARGET"]
         period, offset, inputs, outputs = 100_000, DESK_OFFSET_US, ctrl.inputs, ctrl.outputs
     elif name == "BCU":
-        bcu_params = params.bcu_params(scenario)
+        run = params.run_params(scenario)
         sources, followers = [], []                # the stages the studies fit (firmware_py.bcu)
-        registry.call(scenario, "nodes", "bcu_stages", bcu_params, sources, followers)
-        ctrl = Bcu(n, bcu_params, sources, followers)
+        registry.call(scenario, "nodes", "bcu_stages", run, sources, followers)
+        ctrl = Bcu(n, run.bcu, sources, followers)
         rx_msgs = (["DESK_CMD"] + [f"BECU{i}_STATUS" for i in range(1, n + 1)]
                    + [f"BECU{i}_DIAG" for i in range(1, n + 1)])
         tx_msgs = ["BCU_DEMAND", "BCU_EMERGENCY", "BCU_STATUS"]
@@ -191,10 +189,10 @@ def build_foundation_node(name: str, scenario: Scenario, db: Database, codec: Co
         inputs, outputs = ctrl.inputs, ctrl.outputs
     elif name.startswith("BECU") and name[4:].isdigit() and 1 <= int(name[4:]) <= n:
         i = int(name[4:])
-        becu_params = params.becu_params(scenario, i)
+        run = params.run_params(scenario)
         reference, setpoint = [], []               # the stages the studies fit (firmware_py.becu)
-        registry.call_every(scenario, "nodes", "becu_stages", i, becu_params, reference, setpoint)
-        ctrl = Becu(becu_params, reference, setpoint)
+        registry.call_every(scenario, "nodes", "becu_stages", i, run, reference, setpoint)
+        ctrl = Becu(run.becu(i), reference, setpoint)
         rx_msgs, tx_msgs = becu_messages(i)
         for study in registry.active(scenario):    # the frames of the BCU functions the car takes part in
             hook = getattr(study.part("nodes"), "becu_messages", None)

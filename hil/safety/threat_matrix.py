@@ -97,6 +97,7 @@ from hil.runtime.desk import DeskScript
 from hil.runtime.node import authentic_length, e2e_config
 from hil.scenario import Scenario, parse_scenario, registry
 from hil.scenario.faults import MESSAGE_THREATS, NODE_FAULTS
+from hil.scenario.params import run_params
 
 __all__ = ["FAMILIES", "ROGUE_CLAIMS", "THREATS", "Baseline", "Cell", "CellSpec", "Frame", "ScenarioMatrix",
            "as_rows", "cells_of", "fault_for", "plan", "protected_frames", "run_baseline", "run_cell",
@@ -123,7 +124,7 @@ PROTECTION_SIGNALS = ("CHECKSUM", "COUNTER")
 
 def _stop_point_beyond(scenario: Scenario) -> float:
     targets = [e.target_stop_m for e in scenario.desk if e.target_stop_m is not None]
-    return (targets[-1] if targets else scenario.train.start_position_m) + TARGET_SHIFT_M
+    return (targets[-1] if targets else run_params(scenario).start_position_m) + TARGET_SHIFT_M
 
 
 def _phi_limit(scenario: Scenario) -> float:

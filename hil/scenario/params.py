@@ -1,16 +1,19 @@
 """Scenario -> parameters: the one place a scenario becomes the frozen parameter sets of the plant and
 the controllers.
 
-Every value comes from plant_sim's or firmware_py's defaults unless the scenario says otherwise, so a
-scenario without a key runs the foundation's train unchanged.  A study with a section in the scenario
-builds its own nodes' and stages' parameters (hil/studies/<name>/scenario.py) from the scenario and the
-parameter sets built here.
+`run_params(scenario)` builds them all once per run (`RunParams`): the plant's, the track, the BCU's and
+each BECU's, the train's start in SI units (km/h -> m/s here and nowhere else: `mps`).  Every value comes
+from plant_sim's or firmware_py's defaults unless the scenario says otherwise, so a scenario without a key
+runs the foundation's train unchanged.  A study builds its own nodes' and stages' parameters
+(hil/studies/<name>/scenario.py) from its section and the RunParams the core hands it.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import os
+import weakref
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -34,6 +37,8 @@ from plant_sim.track import Track
 
 if TYPE_CHECKING:
     from hil.scenario.model import ScenarioBase as Scenario
+
+KMH_PER_MPS = 3.6                   # km/h in one m/s
 
 
 def build_track(scenario: Scenario) -> Track:
@@ -103,12 +108,6 @@ def bcu_params(scenario: Scenario) -> BcuParams:
     return BcuParams(**kw)
 
 
-def step_decel_mps2(scenario: Scenario) -> tuple[float, ...]:
-    """The BCU's target deceleration of brake steps 0..7 [m/s²] (the scenario's table or the default)."""
-    steps = scenario.bcu.step_decel_mps2
-    return tuple(steps) if steps is not None else BcuParams().step_decel_mps2
-
-
 # slip-mode WSP: VENT -> HOLD below SLIP_WSP_HOLD of the vent threshold (the dump WSP's: 0.5): the vent stops
 # as the wheel turns back, the pressure is held; HOLD -> FILL below SLIP_WSP_REFILL, as the dump WSP: refilled
 # at 0.5, before the wheel was back, the slide never ended for the reference speed, whose spin-up rule then
@@ -117,14 +116,14 @@ SLIP_WSP_HOLD = 0.8
 SLIP_WSP_REFILL = 0.25
 
 
-def becu_params(scenario: Scenario, car: int) -> BecuParams:
-    """BecuParams of car `car` (1-based): the foundation's BECU unless [becu] says otherwise (the stages
-    the studies fit into it bring their own parameters: their nodes.py `becu_stages`)."""
+def becu_params(scenario: Scenario, car: int, pp: PlantParams) -> BecuParams:
+    """BecuParams of car `car` (1-based) on the plant `pp`: the foundation's BECU unless [becu] says
+    otherwise (the stages the studies fit into it bring their own parameters: their nodes.py
+    `becu_stages`)."""
     b = scenario.becu
     d = BecuParams()
     kw: dict = {}
     if not (b.control == "pressure" and b.wsp_vent_slip_mps is None and b.wheel_trust_slip_mps is None):
-        pp = plant_params(scenario)
         kw = {"control": Control(b.control), "car_mass_kg": pp.train.masses_kg[car - 1],
               "wsp_resume": WspResume(b.wsp_resume), "wheel_radius_m": pp.train.wheel_radius_m,
               "p_max_Pa": pp.brake.p_max_Pa}
@@ -150,6 +149,55 @@ def becu_params(scenario: Scenario, car: int) -> BecuParams:
         kw["wsp"] = dataclasses.replace(kw.get("wsp", d.wsp), mode=WspMode.SLIP, hold_fraction=SLIP_WSP_HOLD,
                                         refill_fraction=SLIP_WSP_REFILL, **ceiling)
     return BecuParams(**kw) if kw else d
+
+
+@dataclass(frozen=True)
+class RunParams:
+    """Every parameter set of one run, built once from its scenario (`run_params`) and handed down: the
+    plant's, its track, the BCU's and each BECU's, and the train's start in SI units."""
+
+    plant: PlantParams
+    track: Track
+    bcu: BcuParams
+    becus: tuple[BecuParams, ...]          # car 1 first
+    initial_speed_mps: float               # [train] initial_speed_kmh
+    start_position_m: float                # [train] start_position_m: car 1's centre at t = 0
+    balises: tuple                         # [track] balises (plant_sim.track)
+    seed: int
+
+    def becu(self, car: int) -> BecuParams:
+        """The BECU of car `car` (1-based)."""
+        return self.becus[car - 1]
+
+
+def mps(speed_kmh: float) -> float:
+    """km/h -> m/s: the one conversion of a scenario's speeds."""
+    return speed_kmh / KMH_PER_MPS
+
+
+def kmh(speed_mps: float) -> float:
+    """m/s -> km/h (a speed written back into a scenario key)."""
+    return speed_mps * KMH_PER_MPS
+
+
+_BUILT: dict[int, tuple[weakref.ref, RunParams]] = {}
+
+
+def run_params(scenario: Scenario) -> RunParams:
+    """The run's parameters, built on the first call for this scenario object and the same object after:
+    a run builds each parameter set once, however many nodes, studies and reports ask."""
+    hit = _BUILT.get(id(scenario))
+    if hit is not None and hit[0]() is scenario:
+        return hit[1]
+    pp = plant_params(scenario)
+    t = scenario.train
+    built = RunParams(plant=pp, track=build_track(scenario), bcu=bcu_params(scenario),
+                      becus=tuple(becu_params(scenario, car, pp) for car in range(1, t.cars + 1)),
+                      initial_speed_mps=mps(t.initial_speed_kmh), start_position_m=t.start_position_m,
+                      balises=tuple(scenario.track.balises), seed=scenario.seed)
+    key = id(scenario)
+    _BUILT[key] = (weakref.ref(scenario, lambda _, key=key: _BUILT.pop(key, None)), built)
+    return built
 
 
 KEY_ENV = "RAILHIL_SECOC_KEY"              # the key of every authenticated message, 32 hex digits

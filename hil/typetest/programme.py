@@ -30,6 +30,7 @@ from hil.errors import ScenarioError
 from hil.resources import programmes_dir, read_toml
 from hil.scenario.load import apply_set, load_scenario, parse_scenario
 from hil.scenario.model import ScenarioBase as Scenario
+from hil.scenario.params import mps
 from hil.typetest.metrics import MetricParams
 
 REFERENCE = "reference"           # the dry run's condition name in run lists and folders
@@ -184,7 +185,7 @@ def load_programme(path: str | Path | None = None) -> Programme:
 def _scenario(prog: Programme, strategy: str, condition: str, speed_kmh: float) -> Scenario:
     spec = prog.spec
     rail = spec.reference if condition == REFERENCE else spec.conditions[condition]
-    v0 = speed_kmh / 3.6
+    v0 = mps(speed_kmh)
     nominal_m = v0 * v0 / (2.0 * spec.nominal_decel_mps2)
     data = json.loads(json.dumps(prog.base.model_dump(mode="json")))
     where = f"{prog.path}"

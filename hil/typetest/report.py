@@ -11,6 +11,7 @@ import csv
 import json
 from pathlib import Path
 
+from hil.scenario.params import kmh
 from hil.typetest.programme import REFERENCE, Programme
 from hil.typetest.wsp import RunResult
 
@@ -160,7 +161,7 @@ def _paths_figure(results: list[RunResult], condition: str, path: Path) -> Path:
             r = by.get((condition, v, s))
             if r is None or r.status != "ok" or not r.path[0]:
                 continue
-            ax.plot(r.path[0], [u * 3.6 for u in r.path[1]], color=f"C{k}", lw=1,
+            ax.plot(r.path[0], [kmh(u) for u in r.path[1]], color=f"C{k}", lw=1,
                     ls=("-", "--", ":", "-.")[j % 4], label=f"{s} {v:g} km/h")
     ax.set_xlabel("distance from the brake command [m]")
     ax.set_ylabel("train speed [km/h]")

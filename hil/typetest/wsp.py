@@ -47,12 +47,12 @@ def available_for(scenario: Scenario) -> Callable[[float, float], float]:
     """available(x_lead, v) [m/s²]: the peak adhesion μ°(θ(x), v) × g under each car (the plant's rail and
     curve, seed 000 eq. (2)) averaged over the cars, plus the train's running resistance (Davis, eq. (4)
     seed 003) ÷ its mass; the cars at their rest pitch behind the leading one."""
-    from hil.scenario.params import build_track, plant_params
+    from hil.scenario.params import run_params
     from plant_sim.adhesion import mu_opt
     from plant_sim.dynamics import car_constants, davis_resistance_scalar
 
-    pp = plant_params(scenario)
-    track = build_track(scenario)
+    run = run_params(scenario)
+    pp, track = run.plant, run.track
     cc = car_constants(pp.train)
     n = len(cc.mass_kg)
     offsets = np.arange(n) * cc.car_pitch_m

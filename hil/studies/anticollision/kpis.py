@@ -21,7 +21,7 @@ from firmware_py.acd import Aspect, braking_distance_m
 from hil.can.codec import Codec
 from hil.report.kpis import RunView
 from hil.scenario import Scenario
-from hil.scenario.params import plant_params
+from hil.scenario.params import run_params
 from hil.studies.anticollision.scenario import AcdStudyError, acd_params, aspect_at, leader_motion, spec_of
 
 
@@ -51,7 +51,7 @@ def judge(scenario: Scenario, cols: Mapping[str, np.ndarray], req_t_s: np.ndarra
     [s] and values), recomputing U1 and the signals from the scenario."""
     spec = spec_of(scenario)
     t = np.asarray(cols["t_s"])
-    front = np.asarray(cols["x_m_1"]) + plant_params(scenario).train.car_pitch_m / 2.0
+    front = np.asarray(cols["x_m_1"]) + run_params(scenario).plant.train.car_pitch_m / 2.0
     v = np.asarray(cols["v_mps_1"])
     motion = leader_motion(spec)
     if motion is not None:

@@ -45,13 +45,14 @@ from firmware_py.acd import (
     TrainPosition,
     pair_on_sections,
 )
-from firmware_py.bcu import BcuParams, DemandSource, Follower
+from firmware_py.bcu import DemandSource, Follower
 from hil.can.codec import Codec
 from hil.links.gpsserial import GpsLinkReader, GpsLinkWriter, PtyLink, ServedPty, open_port
 from hil.links.nmea import DEFAULT_UTC0, ReceivedFix
 from hil.runtime.node import Binding, Node
 from hil.runtime.plant_node import PlantController
 from hil.scenario import Scenario
+from hil.scenario.params import RunParams
 from hil.studies.anticollision.scenario import (
     AcdSpec,
     RadioSpec,
@@ -739,7 +740,7 @@ def bcu_messages(scenario: Scenario, rx: list[str], tx: list[str]) -> None:
     rx.append("ACD_BRAKE_REQ")
 
 
-def bcu_stages(scenario: Scenario, bcu: BcuParams, sources: list[DemandSource],
+def bcu_stages(scenario: Scenario, run: RunParams, sources: list[DemandSource],
                followers: list[Follower]) -> None:
     """The BCU obeys the ACD's brake requests (seed 002 steps 10-12), up to its full service step."""
-    sources.append(AcdBrakeRequest(AcdRequestParams(full_service_mps2=bcu.step_decel_mps2[-1])))
+    sources.append(AcdBrakeRequest(AcdRequestParams(full_service_mps2=run.bcu.step_decel_mps2[-1])))

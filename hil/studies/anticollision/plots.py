@@ -10,7 +10,7 @@ import numpy as np
 from firmware_py.acd import Aspect
 from hil.report.kpis import RunView
 from hil.report.plots import pyplot
-from hil.scenario.params import plant_params
+from hil.scenario.params import kmh, run_params
 from hil.studies.anticollision.scenario import aspect_at, leader_motion, spec_of
 
 REQUESTS = {0: "none", 1: "service", 2: "emergency"}
@@ -25,7 +25,7 @@ def run_plots(run: RunView) -> list[Path]:
     plt = pyplot()
     sc, cols, t = run.scenario, run.cols, run.t
     spec = spec_of(sc)
-    front = cols["x_m_1"] + plant_params(sc).train.car_pitch_m / 2.0
+    front = cols["x_m_1"] + run_params(sc).plant.train.car_pitch_m / 2.0
     motion = leader_motion(spec)
     sig = run.signals({"req": ("ACD_BRAKE_REQ", "Request"), "decel": ("ACD_BRAKE_REQ", "RequestedDecel")})
     fig, (ax_g, ax_v) = plt.subplots(2, 1, figsize=(10, 8), sharex=True)
@@ -43,7 +43,7 @@ def run_plots(run: RunView) -> list[Path]:
             ax_g.axvspan(rt[k], end, color="tab:red" if rv[k] >= 2 else "tab:orange", alpha=0.15, lw=0)
     ax_g.axhline(0.0, color="k", lw=0.6)
     ax_g.set_ylabel("distance [m]   (shaded: ACD request)")
-    ax_v.plot(t, cols["v_mps_1"] * 3.6, lw=1.0, label="own train speed (truth)")
+    ax_v.plot(t, kmh(cols["v_mps_1"]), lw=1.0, label="own train speed (truth)")
     ax_r = ax_v.twinx()
     dt, dv = sig["decel"]
     if dt.size:

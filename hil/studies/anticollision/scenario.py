@@ -21,6 +21,7 @@ from pydantic import Field, field_validator, model_validator
 from firmware_py.acd import AcdParams, Aspect
 from hil.errors import RailhilError, ScenarioError
 from hil.scenario.base import Strict
+from hil.scenario.params import mps
 from plant_sim.geo import TrackGeometry, polyline_from_legs
 from plant_sim.gps import GpsParams
 from plant_sim.leader import LeaderMotion, SpeedChange
@@ -237,8 +238,8 @@ def leader_motion(spec: AcdSpec) -> LeaderMotion | None:
     ld = spec.leader
     if ld is None:
         return None
-    changes = [SpeedChange(c.at_s, c.speed_kmh / 3.6, c.rate_mps2) for c in ld.profile]
-    return LeaderMotion(ld.rear_m, ld.initial_speed_kmh / 3.6, changes, ld.length_m)
+    changes = [SpeedChange(c.at_s, mps(c.speed_kmh), c.rate_mps2) for c in ld.profile]
+    return LeaderMotion(ld.rear_m, mps(ld.initial_speed_kmh), changes, ld.length_m)
 
 
 def aspect_at(signal, t_s: float) -> Aspect:

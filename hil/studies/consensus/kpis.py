@@ -18,11 +18,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hil.report.kpis import RunView
+from hil.scenario.params import mps
 
 if TYPE_CHECKING:
     from hil.scenario.model import ScenarioBase as Scenario
 
-TOLS_MPS = (1.0 / 3.6, 0.1 / 3.6)   # convergence tolerances on |v_i − v*|: 1 km/h and 0.1 km/h (chosen)
+TOLS_MPS = (mps(1.0), mps(0.1))   # convergence tolerances on |v_i − v*|: 1 km/h and 0.1 km/h (chosen)
 OBS_TOL = 0.1                  # observer tolerance on |φ̂ − φ/m| [m/s²] (chosen)
 THETA_M = 0.01                 # θ2 = −θ1 = 1 cm, Table 2
 
@@ -44,7 +45,7 @@ def settle_time(t: np.ndarray, ok: np.ndarray, start: float, end: float) -> floa
 def v_star(scenario: Scenario, t: np.ndarray) -> np.ndarray:
     """The virtual leader's speed v*(t) [m/s] (eq. (9) seed 003: constant deceleration a* from v*(t0))."""
     c = scenario.consensus
-    return np.maximum(0.0, c.v_ref_kmh / 3.6 - c.decel_kmh_s / 3.6 * t)
+    return np.maximum(0.0, mps(c.v_ref_kmh) - mps(c.decel_kmh_s) * t)
 
 
 def consensus_figures(sc: Scenario, cols: dict[str, np.ndarray], max_dl: float, diag_t: np.ndarray,

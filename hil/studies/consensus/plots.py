@@ -10,6 +10,7 @@ import numpy as np
 
 from hil.report.kpis import RunView
 from hil.report.plots import pyplot
+from hil.scenario.params import kmh
 from hil.studies.consensus.kpis import v_star
 
 if TYPE_CHECKING:
@@ -56,9 +57,9 @@ def plot_case(s: dict, title: str, path: Path) -> Path:
     fig, ax = plt.subplots(2, 2, figsize=(12, 8))
     t = s["t"]
     for k in range(s["v"].shape[1]):
-        ax[0, 0].plot(t, s["v"][:, k] * 3.6, lw=0.9, label=f"car {k + 1}")
-        ax[1, 0].plot(t, s["ve"][:, k] * 3.6, lw=0.9, label=f"car {k + 1}")
-    ax[0, 0].plot(t, s["v_star"] * 3.6, "k--", lw=0.9, label="v*(t)")
+        ax[0, 0].plot(t, kmh(s["v"][:, k]), lw=0.9, label=f"car {k + 1}")
+        ax[1, 0].plot(t, kmh(s["ve"][:, k]), lw=0.9, label=f"car {k + 1}")
+    ax[0, 0].plot(t, kmh(s["v_star"]), "k--", lw=0.9, label="v*(t)")
     for k in range(s["dl"].shape[1]):
         ax[0, 1].plot(t, s["dl"][:, k] * 100, lw=0.9, label=f"coupler {k + 1}-{k + 2}")
     for y in (-1, 1):

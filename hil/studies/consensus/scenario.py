@@ -18,7 +18,7 @@ from pydantic import Field, model_validator
 from firmware_py.consensus import KMH, ConsensusBecuParams, ConsensusGains, ObserverParams
 from hil.errors import ScenarioError
 from hil.scenario.base import Strict
-from hil.scenario.params import build_track
+from hil.scenario.params import run_params
 from plant_sim.consensus import ConsensusPlantParams, Disturbance, RailEvent
 from plant_sim.params import TrainParams
 
@@ -131,7 +131,7 @@ def consensus_plant_params(scenario: Scenario) -> ConsensusPlantParams:
                            tuple(2 * math.pi * k / n for k in range(n)))
     # Table 2 order: x_i(t0) ascending with i; car 1 leads here, so car i takes the i-th from the end
     x0 = tuple(reversed(c.positions_m))
-    track = build_track(scenario)
+    track = run_params(scenario).track
     x_mid = float(np.mean(x0))
     return ConsensusPlantParams(
         train=tp, brake_gain=(c.brake_gain,) * n, sin_grade=float(track.sin_grade_at(np.array([x_mid]))[0]),

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hil.report.kpis import RunView, per_car, rounded
+from hil.scenario.params import run_params
 from plant_sim.params import PadParams
 
 if TYPE_CHECKING:
@@ -59,7 +60,7 @@ def feedback_ratio(scenario: Scenario, cols: dict[str, np.ndarray],
     the target) and above MIN_TARGET_MPS2, and the train is faster than MIN_SPEED_MPS."""
     n = scenario.train.cars
     t = cols["t_s"]
-    masses = np.asarray(scenario.train.masses())
+    masses = np.asarray(run_params(scenario).plant.train.masses_kg)
     decel = lag(t, -(per_car(cols, "a_mps2", n) @ masses) / masses.sum(), RATIO_TAU_S)
     tt, tv = target
     r0 = np.interp(t, tt, tv, left=0.0) if tt.size else np.zeros_like(t)

@@ -12,9 +12,10 @@ deceleration PI of decel control does not use.
 
 from __future__ import annotations
 
-from firmware_py.bcu import BcuParams, DemandSource, Follower
-from firmware_py.becu import BecuParams, Control, ReferenceStage, SetpointStage
+from firmware_py.bcu import DemandSource, Follower
+from firmware_py.becu import Control, ReferenceStage, SetpointStage
 from firmware_py.decel_feedback import PhiCorrection, PhiParams, TrainFeedback
+from hil.scenario.params import RunParams, run_params
 from hil.studies.decel_feedback.scenario import feedback_params
 
 
@@ -36,19 +37,20 @@ def bcu_messages(scenario, rx: list[str], tx: list[str]) -> None:
     tx.append("BCU_BRAKE_CORR")
 
 
-def bcu_stages(scenario, bcu: BcuParams, sources: list[DemandSource], followers: list[Follower]) -> None:
+def bcu_stages(scenario, run: RunParams, sources: list[DemandSource], followers: list[Follower]) -> None:
     """The function follows the BCU's demand."""
-    followers.append(TrainFeedback(feedback_params(scenario), scenario.train.cars))
+    followers.append(TrainFeedback(feedback_params(scenario, run), scenario.train.cars))
 
 
 def becu_messages(scenario, rx: list[str], tx: list[str]) -> None:
     """Each BECU in pressure control receives the correction φ (BCU_BRAKE_CORR)."""
-    if scenario.becu.control == Control.PRESSURE:
+    if run_params(scenario).becu(1).control == Control.PRESSURE:
         rx.append("BCU_BRAKE_CORR")
 
 
-def becu_stages(scenario, car: int, becu: BecuParams, reference: list[ReferenceStage],
+def becu_stages(scenario, car: int, run: RunParams, reference: list[ReferenceStage],
                 setpoint: list[SetpointStage]) -> None:
     """φ on the set-point of a BECU in pressure control (a run with [decel_feedback] only)."""
+    becu = run.becu(car)
     if scenario.decel_feedback is not None and becu.control == Control.PRESSURE:
         setpoint.append(PhiCorrection(PhiParams(), becu.brake_preload_Pa, becu.p_max_Pa))

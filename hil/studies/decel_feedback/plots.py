@@ -9,6 +9,7 @@ import numpy as np
 
 from hil.report.kpis import RunView, per_car
 from hil.report.plots import pyplot
+from hil.scenario.params import run_params
 from hil.studies.decel_feedback.kpis import (
     BAND,
     FEEDBACK_SIGNALS,
@@ -32,7 +33,7 @@ def run_plots(run: RunView) -> list[Path]:
     t = cols["t_s"]
     sig = run.signals(FEEDBACK_SIGNALS)
     target = sig["target"]
-    masses = np.asarray(scenario.train.masses())
+    masses = np.asarray(run_params(scenario).plant.train.masses_kg)
     decel = lag(t, -(per_car(cols, "a_mps2", n) @ masses) / masses.sum(), RATIO_TAU_S)
     fig, axes = plt.subplots(3, 1, figsize=(10, 10), sharex=True)
     ax_d, ax_p, ax_f = axes
@@ -86,7 +87,7 @@ def compare_runs(open_dir: Path, closed_dir: Path, out: Path) -> Path:
         scenario, cols = view.scenario, view.cols
         t = cols["t_s"]
         n = scenario.train.cars
-        masses = np.asarray(scenario.train.masses())
+        masses = np.asarray(run_params(scenario).plant.train.masses_kg)
         decel = lag(t, -(per_car(cols, "a_mps2", n) @ masses) / masses.sum(), RATIO_TAU_S)
         sig = view.signals(FEEDBACK_SIGNALS)
         ax_p.plot(t, cols["p_Pa_1"] / 1e3, color=color, lw=1.0, label=f"{label}, car 1")

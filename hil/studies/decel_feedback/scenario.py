@@ -20,7 +20,7 @@ from pydantic import Field
 
 from firmware_py.decel_feedback import FeedbackParams, FrictionSet
 from hil.scenario.base import Strict
-from hil.scenario.params import pad_params, plant_params, step_decel_mps2
+from hil.scenario.params import RunParams
 from plant_sim.padbench import BenchParams, coefficient_set
 from plant_sim.params import PadParams
 
@@ -62,19 +62,19 @@ def _bench_set(pad: PadParams, bench: BenchParams, method: str) -> FrictionSet:
     return FrictionSet(cs.speeds_kmh, cs.dt_s, cs.values)
 
 
-def friction_set(scenario: Scenario) -> FrictionSet | None:
+def friction_set(scenario: Scenario, run: RunParams) -> FrictionSet | None:
     """The BCU's friction-coefficient set (seed 004 §4.2, §6.3): the plant's pad model on the brake-disc
     bench at the tested speed classes, braked at the full service step, filled to 10 km/h × 100 ms."""
-    pad = pad_params(scenario)
+    pad = run.plant.pad
     if scenario.decel_feedback.friction_set == "none" or pad is None:
         return None
-    tp = plant_params(scenario).train
-    bench = BenchParams(decel_mps2=step_decel_mps2(scenario)[7], wheel_radius_m=tp.wheel_radius_m,
+    tp = run.plant.train
+    bench = BenchParams(decel_mps2=run.bcu.step_decel_mps2[7], wheel_radius_m=tp.wheel_radius_m,
                         car_mass_kg=sum(tp.masses_kg) / len(tp.masses_kg))
     return _bench_set(pad, bench, scenario.decel_feedback.friction_set_fill)
 
 
-def feedback_params(scenario: Scenario) -> FeedbackParams:
+def feedback_params(scenario: Scenario, run: RunParams) -> FeedbackParams:
     """The deceleration feedback of the BCU (nodes.py fits it)."""
     df = scenario.decel_feedback
-    return FeedbackParams(enabled=df.closed_loop, tq_s=df.tq_s, friction_set=friction_set(scenario))
+    return FeedbackParams(enabled=df.closed_loop, tq_s=df.tq_s, friction_set=friction_set(scenario, run))

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hil.report.kpis import RunView, per_car, rounded, train_decel
+from hil.scenario.params import run_params
 
 if TYPE_CHECKING:
     from hil.scenario.model import ScenarioBase as Scenario
@@ -118,7 +119,7 @@ def stop_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple[np.
     t = cols["t_s"]
     n = scenario.train.cars
     target_m = [e.target_stop_m for e in scenario.desk if e.target_stop_m is not None][-1]
-    masses = np.asarray(scenario.train.masses())
+    masses = np.asarray(run_params(scenario).plant.train.masses_kg)
     decel = -(per_car(cols, "a_mps2", n) @ masses) / masses.sum()
     tt, tv = target
     on = np.flatnonzero(tv > 0.0) if tt.size else np.zeros(0, dtype=int)

@@ -8,8 +8,9 @@ the train is against its target and curve (BCU_STOP, frames.py).
 
 from __future__ import annotations
 
-from firmware_py.bcu import BcuParams, DemandSource, Follower
+from firmware_py.bcu import DemandSource, Follower
 from firmware_py.stopping import StoppingDemand
+from hil.scenario.params import RunParams, run_params
 from hil.studies.precise_stop.scenario import stopping_params
 
 
@@ -26,12 +27,12 @@ def build_node(name, scenario, db, codec, dbc_name="DBC"):
 def bcu_messages(scenario, rx: list[str], tx: list[str]) -> None:
     if scenario.precise_stop.method == "plc":      # a PLC in the DESK's place: no function in the BCU
         return
-    rx += ["DESK_TARGET"] + (["PLANT_BTM"] if scenario.track.balises else [])
+    rx += ["DESK_TARGET"] + (["PLANT_BTM"] if run_params(scenario).balises else [])
     tx.append("BCU_STOP")
 
 
-def bcu_stages(scenario, bcu: BcuParams, sources: list[DemandSource], followers: list[Follower]) -> None:
+def bcu_stages(scenario, run: RunParams, sources: list[DemandSource], followers: list[Follower]) -> None:
     """The stopping function as a demand source of the BCU (none with a PLC in the DESK's place)."""
-    params = stopping_params(scenario)
+    params = stopping_params(scenario, run)
     if params is not None:
         sources.append(StoppingDemand(params, scenario.train.cars))

@@ -8,6 +8,7 @@ import numpy as np
 
 from hil.report.kpis import RunView
 from hil.report.plots import pyplot
+from hil.scenario.params import kmh, run_params
 
 STOP_SIGNALS = {"to_go": ("BCU_STOP", "DistanceToGo"), "ref": ("BCU_STOP", "RefSpeed"),
                 "cmd": ("BCU_STOP", "StopCommand"), "target": ("BCU_DEMAND", "TargetDecel")}
@@ -27,12 +28,12 @@ def run_plots(run: RunView) -> list[Path]:
     to_go = target_m - cols["x_m_1"]
     sig = run.signals(STOP_SIGNALS)
     fig, (ax_v, ax_a) = plt.subplots(2, 1, figsize=(10, 8))
-    ax_v.plot(to_go, cols["v_mps_1"] * 3.6, lw=1.0, label="train (plant truth)")
+    ax_v.plot(to_go, kmh(cols["v_mps_1"]), lw=1.0, label="train (plant truth)")
     if sig["ref"][0].size:                   # RefSpeed is 0 while the BCU is not following the curve
         following = sig["ref"][1] > 0
-        ax_v.plot(sig["to_go"][1], np.where(following, sig["ref"][1] * 3.6, np.nan), lw=0.8, ls="--",
+        ax_v.plot(sig["to_go"][1], np.where(following, kmh(sig["ref"][1]), np.nan), lw=0.8, ls="--",
                   color="k", label="braking curve (BCU_STOP, at the BCU's odometer)")
-    for b in sc.track.balises:
+    for b in run_params(sc).balises:
         ax_v.axvline(target_m - b, color="tab:green", lw=0.6, ls=":")
     ax_v.set_xlim(max(float(np.max(to_go)), 1.0), min(float(np.min(to_go)), 0.0) - 1.0)
     ax_v.set_xlabel("distance to the target point [m]   (dotted: balises)")

@@ -21,7 +21,7 @@ from pydantic import Field
 from firmware_py.stopping import StoppingParams
 from hil.errors import ScenarioError
 from hil.scenario.base import Strict
-from hil.scenario.params import step_decel_mps2
+from hil.scenario.params import RunParams, bcu_params
 
 if TYPE_CHECKING:
     from hil.scenario.model import ScenarioBase as Scenario
@@ -48,7 +48,7 @@ def check(scenario: Scenario) -> None:
     if not any(e.target_stop_m is not None for e in scenario.desk):
         raise ValueError(f"precise_stop (method '{ps.method}') needs a [[desk]] event with target_stop_m "
                          f"(the target stop point, track position [m])")
-    full = step_decel_mps2(scenario)[7]
+    full = bcu_params(scenario).step_decel_mps2[7]
     if ps.planned_decel_mps2 > full:
         raise ValueError(f"precise_stop.planned_decel_mps2 {ps.planned_decel_mps2} is above the full service "
                          f"deceleration {full} m/s² (bcu.step_decel_mps2 step 7)")
@@ -68,11 +68,12 @@ LEGACY_KEYS = {
 }
 
 
-def stopping_params(scenario: Scenario) -> StoppingParams | None:
-    """The stopping function of the BCU (nodes.py fits it): the odometer's reference point is the train's
-    front passing the start position at t = 0.  None with method = "plc": the stopping program runs on a
-    PLC in the DESK's place, and the BCU obeys its brake valve."""
-    full = step_decel_mps2(scenario)[7]
+def stopping_params(scenario: Scenario, run: RunParams) -> StoppingParams | None:
+    """The stopping function of the BCU (nodes.py fits it), braking at most at the BCU's full service step:
+    the odometer's reference point is the train's front passing the start position at t = 0.  None with
+    method = "plc": the stopping program runs on a PLC in the DESK's place, and the BCU obeys its brake
+    valve."""
+    full = run.bcu.step_decel_mps2[7]
     ps = scenario.precise_stop
     if ps.method == PLC:
         if "DESK" not in scenario.devices:
@@ -82,5 +83,5 @@ def stopping_params(scenario: Scenario) -> StoppingParams | None:
         return None
     return StoppingParams(
         method=ps.method, planned_decel_mps2=ps.planned_decel_mps2, max_decel_mps2=full, hold_decel_mps2=full,
-        start_position_m=scenario.train.start_position_m, start_time_us=0,
-        pi=dataclasses.replace(StoppingParams().pi, out_max=full), balises=bool(scenario.track.balises))
+        start_position_m=run.start_position_m, start_time_us=0,
+        pi=dataclasses.replace(StoppingParams().pi, out_max=full), balises=bool(run.balises))

@@ -24,7 +24,7 @@ from hil.errors import ScenarioError
 from hil.runtime.node import Binding, Node
 from hil.runtime.plant_node import FAILSAFE_HOLD_S, TRUTH_PERIOD_US, PlantController
 from hil.scenario import Scenario
-from hil.scenario.params import plant_params
+from hil.scenario.params import run_params
 from hil.studies.preview_slip.scenario import (
     estimator_params,
     full_spacing,
@@ -142,8 +142,9 @@ def build_full_node(name: str, scenario: Scenario, db: Database, codec: Codec, d
     n = len(spacing)
     if name == "PLANT":
         try:
-            plant = Plant(plant_params(scenario), preview_track(scenario),
-                          v0_mps=scenario.train.initial_speed_kmh / 3.6, x0_m=scenario.train.start_position_m,
+            run = run_params(scenario)
+            plant = Plant(run.plant, preview_track(scenario),
+                          v0_mps=run.initial_speed_mps, x0_m=run.start_position_m,
                           seed=scenario.seed)
         except PlantConfigError as exc:
             raise ScenarioError(f"full mode plant: {exc}") from None
@@ -189,7 +190,7 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
     n = p.n
     if name == "PLANT":
         ctrl = ReducedTrainPlantController(Rail(preview_track(scenario)), p,
-                                      scenario.train.initial_speed_kmh / 3.6, pv.plant_step_ms * 1000)
+                                      run_params(scenario).initial_speed_mps, pv.plant_step_ms * 1000)
         rx_msgs = [f"BECU{i}_SLIP_REF" for i in range(1, n + 1)]
         tx_msgs = ["PLANT_TRAIN"] + [f"PLANT_CAR{i}_ADH" for i in range(1, n + 1)]
         binding = Binding.build(db, name, ctrl.inputs, ctrl.outputs, rx_msgs, tx_msgs, dbc_name)

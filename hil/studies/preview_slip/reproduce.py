@@ -30,6 +30,7 @@ from firmware_py.preview import RefParams, delta_star, reference
 from hil.campaign.jobs import map_jobs
 from hil.errors import RailhilError
 from hil.resources import scenarios_dir
+from hil.scenario.params import kmh, run_params
 from hil.studies.preview_slip.kpis import achieved_alpha, tracking_norm
 from hil.studies.preview_slip.plots import plot_figures
 from hil.studies.preview_slip.scenario import DEFAULT_PROFILE
@@ -69,7 +70,7 @@ class Case:
 def case_sets(c: Case) -> list[str]:
     """`railhil run --set` texts that turn the base scenario into this case."""
     return [f"preview.method={c.method}", f"preview.alpha_per_s={c.alpha}", f"preview.beta={c.beta}",
-            f"train.initial_speed_kmh={c.v0 * 3.6!r}", f"train.cars={len(c.spacing_m) + 1}",
+            f"train.initial_speed_kmh={kmh(c.v0)!r}", f"train.cars={len(c.spacing_m) + 1}",
             f"preview.spacing_m={list(c.spacing_m)!r}", f"preview.sigma_source={c.source}",
             f"preview.rail_profile={json.dumps(c.profile)}"]
 
@@ -150,7 +151,7 @@ def reproduce_full(jobs: int, sets: tuple[str, ...] = (), progress: bool = True)
     full = {r["method"]: r for r in runs}
     alphas = [a for r in runs for a in r["achieved_alpha"] if math.isfinite(a)]
     alpha = round(float(np.mean(alphas)), 2) if alphas else scenario.preview.alpha_per_s
-    v0, spacing = scenario.train.initial_speed_kmh / 3.6, tuple(scenario.preview.spacing_m)
+    v0, spacing = run_params(scenario).initial_speed_mps, tuple(scenario.preview.spacing_m)
     profile = scenario.preview.rail_profile or DEFAULT_PROFILE
     paper = {m: run_case(Case(m, alpha, v0, spacing, profile=profile))["S_m"]
              for m in ("ideal", *FULL_METHODS)}

@@ -27,7 +27,7 @@ from firmware_py.slipctl import SlipCtlParams
 from hil.errors import ScenarioError
 from hil.resources import profiles_dir, scenarios_dir
 from hil.scenario.base import Strict
-from hil.scenario.params import build_track, plant_params
+from hil.scenario.params import run_params
 from plant_sim.errors import PlantConfigError
 from plant_sim.params import RAIL_CONDITIONS, AdhesionParams
 from plant_sim.reduced_train import ReducedTrainParams
@@ -159,7 +159,7 @@ def preview_track(scenario: Scenario) -> Track:
     ref = scenario.preview.rail_profile
     if ref is None:
         try:
-            return build_track(scenario)
+            return run_params(scenario).track
         except PlantConfigError as exc:
             raise ScenarioError(f"[track]: {exc}") from None
     return load_theta_table(profile_path(ref))
@@ -185,13 +185,13 @@ def estimator_params(ad: AdhesionParams) -> EstimatorParams:
 
 def full_spacing(scenario: Scenario) -> tuple[float, ...]:
     """Δ_i of full mode: the plant's car pitch; `preview.spacing_m` must say the same."""
-    pitch = plant_params(scenario).train.car_pitch_m
+    pitch = run_params(scenario).plant.train.car_pitch_m
     d = tuple(pitch * k for k in range(scenario.train.cars))
     if tuple(scenario.preview.spacing_m) != d[1:]:
         raise ScenarioError(f"preview.spacing_m = {scenario.preview.spacing_m}: in full mode the cars are "
                             f"the "
                             f"plant's, {pitch} m apart; expected {list(d[1:])}")
-    if scenario.plant.pressure_model != "lag":
+    if run_params(scenario).plant.brake.pressure_model != "lag":
         raise ScenarioError("preview.mode = 'full' needs plant.pressure_model = 'lag' (the slip controller "
                             "sets the cylinder pressure)")
     return d
@@ -199,7 +199,7 @@ def full_spacing(scenario: Scenario) -> tuple[float, ...]:
 
 def slipctl_params(scenario: Scenario, car: int) -> SlipCtlParams:
     """The slip controller of car `car` (1-based), commissioned with the plant's car and brake."""
-    pp = plant_params(scenario)
+    pp = run_params(scenario).plant
     b = pp.brake
     pv = scenario.preview
     return SlipCtlParams(alpha_c_per_s=pv.slip_alpha_c_per_s, ki_per_s2=pv.slip_ki_per_s2,

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hil.report.kpis import MOVING_MPS, RunView, per_car, rounded
+from hil.scenario.params import run_params
 from plant_sim.adhesion import mu_slip_speed_scalar
 from plant_sim.params import G_MPS2
 
@@ -59,14 +60,14 @@ def governor_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple
     t = cols["t_s"]
     v = per_car(cols, "v_mps", n)
     a = per_car(cols, "a_mps2", n)
-    masses = np.asarray(scenario.train.masses())
+    masses = np.asarray(run_params(scenario).plant.train.masses_kg)
     decel = -(a @ masses) / masses.sum()
     tt, tv = target
     r0 = np.interp(t, tt, tv, left=0.0) if tt.size else np.zeros_like(t)
     window = (t >= t_brake) & (np.arange(len(t)) <= i_stop) & np.any(v > MOVING_MPS, axis=1)
     idx = np.flatnonzero(window)
     ws = scenario.wheel_slip
-    scheduled = scenario.plant.adhesion == "track"
+    scheduled = run_params(scenario).plant.adhesion.slip_speed_peak is None   # seed 000's rail curves
     s_bar = None if scheduled else ws.slip_max_mps
     out: dict = {"governor": ws.governor, "slip_limit_mps": s_bar, "paper_figure": ws.paper_figure}
     wsp = per_car(cols, "wsp_valve", n)
@@ -98,8 +99,9 @@ def governor_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple
     out["steady_state_decel_g"] = rounded(d_ss / G_MPS2)
     out["steady_state_error_g"] = rounded((r0_ss - d_ss) / G_MPS2)
     bound = None
-    if scenario.plant.adhesion == "slip_speed":
-        mu_bar = mu_slip_speed_scalar(s_bar, scenario.plant.mu_peak, scenario.plant.slip_peak_mps)
+    peak = run_params(scenario).plant.adhesion.slip_speed_peak
+    if peak is not None:                                   # seed 001's slip-speed curve
+        mu_bar = mu_slip_speed_scalar(s_bar, *peak)
         bound = max(r0_ss / G_MPS2 - mu_bar, 0.0)
         out["mu_at_slip_limit"] = rounded(mu_bar, 5)
     out["steady_state_bound_g"] = rounded(bound)
@@ -127,10 +129,9 @@ def governor_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple
 
 def scheduled_limit(scenario: Scenario, v: np.ndarray) -> np.ndarray:
     """s̄(v) [m/s] of the governor on seed 000's rail curves, per sample and car."""
-    from hil.scenario.params import plant_params
     from hil.studies.wheel_slip.scenario import design_slip_mps
 
-    ws, ap = scenario.wheel_slip, plant_params(scenario).adhesion
+    ws, ap = scenario.wheel_slip, run_params(scenario).plant.adhesion
     return design_slip_mps(ws.design_condition, ws.slip_fraction, np.asarray(v, dtype=float), ap)
 
 

@@ -10,8 +10,9 @@ stage that says so (firmware_py.governor.Ungoverned: the demand passes, Governed
 
 from __future__ import annotations
 
-from firmware_py.becu import BecuParams, ReferenceStage, SetpointStage
+from firmware_py.becu import ReferenceStage, SetpointStage
 from firmware_py.governor import ReferenceGovernor, Ungoverned
+from hil.scenario.params import RunParams
 from hil.studies.wheel_slip.scenario import reference_governor_params
 
 
@@ -25,10 +26,10 @@ def build_node(name, scenario, db, codec, dbc_name="DBC"):
     return None
 
 
-def becu_stages(scenario, car: int, becu: BecuParams, reference: list[ReferenceStage],
+def becu_stages(scenario, car: int, run: RunParams, reference: list[ReferenceStage],
                 setpoint: list[SetpointStage]) -> None:
     """Car `car`'s BECU gets the governor when the scenario has [wheel_slip] governor = true, else the
     stage that fills the governor's signals as the DBC defines them for a BECU without one.  Called for
     every scenario (hil.runtime.assembly: the signals are in every BECU's frames)."""
-    params = reference_governor_params(scenario, car, becu) if scenario.wheel_slip is not None else None
+    params = reference_governor_params(scenario, car, run) if scenario.wheel_slip is not None else None
     reference.append(Ungoverned() if params is None else ReferenceGovernor(params))

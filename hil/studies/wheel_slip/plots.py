@@ -8,6 +8,7 @@ import numpy as np
 
 from hil.report.kpis import RunView, per_car
 from hil.report.plots import pyplot, wsp_intervals
+from hil.scenario.params import run_params
 from hil.studies.wheel_slip.kpis import scheduled_limit
 from plant_sim.params import G_MPS2
 
@@ -40,7 +41,7 @@ def run_plots(run: RunView) -> list[Path]:
     if ws.governor and "r" in sig and sig["r"][0].size:
         ax_d.step(sig["r"][0], sig["r"][1] / G_MPS2, where="post", color="tab:red", lw=1.0,
                   label="r (governed, car 1)")
-    if scenario.plant.adhesion == "track":       # s̄ moves with the speed on seed 000's rail curves
+    if run_params(scenario).plant.adhesion.slip_speed_peak is None:   # s̄ moves with v on seed 000's rails
         ax_s.plot(t, scheduled_limit(scenario, cols["v_mps_1"]), color="tab:red", ls=":", lw=1.0,
                   label=f"s̄(v) ({ws.design_condition}, car 1's speed)")
     else:

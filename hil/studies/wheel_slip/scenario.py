@@ -31,7 +31,7 @@ from firmware_py.becu import BecuParams
 from firmware_py.governor import GovernorParams, GovernorSchedule, ReferenceGovernorParams, governor_params
 from firmware_py.pi import PIParams
 from hil.scenario.base import Strict
-from hil.scenario.params import plant_params
+from hil.scenario.params import RunParams
 from plant_sim.adhesion import V_EPS_MPS, mu_slip_speed_scalar, mu_slip_speed_slope_scalar, mu_theta_scalar
 from plant_sim.dynamics import car_constants
 from plant_sim.params import RAIL_CONDITIONS, RAIL_PEAKS, AdhesionParams, PlantParams
@@ -132,16 +132,16 @@ def _cone(condition: str, fraction: float, v_mps: float, ap: AdhesionParams) -> 
     return mu_at, slope
 
 
-def becu_governor_schedule(scenario: Scenario, pp: PlantParams, car: int, pi: PIParams) -> GovernorSchedule:
+def becu_governor_schedule(scenario: Scenario, run: RunParams, car: int, pi: PIParams) -> GovernorSchedule:
     """The governor's model of car `car` on seed 000's rail curves, one per speed band of
     wheel_slip.band_mps up to the initial speed (+ SCHEDULE_MARGIN_MPS): F̄ = μ(s̄) N at the band's edge where
     it is smaller (k1(v) lowers the curve as v rises), the slope bounds [smallest f' over [0, s̄] at either
     edge, ∞]."""
-    ws = scenario.wheel_slip
+    ws, pp = scenario.wheel_slip, run.plant
     ap = pp.adhesion
     normal = pp.train.masses_kg[car - 1] * pp.train.g_mps2             # N = M g, eq. (1a) seed 001
     common = _brake_and_cycle(pp, pi, ws.margin)
-    top = scenario.train.initial_speed_kmh / 3.6 + SCHEDULE_MARGIN_MPS
+    top = run.initial_speed_mps + SCHEDULE_MARGIN_MPS
     edges = [i * ws.band_mps for i in range(int(math.ceil(top / ws.band_mps)) + 1)]
     cones = [_cone(ws.design_condition, ws.slip_fraction, v, ap) for v in edges]
     params = []
@@ -152,11 +152,11 @@ def becu_governor_schedule(scenario: Scenario, pp: PlantParams, car: int, pi: PI
     return GovernorSchedule(tuple(edges[:-1]), tuple(params))
 
 
-def becu_governor_params(scenario: Scenario, pp: PlantParams, car: int, pi: PIParams) -> GovernorParams:
+def becu_governor_params(scenario: Scenario, run: RunParams, car: int, pi: PIParams) -> GovernorParams:
     """The governor's model of car `car` (1-based) from the scenario's plant: F̄ = μ(s̄) N and the friction
     slope bounds f' ∈ [μ'(s̄) N, μ'(0) N] of seed 001's concave μ(s) below its peak (the cone of Fig. 5),
     cylinder Tp, brake lines (eq. 6), the BECU's PI (eq. 16) and cycle."""
-    ws = scenario.wheel_slip
+    ws, pp = scenario.wheel_slip, run.plant
     mass = pp.train.masses_kg[car - 1]
     normal = mass * pp.train.g_mps2                                    # N = M g, eq. (1a) seed 001
     mu_pk, s_pk = pp.adhesion.slip_speed_peak
@@ -168,16 +168,17 @@ def becu_governor_params(scenario: Scenario, pp: PlantParams, car: int, pi: PIPa
 
 
 def reference_governor_params(scenario: Scenario, car: int,
-                              becu: BecuParams) -> ReferenceGovernorParams | None:
+                              run: RunParams) -> ReferenceGovernorParams | None:
     """The governor of car `car`'s BECU, built on that BECU's deceleration PI (eq. 16), with the car's Davis
     coefficients, as the plant's, when the train has running resistance; None when [wheel_slip] governor
     is false (the paper's comparison)."""
     if not scenario.wheel_slip.governor:
         return None
-    pp = plant_params(scenario)
-    build = becu_governor_params if scenario.plant.adhesion == "slip_speed" else becu_governor_schedule
+    pp = run.plant
+    build = becu_governor_params if pp.adhesion.slip_speed_peak is not None else becu_governor_schedule
     resistance = None
-    if scenario.train.running_resistance:
+    if pp.train.davis_c0_N or pp.train.davis_c1_Ns_per_m or pp.train.davis_c2_Ns2_per_m2:
         cc = car_constants(pp.train)
         resistance = (cc.c0_N, cc.c1_Ns_per_m, cc.c2_Ns2_per_m2[car - 1])
-    return ReferenceGovernorParams(build(scenario, pp, car, becu.decel_pi), running_resistance=resistance)
+    return ReferenceGovernorParams(build(scenario, run, car, run.becu(car).decel_pi),
+                                   running_resistance=resistance)
