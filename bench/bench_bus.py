@@ -34,6 +34,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 import hil.runtime.realtime as realtime  # noqa: E402
+from hil.progress import progress_bar  # noqa: E402
 from hil.runtime.rtos import NODE_PRIORITY, make_realtime  # noqa: E402
 
 N_FRAMES = int(os.environ.get("BENCH_FRAMES", "1000000"))
@@ -129,11 +130,7 @@ def measure(n: int = N_FRAMES, progress: bool = True) -> dict:
             kind, _s = out.get(timeout=realtime.READY_TIMEOUT_S)
         t0 = t0_value.value = time.monotonic_ns() + int(START_MARGIN_S * 1e9)
         senders_go.set()
-        bar = None
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=n, unit="frame", file=sys.stderr, desc="bus at 100 % of 1 Mbit/s", leave=False)
+        bar = progress_bar(n, enabled=progress, unit="frame", desc="bus at 100 % of 1 Mbit/s", leave=False)
         reports = []
         while len(reports) < SENDERS:
             try:
@@ -141,11 +138,9 @@ def measure(n: int = N_FRAMES, progress: bool = True) -> dict:
             except queue.Empty:
                 if all(p.exitcode is not None for p in senders) and out.empty():
                     break
-            if bar is not None:
-                bar.n = counter.value
-                bar.refresh()
-        if bar is not None:
-            bar.close()
+            bar.n = counter.value
+            bar.refresh()
+        bar.close()
         for p in senders:
             p.join(10)
         stop.set()

@@ -230,7 +230,7 @@ class DeskController(Controller):
     def __init__(self) -> None:
         super().__init__()
         self.step_no = 0
-        self.builders = {"DESK_CMD": lambda: {"BrakeStep": self.step_no, "EmergencyReq": 0},
+        self.builders = {"DESK_CMD": lambda: {"BrakeStep": self.step_no, "EmergencyReq": 0, "BrakeValve": 0},
                          "DESK_TARGET": lambda: {"TargetStopValid": 0, "TargetStopPos": 0.0}}
 
     def step(self, t_us: int) -> None:

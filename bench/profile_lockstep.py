@@ -5,7 +5,7 @@ under cProfile or line_profiler) records RUNS traced runs of scenarios/default.t
 counted (compiled code loaded, caches warm).  Each sample is counted for the innermost component on its
 stack (the controllers, node dispatch, the event loop, the bit-timed bus, ...), a sample inside
 `prepare_lockstep` for the set-up; the table gives each component's share of the samples in the runs.
-The tables of docs/performance.md ("The simulation core") were made this way.
+docs/performance.md ("Profiling") shows its table.
 
     make profile                                    # installs py-spy (the `profile` extra), then runs this
     python bench/profile_lockstep.py [--runs 8] [--rate 400] [--raw FILE]

@@ -4,7 +4,7 @@
 - Inside hil, the wings form layers and every import points to the same layer or a lower one:
 
       cli, pytest plugin  →  studies  →  runtime / devices / fmi / safety / report / campaign / typetest
-                          →  can / trace / scenario / links  →  errors, resources
+                          →  can / trace / scenario / links  →  errors, resources, progress
 
 - No import circles between modules.
 
@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: hil's layers, lowest first: a module belongs to the first prefix it starts with
 LAYERS: list[tuple[str, ...]] = [
-    ("hil.errors", "hil.resources"),
+    ("hil.errors", "hil.resources", "hil.progress"),
     ("hil.can", "hil.trace", "hil.scenario", "hil.links"),
     ("hil.runtime", "hil.devices", "hil.fmi", "hil.safety", "hil.report", "hil.campaign", "hil.typetest"),
     ("hil.studies",),

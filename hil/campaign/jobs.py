@@ -10,13 +10,13 @@ local processes or a Dask cluster): the threat matrix's cells go that way.
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import TypeVar
 
 from hil.errors import RailhilError
+from hil.progress import progress_bar
 
 J = TypeVar("J")
 R = TypeVar("R")
@@ -25,11 +25,10 @@ R = TypeVar("R")
 def map_jobs(fn: Callable[[J], R], jobs: Iterable[J], workers: int, desc: str,
              progress: bool = True) -> list[R]:
     """`fn(job)` for every job, results in job order: in this process when `workers` <= 1, else on that
-    many worker processes (one job at a time each: runs differ much in length); a tqdm bar on stderr."""
-    from tqdm import tqdm
-
+    many worker processes (one job at a time each: runs differ much in length); a progress bar on stderr
+    when `progress` and stderr is a terminal."""
     jobs = list(jobs)
-    bar = tqdm(total=len(jobs), desc=desc, unit="run", disable=not progress, file=sys.stderr)
+    bar = progress_bar(len(jobs), enabled=progress, desc=desc, unit="run")
     results: list[R] = []
     try:
         if workers <= 1:

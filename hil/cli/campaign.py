@@ -65,8 +65,6 @@ def _list(points, out: Path) -> int:
 
 
 def campaign(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from hil.campaign.jobs import check_executor_options
     from hil.campaign.sweep import (
         CampaignError,
@@ -78,6 +76,7 @@ def campaign(args: argparse.Namespace) -> int:
         write_plots,
         write_table,
     )
+    from hil.progress import progress_bar
 
     check_executor_options(args, CampaignError)
     spec = load_campaign(args.campaign)
@@ -98,8 +97,8 @@ def campaign(args: argparse.Namespace) -> int:
 
     try:
         with executor_for(args.jobs, args.dask, args.dask_timeout) as executor:    # connects first
-            if not args.quiet:
-                bar = tqdm(total=len(points), unit="point", file=sys.stderr, desc=f"campaign {spec.name}")
+            bar = progress_bar(len(points), enabled=not args.quiet, unit="point",
+                               desc=f"campaign {spec.name}")
             result = run_campaign(spec, out, executor, points, progress, plots=args.plots)
     finally:
         if bar is not None:

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -97,11 +96,10 @@ def _scenarios(args: argparse.Namespace) -> list[tuple[str, object]]:
 
 
 def matrix(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from hil.campaign.jobs import check_executor_options
     from hil.campaign.sweep import executor_for
     from hil.can.codec import loaded_dbc
+    from hil.progress import progress_bar
     from hil.report.kpis import check_out_dir
     from hil.safety import matrix_report
     from hil.safety.threat_matrix import THREATS, plan, run_matrices, safety_messages
@@ -127,7 +125,7 @@ def matrix(args: argparse.Namespace) -> int:
     default = f"faults-matrix-all-{stamp}" if args.all else f"{scenarios[0][1].name}-faults-{stamp}"
     out = check_out_dir(args.out or Path("runs") / default)
     n_cells = sum(len(mx.specs) for mx in planned)
-    bars: dict[str, tqdm] = {}
+    bars = {}                                       # phase -> its progress bar
 
     def progress(phase: str, done: int, total: int) -> None:
         if args.quiet:
@@ -136,7 +134,7 @@ def matrix(args: argparse.Namespace) -> int:
             for bar in bars.values():
                 bar.close()
             desc = "fault-free runs" if phase == "fault-free" else "threat matrix cells"
-            bars[phase] = tqdm(total=total, unit="run", file=sys.stderr, desc=desc)
+            bars[phase] = progress_bar(total, unit="run", desc=desc)
         bars[phase].update(done - bars[phase].n)
 
     t0 = time.perf_counter()

@@ -14,6 +14,7 @@ from pathlib import Path
 import can.cli
 
 from hil.errors import BusError
+from hil.progress import progress_bar
 from hil.report.gate import gates
 from hil.scenario import load_scenario
 from hil.scenario.params import kmh
@@ -88,26 +89,21 @@ def bus_config_from_args(args: argparse.Namespace) -> dict:
 
 
 class Progress:
-    """A tqdm bar over simulated seconds with the train's speed and position; silent when not a tty."""
+    """A progress bar over simulated seconds with the train's speed and position; silent when not a tty."""
 
     def __init__(self, enabled: bool, label: str, total_s: float) -> None:
-        self.bar = None
-        if enabled:
-            from tqdm import tqdm
-
-            fmt = "{desc}: {n:.1f}/{total:.0f} s simulated |{bar}| {postfix} [{elapsed}]"
-            self.bar = tqdm(total=round(total_s, 1), desc=label, unit="s", file=sys.stderr, leave=False,
-                            bar_format=fmt)
+        fmt = "{desc}: {n:.1f}/{total:.0f} s simulated |{bar}| {postfix} [{elapsed}]"
+        self.bar = progress_bar(round(total_s, 1), enabled=enabled, desc=label, unit="s", leave=False,
+                                bar_format=fmt)
 
     def __call__(self, now_us: int, truth: dict) -> None:
-        if self.bar is not None:
+        if not self.bar.disable:
             self.bar.n = round(now_us / 1e6, 1)
             self.bar.set_postfix_str(f"v={kmh(float(truth['v_mps'].max())):.1f} km/h "
                                      f"x={float(truth['x_m'][0]):.1f} m")
 
     def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
+        self.bar.close()
 
 
 def with_devices(scenario, given: list[str]):
@@ -168,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
         from hil.runtime.realtime import run_scenario_realtime
 
         try:
-            progress = Progress(not args.quiet and sys.stderr.isatty(), "realtime", scenario.max_duration_s)
+            progress = Progress(not args.quiet, "realtime", scenario.max_duration_s)
             try:
                 report = run_scenario_realtime(scenario, out, bus_config_from_args(args), progress=progress,
                                                external=tuple(args.external))
@@ -189,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"notice: [nodes.{marked[0]}] external applies to real-time runs only; in lockstep "
                   f"{', '.join(marked)} {'is' if len(marked) == 1 else 'are'} simulated", file=sys.stderr)
 
-        progress = Progress(not args.quiet and sys.stderr.isatty(), "lockstep", scenario.max_duration_s)
+        progress = Progress(not args.quiet, "lockstep", scenario.max_duration_s)
         try:
             report = run_scenario_lockstep(scenario, out, progress=progress)
         finally:

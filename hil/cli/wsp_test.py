@@ -53,10 +53,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def wsp_test(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from hil.campaign.jobs import check_executor_options
     from hil.campaign.sweep import executor_for
+    from hil.progress import progress_bar
     from hil.report.kpis import check_out_dir
     from hil.typetest import report
     from hil.typetest.programme import ProgrammeError, load_programme, runs
@@ -69,7 +68,7 @@ def wsp_test(args: argparse.Namespace) -> int:
     print(f"wsp-test {prog.spec.name}: {len(specs)} runs ({len({s.strategy for s in specs})} strategies x "
           f"{len({s.speed_kmh for s in specs})} speeds x {len({s.condition for s in specs})} rail conditions "
           f"with the dry reference) into {out}", file=sys.stderr)
-    bar = tqdm(total=len(specs), unit="run", file=sys.stderr, desc="wsp-test runs", disable=args.quiet)
+    bar = progress_bar(len(specs), enabled=not args.quiet, unit="run", desc="wsp-test runs")
     t0 = time.perf_counter()
     try:
         with executor_for(args.jobs, args.dask, args.dask_timeout) as executor:

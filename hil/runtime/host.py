@@ -448,7 +448,7 @@ class Host:
         """Collect garbage if there is time, sleep until the precise wait's margin before the deadline, poll
         out the rest; now [ns] (the cycle's release).  The frames are taken after it (`_drain`).  Taking them
         before it too, at every wake, cost a second sleep a wake (taking them ends at an instant no estimate
-        knows): 0.85 of ECUS's 6.3 and 0.6 of PLANT's 4.9 sampled CPU s (py-spy, docs/performance.md).  Only
+        knows): 0.85 of ECUS's 6.3 and 0.6 of PLANT's 4.9 sampled CPU s (py-spy on the hosts of a run).  Only
         a wait longer than EARLY_DRAIN_GAP_NS takes them early, EARLY_DRAIN_LEAD_NS before the release: the
         BCU's, after the plant's frames of the period came in: its window's parts, p50 each (taking frames,
         its cycle, its sends), 236 + 259 + 92 → 15 + 227 + 88 µs, at no CPU measurable in this VM's noise."""

@@ -54,6 +54,7 @@ import numpy as np
 from hil.cli.trace.common import Output, TraceArgError, notice_skipped, parse_id
 from hil.cli.trace.timebase import TimeBase, add_time_arguments
 from hil.errors import BusError
+from hil.progress import progress_bar
 from hil.trace.readers import Salvage, open_trace
 
 DEFAULT_INTERFACE = "udp_multicast"
@@ -569,14 +570,6 @@ def verify(report: Replay, receiver: Receiver, wall0: float, quiet_s: float) -> 
         report.rx_err_us = [(received[k][1] - (wall0 + report.log[i][1])) * 1e6 for i, k in pairs]
 
 
-def progress_bar(enabled: bool):
-    if not enabled:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(desc="replay", unit=" frames", file=sys.stderr, delay=PROGRESS_DELAY_S, leave=False)
-
-
 def run(args: argparse.Namespace) -> int:
     speed = 0.0 if args.max_speed else args.speed
     if not (math.isfinite(speed) and speed >= 0):
@@ -599,9 +592,11 @@ def run(args: argparse.Namespace) -> int:
             receiver = Receiver(cfg)
             receiver.wait_ready()
         bus = open_bus(cfg)
-        progress = progress_bar(not args.quiet and sys.stderr.isatty())
+        progress = progress_bar(enabled=not args.quiet, desc="replay", unit=" frames", delay=PROGRESS_DELAY_S,
+                                leave=False)
         frames = Salvage(trace)  # a corrupt or cut file: the frames before the damage are replayed
-        wall0 = send_all(timebase.messages(frames), bus, report, None, None, ids, args.send_timeout, progress)
+        wall0 = send_all(timebase.messages(frames), bus, report, None, None, ids, args.send_timeout,
+                         None if progress.disable else progress)     # no call a frame for a bar not drawn
         if progress is not None:
             progress.close()
             progress = None

@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
+from hil.progress import progress_bar
 from hil.scenario import Scenario
 from hil.studies.anticollision.kpis import judge_run_dir, run_judged
 from hil.studies.anticollision.scenario import AcdStudyError, spec_of
@@ -77,14 +77,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="override a scenario key, as railhil run --set")
 
 
-def _progress(total: int):
-    try:
-        from tqdm import tqdm
-    except ImportError:          # pragma: no cover - tqdm is a dependency
-        return None
-    return tqdm(total=total, unit="run", file=sys.stderr, disable=not sys.stderr.isatty())
-
-
 def run(args: argparse.Namespace) -> int:
     from hil.scenario import load_scenario
 
@@ -106,15 +98,13 @@ def run(args: argparse.Namespace) -> int:
     modes = {"both": (True, False), "on": (True,), "off": (False,)}[args.prediction]
     jobs = [with_prediction(s, m).model_dump_json() for m in modes for s in scenarios]
     t0 = time.perf_counter()
-    bar = _progress(len(jobs))
+    bar = progress_bar(len(jobs), unit="run")
     rows: list[dict] = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         for r in pool.map(run_judged, jobs, chunksize=1):
             rows.append(r)
-            if bar is not None:
-                bar.update()
-    if bar is not None:
-        bar.close()
+            bar.update()
+    bar.close()
     for m in modes:
         print(f"prediction {'on' if m else 'off'}:")
         for line in summarize([r for r in rows if r["prediction"] == m]):
