@@ -49,12 +49,12 @@ from dataclasses import dataclass
 from cantools.database.can import Database
 
 from hil.can import e2e
+from hil.can.attributes import authentic_length as _authentic_length
+from hil.can.attributes import e2e_config as _e2e_config
 from hil.can.codec import Codec
 from hil.can.dbc import closest
 from hil.errors import ScenarioError
 from hil.runtime.node import StuckSignal
-from hil.runtime.node import authentic_length as _authentic_length
-from hil.runtime.node import e2e_config as _e2e_config
 from hil.runtime.plant_node import SensorFault
 from hil.scenario.faults import (
     FAULT_KINDS,

@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 
 from cantools.database.can import Database
 
+from hil.can.attributes import e2e_config, secoc_data_id
 from hil.can.codec import Codec, loaded_dbc
-from hil.runtime.node import e2e_config, secoc_data_id
 
 __all__ = ["Link", "actuating_links", "influence", "record_run", "unprotected"]
 

@@ -90,10 +90,10 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from cantools.database.can import Database
 
+from hil.can.attributes import authentic_length, e2e_config
 from hil.can.codec import Codec, loaded_dbc
 from hil.report.kpis import RunView
 from hil.runtime.desk import DeskScript
-from hil.runtime.node import authentic_length, e2e_config
 from hil.scenario import Scenario, parse_scenario, registry
 from hil.scenario.faults import MESSAGE_THREATS, NODE_FAULTS
 from hil.scenario.params import becu_params
