@@ -317,6 +317,7 @@ class HilRun:
         from hil.can.dbc import load_dbc
         from hil.errors import BindingError
         from hil.report.kpis import read_signals
+        from hil.runtime.clock import RunClock
         from hil.runtime.run import dbc_path_of
 
         todo = [n for n in names if n not in self._signals]
@@ -335,8 +336,7 @@ class HilRun:
                                        f"{', '.join(s.name for s in msg.signals)}")
                 wanted[name] = (message, sig)
             meta = json.loads((self.out_dir / "run.json").read_text())
-            speed = self.scenario.realtime.speed if self.mode == "realtime" else 1.0
-            decoded = read_signals(self.trace, db, Codec(db), wanted, meta.get("trace_t0_s") or 0.0, speed)
+            decoded = read_signals(self.trace, db, Codec(db), wanted, RunClock.of_run(meta))
             for name, (t, v) in decoded.items():
                 self._signals[name] = Signal(name, t, v)
         return {n: self._signals[n] for n in names}

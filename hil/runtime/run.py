@@ -39,6 +39,7 @@ from hil.report.kpis import (
 )
 from hil.report.plots import LATENESS_NAME, plot_lateness, plot_run, study_plots
 from hil.report.summary import summary_lines
+from hil.runtime.clock import LOCKSTEP_CLOCK, RunClock
 from hil.runtime.desk import DeskScript
 from hil.runtime.lockstep import prepare_lockstep, run_lockstep
 from hil.runtime.outcome import RunOutcome, realtime_verdict
@@ -81,8 +82,8 @@ class RunReport:
         return [head] + summary_lines(self.kpis, self.files)
 
 
-def plausibility_events(trace: DecodedTrace | Path, db, codec: Codec, n_cars: int, t0_s: float = 0.0,
-                        speed: float = 1.0) -> dict[str, dict[str, float]]:
+def plausibility_events(trace: DecodedTrace | Path, db, codec: Codec, n_cars: int,
+                        clock: RunClock = LOCKSTEP_CLOCK) -> dict[str, dict[str, float]]:
     """When the ECUs first flagged a sensor or a car (issue #9), from the trace (read once:
     hil.report.kpis.read_run_trace; a path is read here): simulated time [s] of the first BECUn_DIAG
     frame with SpeedSensorFault / AccelSensorFault / CylSensorFault = 1 and of the first BCU_STATUS frame
@@ -95,7 +96,7 @@ def plausibility_events(trace: DecodedTrace | Path, db, codec: Codec, n_cars: in
         if k.size:
             table = decoded.table(message)
             hits.append((int(_rows(decoded, message)[k[0]]), order, kind, car,
-                         float((table.t[k[0]] - t0_s) * speed)))
+                         float(clock.simulated_s(table.t[k[0]]))))
 
     for i in range(1, n_cars + 1):
         name = f"BECU{i}_DIAG"
@@ -137,19 +138,19 @@ def messages_sent(nodes) -> dict[str, list[str]]:
 
 
 def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec: Codec,
-               trace_t0_s: float = 0.0, trace_speed: float = 1.0, extra: dict | None = None,
+               clock: RunClock = LOCKSTEP_CLOCK, extra: dict | None = None,
                interactive_report: bool = True, plots: bool = True,
                sent_by: dict[str, list[str]] | None = None) -> RunReport:
     """Write the run folder of a finished run: truth.csv, kpis.json (the trace read back once), run.json,
-    and with `plots` plot.png, the studies' figures and report.html.  `sent_by`: the messages each node
-    sends (`messages_sent`), kept in run.json; a real-time run's nodes are judged on those."""
+    and with `plots` plot.png, the studies' figures and report.html.  `clock`: the run's (its trace's time
+    base); `sent_by`: the messages each node sends (`messages_sent`), kept in run.json; a real-time run's
+    nodes are judged on those."""
     trace = out_dir / trace_name(scenario)
     cols = outcome.truth.columns()
     truth_csv = out_dir / "truth.csv"
     write_truth_csv(cols, truth_csv)
     decoded = read_run_trace(trace, db, codec)                  # the one read of the trace
-    *target, recorded = read_signal(decoded, db, codec, "BCU_DEMAND", "TargetDecel", t0_s=trace_t0_s,
-                                    speed=trace_speed)
+    *target, recorded = read_signal(decoded, db, codec, "BCU_DEMAND", "TargetDecel", clock)
     brake_us = DeskScript(scenario.desk).first_brake_us()
     brake_s = None if brake_us is None else brake_us / 1e6
     external = list((outcome.realtime or {}).get("external") or [])
@@ -163,10 +164,10 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     kpis = compute_kpis(scenario, cols, target, brake_s, outcome.frames_by_node, recorded,
                         outcome.frames_in_flight, outcome.frames_overwritten, outcome.frames_faulted)
     view = RunView.of(scenario, cols, tuple(target), brake_s, out_dir=out_dir, trace=trace, db=db,
-                      codec=codec, trace_t0_s=trace_t0_s, trace_speed=trace_speed, mode=outcome.mode,
+                      codec=codec, clock=clock, mode=outcome.mode,
                       decoded=decoded)
     kpis.update(study_kpis(view))                    # each study's own, under its name
-    run_end_s = trace_t0_s + outcome.end_us / 1e6 / trace_speed     # the run's end in the trace's time
+    run_end_s = clock.trace_s(outcome.end_us)                      # the run's end in the trace's time
     if outcome.bus is not None:
         worst = max(outcome.bus["messages"].items(), key=lambda kv: kv[1]["response_max_us"],
                     default=(None, {"response_max_us": 0.0}))
@@ -176,11 +177,11 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
             "worst_response_us": worst[1]["response_max_us"],
             "worst_response_message": worst[0],
             "deadline_misses": sum(m["deadline_misses"] for m in outcome.bus["messages"].values()),
-            "load_worst_case": worst_case_load(decoded, trace_t0_s, run_end_s, outcome.bus["bitrate_bps"]),
+            "load_worst_case": worst_case_load(decoded, clock.t0_s, run_end_s, outcome.bus["bitrate_bps"]),
             "source": "bus model",
         }
     elif outcome.mode == "realtime":           # no bus model: the figures the trace shows (hil.report.bus)
-        bus = trace_bus_kpis(decoded, db, trace_t0_s, run_end_s, scenario.bus.bitrate)
+        bus = trace_bus_kpis(decoded, db, clock.t0_s, run_end_s, scenario.bus.bitrate)
         if bus is not None:
             kpis["bus"] = bus
     detected: dict[str, int] = {}              # what the receivers' E2E / SecOC checks reported
@@ -191,21 +192,21 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
     kpis["protection_events"] = dict(sorted(detected.items()))
     if outcome.faults is not None:
         kpis["faults_injected"] = dict(sorted(outcome.faults["counts"].items()))
-    flagged = plausibility_events(decoded, db, codec, scenario.train.cars, trace_t0_s, trace_speed)
+    flagged = plausibility_events(decoded, db, codec, scenario.train.cars, clock)
     if flagged or outcome.faults is not None:
         kpis["plausibility_flags"] = flagged       # first time [s] each sensor / car was flagged
     if outcome.mode == "realtime":
         kpis["realtime"] = realtime_verdict(outcome)
         conduct = node_conduct(decoded, db, list(outcome.frames_by_node), outcome.node_stats, external,
-                               trace_t0_s, trace_speed, run_end_s, sent_by)
+                               clock, run_end_s, sent_by)
         for name in external:
             conduct[name]["reported_silent_s"] = silence_reported(decoded, db, name, conduct[name]["last_s"],
-                                                                  trace_t0_s, trace_speed)
+                                                                  clock)
         kpis["realtime"]["conduct"] = conduct
     if outcome.devices:                         # each device on its own terms (hil.report.devices)
         kpis["devices"] = {name: device_kpis(record, decoded, db, outcome.node_stats,
-                                             out_dir / device_trace_of(scenario, name, record), trace_t0_s,
-                                             trace_speed, run_end_s)
+                                             out_dir / device_trace_of(scenario, name, record), clock,
+                                             run_end_s)
                            for name, record in outcome.devices.items()}
     kpis["mode"] = outcome.mode
     kpis["seed"] = scenario.seed
@@ -225,7 +226,7 @@ def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec
         "python_can": can.__version__,
         "platform": platform.platform(),
         "trace": trace.name,
-        "trace_t0_s": trace_t0_s,
+        "trace_t0_s": clock.t0_s,
         **({"messages_sent": sent_by} if sent_by else {}),
         "node_stats": outcome.node_stats,
         "bus_timing": outcome.bus,

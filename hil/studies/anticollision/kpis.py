@@ -134,8 +134,8 @@ def judge_run_dir(run_dir: Path) -> dict:
                             f"(run.json, truth.csv, {TRACE_NAME}): {' '.join(str(exc).split())}") from None
     spec_of(scenario)
     db = load_dbc(dbc_path_of(scenario))
-    trace, t0, speed = run_trace(run_dir, meta, scenario)
-    t, req, _ = read_signal(trace, db, Codec(db), "ACD_BRAKE_REQ", "Request", t0_s=t0, speed=speed)
+    trace, clock = run_trace(run_dir, meta)
+    t, req, _ = read_signal(trace, db, Codec(db), "ACD_BRAKE_REQ", "Request", clock)
     cols = {name: np.asarray(data[name]) for name in data.dtype.names}
     j = judge(scenario, cols, np.asarray(t), np.asarray(req))
     return {**j.as_dict(), "seed": scenario.seed, "prediction": spec_of(scenario).prediction,
