@@ -43,6 +43,7 @@ from hil.runtime.clock import LOCKSTEP_CLOCK, RunClock
 from hil.runtime.desk import DeskScript
 from hil.runtime.lockstep import prepare_lockstep, run_lockstep
 from hil.runtime.outcome import RunOutcome, realtime_verdict
+from hil.safety.injection import build_injector
 from hil.scenario import Scenario
 from hil.trace.decoded import DecodedTrace
 from hil.trace.writers import open_writer
@@ -299,7 +300,8 @@ def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None,
     figures and report.html)."""
     dbc_path = dbc_path_of(scenario)
     db, codec = loaded_dbc(dbc_path)
-    setup = prepare_lockstep(scenario, db, codec, str(dbc_path))   # bad input: no run folder is left
+    injector = build_injector(scenario, db, codec)                 # the scenario's [[faults]] (hil.safety)
+    setup = prepare_lockstep(scenario, db, codec, str(dbc_path), injector)   # bad input: no run folder
     out_dir = check_out_dir(out_dir)
     with contextlib.ExitStack() as open_traces:                    # simulated s from 0
         writer = open_traces.enter_context(open_writer(out_dir / trace_name(scenario), start_time_s=0.0))
