@@ -348,7 +348,7 @@ class HilRun:
     def truth(self, column: str) -> Signal:
         """A column of the plant's ground truth (truth.csv), e.g. v_mps_1, x_m_1, p_Pa_3, slip_speed_mps_2."""
         if self._truth is None:
-            from hil.report.kpis import read_truth_csv
+            from hil.runtime.truth import read_truth_csv
 
             self._truth = read_truth_csv(self.out_dir / "truth.csv")
         if column not in self._truth:

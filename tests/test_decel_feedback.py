@@ -285,7 +285,8 @@ def line_test(tmp_path_factory):
 
 def test_line_test_closed_loop_holds_the_band_open_loop_does_not(line_test):
     from hil.can.dbc import load_dbc
-    from hil.report.kpis import RunView, read_truth_csv
+    from hil.report.kpis import RunView
+    from hil.runtime.truth import read_truth_csv
     from hil.studies.decel_feedback.kpis import FEEDBACK_SIGNALS, bcu_engagement_s, feedback_kpis
 
     runs, png = line_test

@@ -400,7 +400,7 @@ def test_decimate_keeps_the_peaks_and_short_curves_whole():
 
 def test_the_signals_are_embedded_as_an_interactive_figure(default_lockstep):
     from hil.report.html import MAX_POINTS
-    from hil.report.kpis import read_truth_csv
+    from hil.runtime.truth import read_truth_csv
 
     out = default_lockstep.out_dir
     page = page_of(out / "report.html")

@@ -62,6 +62,7 @@ from hil.report import kpi_info
 from hil.report.gate import device_gates, external_gates, study_checks
 from hil.report.kpi_info import Kpi
 from hil.report.summary import host_stalls_text
+from hil.runtime.truth import read_truth_csv
 from hil.scenario import registry
 
 REPORT_NAME = "report.html"
@@ -445,8 +446,6 @@ def decimate(t: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS) -> tupl
 
 def _read_truth(run_dir: Path) -> tuple[dict[str, np.ndarray] | None, str]:
     """truth.csv of a run folder as columns, or None and why not."""
-    from hil.report.kpis import read_truth_csv
-
     path = run_dir / "truth.csv"
     if not path.is_file():
         return None, f"no {path.name} in the folder"

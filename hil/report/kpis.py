@@ -14,9 +14,7 @@ one read.
 
 from __future__ import annotations
 
-import csv
 import json
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -28,7 +26,7 @@ from cantools.database.can import Database
 from hil.can.codec import Codec
 from hil.errors import RailhilError
 from hil.runtime.clock import LOCKSTEP_CLOCK, RunClock
-from hil.runtime.plant_node import STANDSTILL_MPS
+from hil.runtime.truth import STANDSTILL_MPS, read_truth_csv
 from hil.scenario import registry
 from hil.trace.columns import BlockReader, FrameBlock
 from hil.trace.decoded import DecodedTrace
@@ -41,40 +39,10 @@ MOVING_MPS = 0.5        # a car below this speed is not judged for slip or decel
 NO_SIGNAL = (np.zeros(0), np.zeros(0))
 
 
-def write_truth_csv(columns: dict[str, np.ndarray], path: Path) -> None:
-    """truth.csv: a header of the column names, then one line per sample, every value to 6 significant
-    digits (`%.6g`), as csv.writer writes them (CRLF line ends); one format operation per line."""
-    names = list(columns)
-    rows = np.column_stack([columns[n] for n in names])
-    line = ",".join(["%.6g"] * len(names)) + "\r\n"
-    with path.open("w", newline="") as f:
-        csv.writer(f).writerow(names)
-        f.write("".join([line % tuple(row) for row in rows.tolist()]))
-
-
 def run_trace(folder: Path, meta: dict) -> tuple[Path, RunClock]:
     """The trace of a run folder and how its timestamps map to simulated time, from its run.json
     (`meta`): (path, the run's clock, hil.runtime.clock.RunClock.of_run)."""
     return Path(folder) / meta.get("trace", "trace.blf"), RunClock.of_run(meta)
-
-
-def read_truth_csv(path: Path) -> dict[str, np.ndarray]:
-    """truth.csv (written by `write_truth_csv`) back as columns, each a 1-d array (numpy's C reader
-    `loadtxt`: a fifth of `genfromtxt`'s time on a default run's truth); unreadable: RailhilError."""
-    try:
-        with path.open(newline="") as f:
-            names = next(csv.reader(f), [])
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)      # "input contained no data": no samples
-                data = np.loadtxt(f, delimiter=",", ndmin=2, dtype=float)
-    except OSError as exc:
-        raise RailhilError(f"{path}: cannot read the truth of a run: {exc}") from None
-    except ValueError as exc:
-        raise RailhilError(f"{path}: not a truth.csv of railhil (numbers under a header): "
-                           f"{' '.join(str(exc).split())}") from None
-    if data.size and data.shape[1] != len(names):
-        raise RailhilError(f"{path}: {data.shape[1]} values per line under {len(names)} column names")
-    return {name: (data[:, k].copy() if data.size else np.zeros(0)) for k, name in enumerate(names)}
 
 
 def read_run_trace(trace: Path, db: Database, codec: Codec) -> DecodedTrace:

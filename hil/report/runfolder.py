@@ -27,8 +27,9 @@ import numpy as np
 from hil.can.codec import Codec
 from hil.can.dbc import DEFAULT_DBC, closest, load_dbc
 from hil.errors import RailhilError
-from hil.report.kpis import read_truth_csv, run_trace
+from hil.report.kpis import run_trace
 from hil.runtime.clock import LOCKSTEP_CLOCK, RunClock
+from hil.runtime.truth import read_truth_csv
 from hil.trace.decoded import DecodedTrace
 
 

@@ -35,7 +35,6 @@ from hil.report.kpis import (
     read_signal,
     study_kpis,
     write_kpis,
-    write_truth_csv,
 )
 from hil.report.plots import LATENESS_NAME, plot_lateness, plot_run, study_plots
 from hil.report.summary import summary_lines
@@ -43,6 +42,7 @@ from hil.runtime.clock import LOCKSTEP_CLOCK, RunClock
 from hil.runtime.desk import DeskScript
 from hil.runtime.lockstep import prepare_lockstep, run_lockstep
 from hil.runtime.outcome import RunOutcome, realtime_verdict
+from hil.runtime.truth import write_truth_csv
 from hil.safety.injection import build_injector
 from hil.scenario import Scenario
 from hil.trace.decoded import DecodedTrace
