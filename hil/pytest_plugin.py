@@ -387,11 +387,11 @@ def run_hil(scenario, out_dir: Path, overrides: dict | None = None, mode: str = 
         raise ValueError(f"mode = {mode!r}: expected one of {', '.join(MODES)}")
     sc = resolve_scenario(scenario, overrides, search)
     if mode == "lockstep":
-        from hil.runtime.run import run_scenario_lockstep
+        from hil.report.run import run_scenario_lockstep
 
         report = run_scenario_lockstep(sc, Path(out_dir))
     else:
-        from hil.runtime.realtime import run_scenario_realtime
+        from hil.report.run import run_scenario_realtime
 
         report = run_scenario_realtime(sc, Path(out_dir), dict(bus or {}))
     return HilRun(Path(out_dir), mode, report.kpis, sc)

@@ -269,7 +269,7 @@ def test_becu_ignores_phi_unless_the_feedback_is_engaged_or_held(fb_state, appli
 # ----------------------------------------------------------------------------------- the line test, HIL
 @pytest.fixture(scope="module")
 def line_test(tmp_path_factory):
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
     from hil.scenario import load_scenario
     from hil.studies.decel_feedback.plots import compare_runs
 

@@ -172,7 +172,7 @@ def verify_all(trace_path, key, name="BCU_DEMAND"):
 
 
 def test_authenticated_frames_of_a_run_verify_with_the_scenario_key(default_lockstep, tmp_path):
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
     from hil.scenario import parse_scenario
 
     assert all(verify_all(default_lockstep.out_dir / "trace.blf", DEV_SECOC_KEY))   # no [secoc]: dev key

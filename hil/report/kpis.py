@@ -308,11 +308,3 @@ def study_kpis(run: RunView) -> dict:
 
 def write_kpis(kpis: dict, path: Path) -> None:
     path.write_text(json.dumps(kpis, indent=2, sort_keys=True) + "\n")
-
-
-def check_out_dir(out: Path) -> Path:
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise RailhilError(f"{out}: cannot create the run folder: {exc.strerror}") from None
-    return out

@@ -71,11 +71,20 @@ from hil.runtime.rtos import (
     make_realtime,
     pin_plan,
 )
+from hil.runtime.run import (
+    RunRecord,
+    check_out_dir,
+    dbc_path_of,
+    device_trace_name,
+    messages_sent,
+    trace_name,
+    write_run_folder,
+)
 from hil.scenario import Scenario
 from hil.trace.writers import open_writer
 
 __all__ = ["describe_bus", "hosts", "open_bus", "resolve_bus_config", "run_realtime",
-           "run_scenario_realtime", "watch_command"]
+           "run_realtime_folder", "watch_command"]
 
 READY_TIMEOUT_S = 60.0         # processes importing numpy/cantools on a loaded 2-core machine
 START_MARGIN_S = 0.3           # t0 lies this far after the last process reported ready
@@ -558,8 +567,6 @@ def _device_cached(path: str, mtime_ns: int, dbc_path: str, scenario_json: str, 
 
 def _device_of(scenario: Scenario, node: str):
     """The device in `node`'s place (hil.devices.device.Device), loaded once."""
-    from hil.runtime.run import dbc_path_of
-
     file = scenario.devices[node].file
     return _device_cached(file, Path(file).stat().st_mtime_ns, str(dbc_path_of(scenario)),
                           scenario.model_dump_json(), node)
@@ -651,7 +658,6 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     the outcome, the run's clock (its t0 on the trace's clock: 0 when it never started) and the failure
     (None: none)."""
     from hil.can.codec import loaded_dbc
-    from hil.report.kpis import check_out_dir
     from hil.runtime.assembly import node_names
     from hil.runtime.probe import PROBE_PERIOD_US, probe_cpus, probe_process
     from hil.runtime.rtos import PROBE_PRIORITY
@@ -1040,11 +1046,15 @@ def _show_progress(q, progress: Callable[[int, dict], None]) -> None:
         progress(now_us, truth)
 
 
-def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dict,
-                          progress: Callable[[int, dict], None] | None = None,
-                          external: tuple[str, ...] = ()):
+def run_realtime_folder(scenario: Scenario, out_dir: Path, cli_bus_config: dict,
+                        progress: Callable[[int, dict], None] | None = None,
+                        external: tuple[str, ...] = ()) -> RunRecord:
+    """Run `scenario` in real time into the run folder `out_dir`: its trace (and each device's own bus's),
+    truth.csv and run.json with the bus and the failure (`RunRecord.failure`: why the run ended early, a
+    node died; None: it did not).  The bus: `cli_bus_config`, then python-can's configuration, then the
+    scenario's [realtime] (resolve_bus_config); `external`: nodes another process or host runs.  Bad input
+    is one line before any process starts, and leaves no folder."""
     from hil.can.codec import loaded_dbc
-    from hil.runtime.run import dbc_path_of, device_trace_name, finish_run, messages_sent, trace_name
 
     if scenario.faults:                           # not silently dropped: say where they work
         kinds = ", ".join(sorted({f.kind for f in scenario.faults}))
@@ -1080,9 +1090,6 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
     device_traces = {n: out_dir / device_trace_name(scenario, n) for n in scenario.devices}   # own buses
     outcome, clock, failure = run_realtime(scenario, str(dbc_path), trace, cfg, progress=progress,
                                            external=external, device_traces=device_traces)
-    report = finish_run(scenario, outcome, out_dir, db, codec, clock=clock,
-                        extra={"bus": {k: str(v) for k, v in cfg.items()}, "failure": failure},
-                        sent_by=messages_sent(nodes))
-    if failure is not None:                      # nothing recorded is lost: the folder is written first
-        raise NodeDied(f"{failure}; what was recorded is in {out_dir}")
-    return report
+    run = RunRecord(scenario, outcome, out_dir, db, codec, outcome.truth.columns(), clock,
+                    messages_sent(nodes), failure)
+    return write_run_folder(run, extra={"bus": {k: str(v) for k, v in cfg.items()}, "failure": failure})

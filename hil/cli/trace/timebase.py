@@ -38,7 +38,7 @@ if TYPE_CHECKING:
 
 __all__ = ["RUN_FILE", "RunOfTrace", "TimeBase", "add_time_arguments", "run_of_trace"]
 
-RUN_FILE = "run.json"     # what makes a folder a run folder (hil.runtime.run.finish_run writes it)
+RUN_FILE = "run.json"     # what makes a folder a run folder (hil.runtime.run.write_run_folder writes it)
 #: shifted times are rounded to the ns: an epoch timestamp in float64 is only good to ~0.2 µs, and what the
 #: subtraction leaves below the ns is that rounding's noise, not the trace's (0.0023326873779296875 s)
 NS_DIGITS = 9
