@@ -317,6 +317,7 @@ class HilRun:
         from hil.can.dbc import load_dbc
         from hil.errors import BindingError
         from hil.report.kpis import read_signals
+        from hil.runtime.clock import RunClock
         from hil.runtime.run import dbc_path_of
 
         todo = [n for n in names if n not in self._signals]
@@ -335,8 +336,7 @@ class HilRun:
                                        f"{', '.join(s.name for s in msg.signals)}")
                 wanted[name] = (message, sig)
             meta = json.loads((self.out_dir / "run.json").read_text())
-            speed = self.scenario.realtime.speed if self.mode == "realtime" else 1.0
-            decoded = read_signals(self.trace, db, Codec(db), wanted, meta.get("trace_t0_s") or 0.0, speed)
+            decoded = read_signals(self.trace, db, Codec(db), wanted, RunClock.of_run(meta))
             for name, (t, v) in decoded.items():
                 self._signals[name] = Signal(name, t, v)
         return {n: self._signals[n] for n in names}
@@ -348,7 +348,7 @@ class HilRun:
     def truth(self, column: str) -> Signal:
         """A column of the plant's ground truth (truth.csv), e.g. v_mps_1, x_m_1, p_Pa_3, slip_speed_mps_2."""
         if self._truth is None:
-            from hil.report.kpis import read_truth_csv
+            from hil.runtime.truth import read_truth_csv
 
             self._truth = read_truth_csv(self.out_dir / "truth.csv")
         if column not in self._truth:
@@ -387,11 +387,11 @@ def run_hil(scenario, out_dir: Path, overrides: dict | None = None, mode: str = 
         raise ValueError(f"mode = {mode!r}: expected one of {', '.join(MODES)}")
     sc = resolve_scenario(scenario, overrides, search)
     if mode == "lockstep":
-        from hil.runtime.run import run_scenario_lockstep
+        from hil.report.run import run_scenario_lockstep
 
         report = run_scenario_lockstep(sc, Path(out_dir))
     else:
-        from hil.runtime.realtime import run_scenario_realtime
+        from hil.report.run import run_scenario_realtime
 
         report = run_scenario_realtime(sc, Path(out_dir), dict(bus or {}))
     return HilRun(Path(out_dir), mode, report.kpis, sc)

@@ -36,7 +36,7 @@ CORPUS = _corpus()
 @pytest.fixture(scope="session")
 def default_lockstep(tmp_path_factory):
     """The default scenario run in lockstep with its own seed; returns the RunReport."""
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
     from hil.scenario import load_scenario
 
     out = tmp_path_factory.mktemp("default-lockstep")

@@ -634,11 +634,11 @@ FAULT_WINDOWS_US = {"raise": (300_000, 350_000), "nan": (400_000, 450_000), "ran
 
 @pytest.fixture(scope="module")
 def faulty_run(small_scenario, tmp_path_factory):
-    """A 1 s lockstep run (public API: hil.runtime.run.run_scenario_lockstep) whose BECU1 controller raises,
+    """A 1 s lockstep run (public API: hil.report.run.run_scenario_lockstep) whose BECU1 controller raises,
     returns NaN and returns an out-of-range pressure, each in its own window: the fault is injected by
     wrapping the real controller that hil.runtime.assembly builds; bus, trace and DBC are the real ones."""
     import hil.runtime.lockstep
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
 
     real_build = hil.runtime.lockstep.build_node
     injected: dict[str, Faulty] = {}

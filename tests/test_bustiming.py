@@ -15,7 +15,7 @@ from hil.can.bustiming import (
     frame_duration_bits,
     stuff_bits,
 )
-from hil.runtime.run import run_scenario_lockstep
+from hil.report.run import run_scenario_lockstep
 from hil.scenario import load_scenario
 
 std_ids = st.integers(0, 0x7FF)

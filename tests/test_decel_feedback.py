@@ -277,7 +277,7 @@ def test_becu_ignores_phi_unless_the_feedback_is_engaged_or_held(fb_state, appli
 # ----------------------------------------------------------------------------------- the line test, HIL
 @pytest.fixture(scope="module")
 def line_test(tmp_path_factory):
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
     from hil.scenario import load_scenario
     from hil.studies.decel_feedback.plots import compare_runs
 
@@ -293,7 +293,8 @@ def line_test(tmp_path_factory):
 
 def test_line_test_closed_loop_holds_the_band_open_loop_does_not(line_test):
     from hil.can.dbc import load_dbc
-    from hil.report.kpis import RunView, read_truth_csv
+    from hil.report.kpis import RunView
+    from hil.runtime.truth import read_truth_csv
     from hil.studies.decel_feedback.kpis import FEEDBACK_SIGNALS, bcu_engagement_s, feedback_kpis
 
     runs, png = line_test

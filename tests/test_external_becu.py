@@ -26,10 +26,11 @@ import numpy as np
 import pytest
 
 from hil.can import e2e, secoc
+from hil.can.attributes import e2e_config, secoc_data_id
 from hil.can.codec import Codec
 from hil.can.dbc import load_dbc
 from hil.runtime.assembly import build_node, node_names
-from hil.runtime.node import DEV_SECOC_KEY, RxTable, e2e_config, secoc_data_id
+from hil.runtime.node import DEV_SECOC_KEY, RxTable
 from hil.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -5,8 +5,8 @@ import numpy as np
 from conftest import DEFAULT
 
 from firmware_py.wsp import WspParams
+from hil.report.run import run_scenario_lockstep
 from hil.runtime.plant_node import FAILSAFE_HOLD_S
-from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario, parse_scenario
 from hil.scenario.model import PlantSpec
 

@@ -92,7 +92,7 @@ def summarise(out_dir: Path, cols: dict, n_cars: int) -> dict:
 
 def healthy_run(job: tuple[str, int, str]) -> dict:
     """One healthy lockstep run (scenario path, seed, run folder), in a worker process: its summary."""
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
 
     path, seed, out = job
     base = load_scenario(path)

@@ -5,7 +5,7 @@ import pytest
 from conftest import DEFAULT, ROOT
 
 from hil.errors import ScenarioError
-from hil.runtime.run import run_scenario_lockstep
+from hil.report.run import run_scenario_lockstep
 from hil.scenario import load_scenario, parse_scenario
 
 T0 = 3.0                     # fault window start [s]; BCU_DEMAND runs every 10 ms

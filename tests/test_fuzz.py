@@ -20,10 +20,10 @@ import time
 import pytest
 from conftest import DEFAULT
 
+from hil.can.attributes import secoc_data_id
 from hil.can.codec import Codec
 from hil.can.dbc import load_dbc
 from hil.runtime.assembly import build_node, node_names
-from hil.runtime.node import secoc_data_id
 from hil.scenario import load_scenario
 
 COPIES = 6        # fuzzed deliveries per frame sent, besides the genuine one

@@ -68,7 +68,7 @@ def test_default_kpis_are_the_golden_ones(default_lockstep, key):
 def _run_files(scenario: Path, out: Path) -> dict[str, str]:
     """Run `scenario` in lockstep into `out` (no figures): sha256 of each trace (.blf) and truth (.csv) it
     wrote, by file name."""
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
     from hil.scenario import load_scenario
 
     report = run_scenario_lockstep(load_scenario(scenario), out, plots=False)
@@ -90,7 +90,7 @@ def _current() -> tuple[str, dict]:
     """Run the default scenario now: (trace sha256, the golden subset of its KPIs)."""
     root = Path(__file__).resolve().parents[1]
     sys.path.insert(0, str(root))
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
     from hil.scenario import load_scenario
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -8,7 +8,7 @@ import pytest
 from conftest import DEFAULT
 
 from hil.can.dbc import DEFAULT_DBC
-from hil.runtime.run import run_scenario_lockstep
+from hil.report.run import run_scenario_lockstep
 from hil.scenario import load_scenario
 
 
@@ -87,7 +87,7 @@ def test_a_run_reads_its_trace_once_and_kpis_match_pythons_can_reader(tmp_path, 
     from hil.can.codec import Codec
     from hil.can.dbc import load_dbc
     from hil.report.kpis import read_signal, read_signals
-    from hil.runtime.run import plausibility_events
+    from hil.report.run import plausibility_events
 
     reads, opened = [], []
     block_reader, log_reader = kpis_module.BlockReader, can.LogReader
@@ -125,7 +125,7 @@ def test_a_run_reads_its_trace_once_and_kpis_match_pythons_can_reader(tmp_path, 
 
 
 def test_without_plots_a_run_folder_keeps_trace_truth_and_kpis_and_figures_come_later(tmp_path):
-    from hil.runtime.run import has_figures, write_figures
+    from hil.report.run import has_figures, write_figures
 
     scenario = short_stop()
     bare = run_scenario_lockstep(scenario, tmp_path / "bare", plots=False)

@@ -9,11 +9,12 @@ import pytest
 from conftest import DEFAULT
 
 from hil.can import e2e, secoc
+from hil.can.attributes import authentic_length, e2e_config, secoc_data_id
 from hil.can.codec import Codec
 from hil.can.dbc import DEFAULT_DBC, load_dbc
 from hil.errors import DbcError
 from hil.runtime.assembly import build_node
-from hil.runtime.node import DEV_SECOC_KEY, authentic_length, e2e_config, secoc_data_id
+from hil.runtime.node import DEV_SECOC_KEY
 from hil.scenario import load_scenario
 
 SAFETY = {"BCU_EMERGENCY", "DESK_CMD", "DESK_TARGET", "ACD_BRAKE_REQ", "BCU_DEMAND", "BCU_BRAKE_CORR"} | {
@@ -171,7 +172,7 @@ def verify_all(trace_path, key, name="BCU_DEMAND"):
 
 
 def test_authenticated_frames_of_a_run_verify_with_the_scenario_key(default_lockstep, tmp_path):
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
     from hil.scenario import parse_scenario
 
     assert all(verify_all(default_lockstep.out_dir / "trace.blf", DEV_SECOC_KEY))   # no [secoc]: dev key

@@ -128,7 +128,7 @@ def test_a_failing_temporal_assertion_names_its_first_violating_time(pytester, t
     # the expected time, computed here from the run's own truth: first stretch of slip > 0.5 m/s on car 4
     # lasting more than 0.05 s, plus 0.05 s
     (run_dir,) = out.iterdir()
-    from hil.report.kpis import read_truth_csv
+    from hil.runtime.truth import read_truth_csv
 
     cols = read_truth_csv(run_dir / "truth.csv")
     t, on = cols["t_s"], cols["slip_speed_mps_4"] > 0.5

@@ -11,8 +11,8 @@ from conftest import DEFAULT
 
 from hil.can.dbc import DEFAULT_DBC
 from hil.errors import ScenarioError
+from hil.report.run import run_scenario_lockstep
 from hil.runtime.release import NodeRelease, dbc_node_timing
-from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario, parse_scenario
 
 BECU1_CMD = 0x031

@@ -150,7 +150,7 @@ def test_run_json_records_what_reproduces_the_run(default_lockstep):
 
 
 def test_git_commit_is_read_from_the_git_directory(tmp_path):
-    from hil.report.html import git_commit
+    from hil.runtime.provenance import git_commit
 
     sha = "0123456789abcdef0123456789abcdef01234567"
     (tmp_path / "repo" / ".git" / "refs" / "heads").mkdir(parents=True)
@@ -303,7 +303,7 @@ def test_every_kpi_of_a_default_run_has_a_description(default_lockstep):
 
 def test_every_kpi_of_a_run_with_faults_has_a_description(tmp_path):
     from hil.report.kpi_info import undescribed
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
     from hil.scenario import load_scenario
 
     scenario = load_scenario("default", overrides={"max_duration_s": 1.5, "faults": [
@@ -319,7 +319,7 @@ def test_every_kpi_of_a_study_run_has_a_description(study, tmp_path):
     """Each study's first shipped scenario, run STUDY_RUN_S: every key its kpis() writes is in its
     KPI_INFO (appended to hil/studies/<name>/kpis.py)."""
     from hil.report.kpi_info import undescribed
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
     from hil.scenario import load_scenario
 
     path = study_scenarios()[study]
@@ -400,7 +400,7 @@ def test_decimate_keeps_the_peaks_and_short_curves_whole():
 
 def test_the_signals_are_embedded_as_an_interactive_figure(default_lockstep):
     from hil.report.html import MAX_POINTS
-    from hil.report.kpis import read_truth_csv
+    from hil.runtime.truth import read_truth_csv
 
     out = default_lockstep.out_dir
     page = page_of(out / "report.html")

@@ -6,7 +6,7 @@ from conftest import DEFAULT
 
 from hil.can.dbc import DEFAULT_DBC, load_dbc
 from hil.can.rta import analyse, messages_from_dbc
-from hil.runtime.run import run_scenario_lockstep
+from hil.report.run import run_scenario_lockstep
 from hil.scenario import load_scenario, parse_scenario
 
 

@@ -37,7 +37,7 @@ SCENARIO_NAMES = {"scenario", "sc"}
 def test_each_parameter_set_is_built_once_per_run(name, tmp_path, monkeypatch):
     """A lockstep run with its report builds the plant's, the track's, the BCU's parameters once and each
     BECU's once, however many nodes, stages, KPIs and figures ask for them."""
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
 
     calls: dict[str, int] = {}
     for builder in ("plant_params", "build_track", "bcu_params", "becu_params"):

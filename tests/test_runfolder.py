@@ -89,7 +89,7 @@ def test_bad_names_and_folders_are_one_line_errors(run, tmp_path):
 
 def test_truth_csv_reads_back_what_was_written_and_names_a_malformed_file(tmp_path):
     from hil.errors import RailhilError
-    from hil.report.kpis import read_truth_csv, write_truth_csv
+    from hil.runtime.truth import read_truth_csv, write_truth_csv
 
     cols = {"t_s": np.array([0.0, 0.01, 0.02]), "v_mps_1": np.array([25.0, np.nan, -1.25e-7])}
     write_truth_csv(cols, tmp_path / "truth.csv")

@@ -9,9 +9,10 @@ import can
 import pytest
 from conftest import assert_one_line_error, railhil
 
+from hil.can.attributes import authentic_length, secoc_data_id
 from hil.can.dbc import load_dbc
 from hil.can.secoc import SecOcReceiver
-from hil.runtime.node import DEV_SECOC_KEY, authentic_length, secoc_data_id
+from hil.runtime.node import DEV_SECOC_KEY
 from hil.scenario import load_scenario
 from hil.scenario.params import KEY_ENV, KEY_FILE_ENV, secoc_keys
 

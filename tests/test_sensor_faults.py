@@ -4,7 +4,7 @@ BCU (CarsImplausible, Degraded), without releasing a brake; and no false detecti
 scenarios.  A stuck brake-cylinder pressure transducer (`sensor` = "pressure", mode "stuck": the physical
 transducer, in the plant node) is detected in every injected case, its time to detect printed.
 
-Lockstep runs through the public API (hil.runtime.run) on the real DBC; what the ECUs concluded is read back
+Lockstep runs through the public API (hil.report.run) on the real DBC; what the ECUs concluded is read back
 from the run's BLF trace with python-can's reader and decoded by cantools; what the brakes did comes
 from the plant's truth.
 """
@@ -34,9 +34,9 @@ from firmware_py.sensor_checks import (
 from firmware_py.wsp import Wsp, vent_watchdog
 from hil.can.dbc import load_dbc
 from hil.can.e2e import Status
+from hil.report.run import run_scenario_lockstep
 from hil.runtime.node import StuckSignal
 from hil.runtime.plant_node import SensorFault, faulty_reading
-from hil.runtime.run import run_scenario_lockstep
 from hil.scenario import load_scenario, parse_scenario
 
 STOP_30 = ROOT / "scenarios" / "stop_30kmh.toml"

@@ -296,7 +296,8 @@ def test_periods_without_dbc_issue_1256(capsys):
 
 def test_lockstep_run_passes(tmp_path):
     from hil.can.busload import train_frame_ids
-    from hil.runtime.run import TRACE_NAME, run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
+    from hil.runtime.run import TRACE_NAME
     from hil.scenario import load_scenario
 
     scenario = load_scenario(ROOT / "scenarios" / "default.toml").model_copy(update={"max_duration_s": 3.0})
@@ -315,7 +316,8 @@ def test_lockstep_run_passes(tmp_path):
 
 def test_cli_on_a_lockstep_run_passes_when_unsent_frames_are_ignored(tmp_path, capsys):
     from hil.cli.main import main
-    from hil.runtime.run import TRACE_NAME, run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
+    from hil.runtime.run import TRACE_NAME
     from hil.scenario import load_scenario
 
     scenario = load_scenario(ROOT / "scenarios" / "default.toml").model_copy(update={"max_duration_s": 2.0})

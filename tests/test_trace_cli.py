@@ -20,7 +20,7 @@ from can.io.player import MESSAGE_READERS
 from cantools.database.namedsignalvalue import NamedSignalValue
 from conftest import CORPUS, assert_one_line_error, railhil
 
-from hil.runtime.run import run_scenario_lockstep
+from hil.report.run import run_scenario_lockstep
 from hil.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

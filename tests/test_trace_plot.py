@@ -19,7 +19,7 @@ from conftest import CORPUS, assert_one_line_error, railhil
 from hil.can.codec import Codec
 from hil.can.dbc import load_dbc
 from hil.cli.trace import plot
-from hil.runtime.run import run_scenario_lockstep
+from hil.report.run import run_scenario_lockstep
 from hil.scenario import load_scenario
 from hil.trace.readers import open_trace
 

@@ -1,5 +1,5 @@
 """Issue #4's acceptance (seed 001, Danielson & Di Cairano, ACC 2020, Figs. 8-9), checked on the KPIs of
-lockstep runs through the public API (hil.runtime.run.run_scenario_lockstep -> kpis.json "wheel_slip",
+lockstep runs through the public API (hil.report.run.run_scenario_lockstep -> kpis.json "wheel_slip",
 computed by hil.studies.wheel_slip.kpis from the plant's truth), plus a table test of those KPIs on a
 synthetic run with closed-form answers.
 
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from hil.errors import ScenarioError
-from hil.runtime.run import run_scenario_lockstep
+from hil.report.run import run_scenario_lockstep
 from hil.scenario import load_scenario, parse_scenario
 from hil.studies.wheel_slip.kpis import (
     G_MPS2,

@@ -325,7 +325,8 @@ def run_point(scenario_json: str, run_dir: str, plots: bool = False) -> dict:
     process, not per point; those seconds are `startup_s`) to its KPIs; `sim_wall_s` the lockstep
     simulation's part of it (RunOutcome.wall_s).  The run folder keeps the trace, truth.csv, kpis.json and
     run.json; `plots` adds plot.png, the studies' figures and report.html."""
-    from hil.runtime.run import prepare_worker, run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
+    from hil.runtime.run import prepare_worker
 
     startup_s = 0.0
     try:
@@ -354,7 +355,7 @@ def draw_point(scenario_json: str, run_dir: str, cached: dict) -> dict:
     """The figures and report.html of a point cached without them (`--plots` now), drawn from its run
     folder: `cached` (its point.json) with "drawn": True; a folder they cannot be drawn from is run
     again with plots (run_point).  Never raises."""
-    from hil.runtime.run import write_figures
+    from hil.report.run import write_figures
 
     try:
         write_figures(Path(run_dir))
@@ -446,13 +447,13 @@ def run_campaign(campaign: Campaign, out_dir: Path, executor: Executor | None = 
     and report.html too, and a cached point without them gets them drawn from its folder (draw_point).
     Ctrl-C stops the campaign, keeps every finished point cached and returns the result so far with
     `interrupted` set."""
-    from hil.report.kpis import check_out_dir
+    from hil.runtime.run import check_out_dir
 
     t0 = time.perf_counter()
     out_dir = check_out_dir(out_dir)
     points = expand(campaign) if points is None else points
     if plots:
-        from hil.runtime.run import has_figures
+        from hil.report.run import has_figures
     done: dict[int, PointResult] = {}
     todo: dict[str, list[Point]] = {}               # key -> points with that scenario (duplicates run once)
     undrawn: dict[str, dict] = {}                   # key -> point.json of a cached point to draw (plots)

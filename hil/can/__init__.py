@@ -4,6 +4,7 @@
 - `codec`     per-message encode/decode, proven equal to cantools
 - `e2e`       AUTOSAR E2E profiles 1 and 2 (counter + CRC)
 - `secoc`     AUTOSAR SecOC profile 1 (AES-CMAC, freshness)
+- `attributes` what the DBC's attributes say of a message: its E2E and SecOC, the signals its node fills
 - `busload`   frame lengths and the static bus load of a DBC
 - `bustiming` the bit-timed lockstep bus: durations, arbitration, transmit queues
 - `rta`       worst-case response-time analysis (Davis et al. 2007)

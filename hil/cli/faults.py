@@ -100,7 +100,7 @@ def matrix(args: argparse.Namespace) -> int:
     from hil.campaign.sweep import executor_for
     from hil.can.codec import loaded_dbc
     from hil.progress import progress_bar
-    from hil.report.kpis import check_out_dir
+    from hil.runtime.run import check_out_dir
     from hil.safety import matrix_report
     from hil.safety.threat_matrix import THREATS, plan, run_matrices, safety_messages
 

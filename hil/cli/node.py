@@ -85,6 +85,7 @@ def _wait_for_bus(bus, own_ids: set[int], stop: threading.Event) -> can.Message 
 
 
 def run(args: argparse.Namespace) -> int:
+    from hil.runtime.clock import RunClock
     from hil.runtime.host import Host, PlantEnd
     from hil.runtime.probe import late_threshold_us
     from hil.runtime.realtime import (
@@ -140,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
         end = None
         if "PLANT" in names:
             end = PlantEnd(round(scenario.end_after_standstill_s * 1e6), round(scenario.max_duration_s * 1e6))
-        host = Host(nodes, releases, codec, bus, t0, speed=scenario.realtime.speed,
+        host = Host(nodes, releases, codec, bus, RunClock.starting(t0, scenario.realtime.speed),
                     margin_ns=margin.margin_ns if margin else 0, plant_wake=scenario.realtime.plant_wake,
                     end=end)
         if args.start == "bus":

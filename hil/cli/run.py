@@ -161,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = args.out or Path("runs") / f"{scenario.name}-{mode}-{stamp}"
     if mode == "realtime":
-        from hil.runtime.realtime import run_scenario_realtime
+        from hil.report.run import run_scenario_realtime
 
         try:
             progress = Progress(not args.quiet, "realtime", scenario.max_duration_s)
@@ -178,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
             mode = "lockstep"
             out = args.out or Path("runs") / f"{scenario.name}-{mode}-{stamp}"
     if mode == "lockstep":
-        from hil.runtime.run import run_scenario_lockstep
+        from hil.report.run import run_scenario_lockstep
 
         marked = sorted(n for n, spec in scenario.nodes.items() if spec.external)
         if marked:                               # not silently dropped: say where it applies

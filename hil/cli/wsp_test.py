@@ -56,7 +56,7 @@ def wsp_test(args: argparse.Namespace) -> int:
     from hil.campaign.jobs import check_executor_options
     from hil.campaign.sweep import executor_for
     from hil.progress import progress_bar
-    from hil.report.kpis import check_out_dir
+    from hil.runtime.run import check_out_dir
     from hil.typetest import report
     from hil.typetest.programme import ProgrammeError, load_programme, runs
     from hil.typetest.wsp import run_programme

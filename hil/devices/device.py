@@ -21,6 +21,7 @@ from typing import Literal
 
 from cantools.database.can import Database, Message, Signal
 
+from hil.can.attributes import bench_filled_signals
 from hil.can.codec import Codec, loaded_dbc
 from hil.can.dbc import closest
 from hil.devices.description import DeviceSpec, MapEntry, read_device_file
@@ -369,8 +370,6 @@ class _Checker:
     def _filled(self, msg: Message, side: str) -> set[str]:
         """The signals of a target message its sender fills itself (E2E, SecOC, counters, multiplexer)."""
         if side == "bench":
-            from hil.runtime.node import bench_filled_signals
-
             return bench_filled_signals(msg)
         opcua = self.spec.opcua
         if opcua is not None:                      # the bench's count, which the link writes itself

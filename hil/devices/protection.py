@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from cantools.database.can import Message, Signal
 
+from hil.can.attributes import e2e_config
 from hil.can.checksums import CounterChecksumConfig
 from hil.can.e2e import DataIdMode, E2EConfigError, P01Config, P02Config, P05Config, P11Config
 from hil.devices.description import ProtectionSpec
@@ -55,8 +56,6 @@ def message_protection(spec: ProtectionSpec | None, msg: Message, where: str):
     """The E2E configuration of a device message: from its device-file entry `spec`, else from railhil's
     own DBC attributes (E2EProfile), else None (unprotected)."""
     if spec is None:
-        from hil.runtime.node import e2e_config
-
         try:
             return e2e_config(msg)
         except DbcError as exc:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 from cantools.database.can import Database, Message
 
-from hil.runtime.node import bench_filled_signals
+from hil.can.attributes import bench_filled_signals
 
 AGE_SUFFIX = "rx_age_s"          # MESSAGE.rx_age_s: seconds since that message's last usable frame
 TRUTH_PREFIX = "truth."

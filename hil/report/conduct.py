@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hil.runtime.clock import LOCKSTEP_CLOCK, RunClock
 from hil.trace.decoded import DecodedTrace
 from hil.trace.timing import KIND_DATA, KIND_ERROR, KIND_REMOTE, FrameArrays, analyse
 
@@ -38,15 +39,16 @@ def frames_sent_by(decoded: DecodedTrace, db, node: str) -> int:
 
 
 def node_conduct(decoded: DecodedTrace, db, nodes: list[str], node_stats: dict[str, dict],
-                 external: list[str], t0_s: float = 0.0, speed: float = 1.0,
+                 external: list[str], clock: RunClock = LOCKSTEP_CLOCK,
                  end_s: float = np.inf, sent_by: dict[str, list[str]] | None = None) -> dict[str, dict]:
     """{node: {"external", "frames", "first_s", "last_s", "timing", "messages": {name: {...}},
     "protection": {status: count}}} for every node in `nodes`, judged on the frames of the run: from its
-    start t0 to its end `end_s` [trace time] (an external device may send before the run began and after
-    it ended, while the recorder still listens).  `sent_by` (hil.runtime.run.messages_sent): the messages
-    each node sends in this run; a node's messages are those, not every message the DBC gives it (the
-    frames of cars the train does not have, of studies the run has not), where it is known."""
-    arrays = frame_arrays_of(decoded, t0_s, end_s)
+    start (the run's `clock`: t0) to its end `end_s` [trace time] (an external device may send before the
+    run began and after it ended, while the recorder still listens).  `sent_by`
+    (hil.runtime.run.messages_sent): the messages each node sends in this run; a node's messages are those,
+    not every message the DBC gives it (the frames of cars the train does not have, of studies the run has
+    not), where it is known."""
+    arrays = frame_arrays_of(decoded, clock.t0_s, end_s)
     report = analyse(arrays, db, TOLERANCE)
     by_message = {m.name: m for m in report.messages}
     reported: dict[str, dict[str, int]] = {}         # message -> status -> count, from every receiver
@@ -84,8 +86,8 @@ def node_conduct(decoded: DecodedTrace, db, nodes: list[str], node_stats: dict[s
         out[node] = {
             "external": node in external,
             "frames": int(k.size),
-            "first_s": round(float((arrays.t[k[0]] - t0_s) * speed), 4) if k.size else None,
-            "last_s": round(float((arrays.t[k[-1]] - t0_s) * speed), 4) if k.size else None,
+            "first_s": round(float(clock.simulated_s(arrays.t[k[0]])), 4) if k.size else None,
+            "last_s": round(float(clock.simulated_s(arrays.t[k[-1]])), 4) if k.size else None,
             "timing": ("PASS" if present and all(v["verdict"] == "PASS" for v in present) else
                        "FAIL" if present else "SILENT"),
             "messages": messages,
@@ -95,8 +97,8 @@ def node_conduct(decoded: DecodedTrace, db, nodes: list[str], node_stats: dict[s
     return out
 
 
-def silence_reported(decoded: DecodedTrace, db, node: str, last_s: float | None, t0_s: float = 0.0,
-                     speed: float = 1.0) -> float | None:
+def silence_reported(decoded: DecodedTrace, db, node: str, last_s: float | None,
+                     clock: RunClock = LOCKSTEP_CLOCK) -> float | None:
     """When the BCU first reported car n silent (BCU_STATUS CarsSilent bit n−1) after BECUn's last frame at
     `last_s` [s, simulated]; None: not a BECU, never silent, or never reported."""
     if last_s is None or not (node.startswith("BECU") and node[4:].isdigit()):
@@ -105,6 +107,6 @@ def silence_reported(decoded: DecodedTrace, db, node: str, last_s: float | None,
     bits = table.columns.get("CarsSilent")
     if bits is None:
         return None
-    t = (table.t - t0_s) * speed
+    t = clock.simulated_s(table.t)
     k = np.flatnonzero((t > last_s) & (bits.astype(np.int64) >> (int(node[4:]) - 1) & 1 == 1))
     return round(float(t[k[0]]), 4) if k.size else None

@@ -28,6 +28,7 @@ import numpy as np
 
 from hil.can.codec import loaded_dbc
 from hil.report.conduct import node_conduct, silence_reported
+from hil.runtime.clock import LOCKSTEP_CLOCK, RunClock
 from hil.trace.decoded import DecodedTrace
 
 
@@ -48,8 +49,8 @@ def _figures(us: np.ndarray) -> dict:
             "p99_us": round(float(np.percentile(us, 99)), 1), "max_us": round(float(us.max()), 1)}
 
 
-def gateway_latency(routes: list[dict], bench: DecodedTrace, device: DecodedTrace, t0_s: float = 0.0,
-                    speed: float = 1.0) -> dict:
+def gateway_latency(routes: list[dict], bench: DecodedTrace, device: DecodedTrace,
+                    clock: RunClock = LOCKSTEP_CLOCK) -> dict:
     """{"device_to_bench": figures, "bench_to_device": figures, "messages": {message: figures + kind}} of
     the routed messages (their latency) and, per message, the cyclic ones (their source's age)."""
     sides = {"bench": bench, "device": device}
@@ -62,10 +63,10 @@ def gateway_latency(routes: list[dict], bench: DecodedTrace, device: DecodedTrac
         src = sides["device" if r["to"] == "bench" else "bench"]
         dst = sides[r["to"]]
         s, d = _times(src, source_name), _times(dst, r["message"])
-        d = d[d >= t0_s]
+        d = d[d >= clock.t0_s]
         k = np.searchsorted(s, d, side="right") - 1
         ok = k >= 0
-        us = (d[ok] - s[k[ok]]) * 1e6 * speed
+        us = (d[ok] - s[k[ok]]) * 1e6 * clock.speed
         messages[r["message"]] = {"to": r["to"], "from": source_name,
                                   "kind": "routed" if r["trigger"] else "cyclic", **_figures(us)}
         if r["trigger"]:
@@ -80,13 +81,13 @@ def gateway_latency(routes: list[dict], bench: DecodedTrace, device: DecodedTrac
 PLC_CYCLE_BOUND = 1.5
 
 
-def _gateway_on_bench(record: dict, bench: DecodedTrace, db, node_stats: dict, t0_s: float, speed: float,
+def _gateway_on_bench(record: dict, bench: DecodedTrace, db, node_stats: dict, clock: RunClock,
                       end_s: float) -> dict:
     """The gateway's frames on the bench in the replaced node's place, judged as that node's."""
     replaced = record["replaces"]
     on_bench = node_conduct(bench, db, [replaced], {n: s for n, s in node_stats.items() if n != replaced},
-                            [replaced], t0_s, speed, end_s)[replaced]
-    on_bench["reported_silent_s"] = silence_reported(bench, db, replaced, on_bench["last_s"], t0_s, speed)
+                            [replaced], clock, end_s)[replaced]
+    on_bench["reported_silent_s"] = silence_reported(bench, db, replaced, on_bench["last_s"], clock)
     targets = {r["message"] for r in record["routes"]}
     on_bench["messages"] = {m: v for m, v in on_bench["messages"].items() if m in targets}
     return on_bench
@@ -108,14 +109,14 @@ def plc_timing(link: dict) -> tuple[str, str]:
     return ("FAIL" if why else "PASS"), "; ".join(why) or f"cycle p99 ≤ {bound:g} ms, never silent"
 
 
-def opcua_device_kpis(record: dict, bench: DecodedTrace, db, node_stats: dict, t0_s: float = 0.0,
-                      speed: float = 1.0, end_s: float = np.inf) -> dict:
+def opcua_device_kpis(record: dict, bench: DecodedTrace, db, node_stats: dict,
+                      clock: RunClock = LOCKSTEP_CLOCK, end_s: float = np.inf) -> dict:
     """kpis.json's entry of a device on OPC UA (hil.devices.opcua): what the link measured — the PLC's
     cycle, the age of what it read when it wrote, the round trip from the bench's update to the PLC's write
     that reflects it, the bench's own calls (client role), refusals — and the gateway's frames on the
     bench.  PASS: its writes' timing PASS (plc_timing) and the gateway's bench frames' timing PASS."""
     link = record["opcua"]
-    on_bench = _gateway_on_bench(record, bench, db, node_stats, t0_s, speed, end_s)
+    on_bench = _gateway_on_bench(record, bench, db, node_stats, clock, end_s)
     timing, why = plc_timing(link)
     gw = record["gateway"]
     return {
@@ -131,25 +132,25 @@ def opcua_device_kpis(record: dict, bench: DecodedTrace, db, node_stats: dict, t
 
 
 def device_kpis(record: dict, bench: DecodedTrace, db, node_stats: dict, device_trace: Path,
-                t0_s: float = 0.0, speed: float = 1.0, end_s: float = np.inf) -> dict:
+                clock: RunClock = LOCKSTEP_CLOCK, end_s: float = np.inf) -> dict:
     """kpis.json's entry of one device (module docstring), from its record in RunOutcome.devices; judged on
-    the frames from the run's start `t0_s` to its end `end_s` [trace time]."""
+    the frames from the run's start (the `clock`'s t0) to its end `end_s` [trace time]."""
     if record.get("opcua") is not None:
-        return opcua_device_kpis(record, bench, db, node_stats, t0_s, speed, end_s)
+        return opcua_device_kpis(record, bench, db, node_stats, clock, end_s)
     ddb, dcodec = loaded_dbc(record["dbc"])
     from hil.report.kpis import read_run_trace
 
     dtrace = read_run_trace(device_trace, ddb, dcodec)
     gw = record["gateway"]
     own = node_conduct(dtrace, ddb, [record["node"]], {"gateway": gw["device_side"]}, [record["node"]],
-                       t0_s, speed, end_s)[record["node"]]
+                       clock, end_s)[record["node"]]
     replaced = record["replaces"]
-    on_bench = _gateway_on_bench(record, bench, db, node_stats, t0_s, speed, end_s)
+    on_bench = _gateway_on_bench(record, bench, db, node_stats, clock, end_s)
     # the gateway's frames to the device, against the device's DBC (informational: the bench's timing)
     senders = sorted({s for m in record["receives"] for s in ddb.get_message_by_name(m).senders})
-    judged = node_conduct(dtrace, ddb, senders, {}, [], t0_s, speed, end_s)
+    judged = node_conduct(dtrace, ddb, senders, {}, [], clock, end_s)
     to_device = {m: v for s in senders for m, v in judged[s]["messages"].items() if m in record["receives"]}
-    latency = gateway_latency(record["routes"], bench, dtrace, t0_s, speed)
+    latency = gateway_latency(record["routes"], bench, dtrace, clock)
     passed = (own["timing"] == "PASS" and own["protection_clean"] and on_bench["timing"] == "PASS")
     return {
         "file": record["file"], "dbc": record["dbc"], "node": record["node"], "replaces": replaced,

@@ -2,7 +2,7 @@
 two run folders (report-vs-<other>.html).
 
 A run's page is built from the files of its folder only — run.json, kpis.json, truth.csv and the PNG plots
-— so `railhil report RUN_DIR` rebuilds it at any time and `hil.runtime.run.finish_run` writes it after
+— so `railhil report RUN_DIR` rebuilds it at any time and `hil.report.run.finish_run` writes it after
 every run.  It needs nothing else: no network, no neighbouring file (the PNGs are embedded as base64,
 plotly.js is inlined once per page).  It reads at a glance on a 1,280 px screen (tests/test_report_html.py
 draws it in headless Chromium: no element wider than the page, the verdict and the KPIs on the first
@@ -35,24 +35,20 @@ REF dashed).
 A campaign's page (`write_campaign_report`) holds the point counts, the results table (results.csv)
 and the summary plots (plot_<key>.png) of the campaign folder.
 
-`run_metadata` gives the reproduction data that finish_run also writes into run.json; the git commit is
-read from the repository's .git directory (HEAD, loose refs, packed-refs), so no git program is run.
+What reproduces the run (versions, seed, DBC SHA-256, git commit) is in run.json, which the run wrote
+(hil.runtime.provenance.run_metadata).
 """
 
 from __future__ import annotations
 
 import base64
 import csv
-import hashlib
 import html
 import json
 import math
-import platform
 import re
-import sys
 from dataclasses import dataclass, field
 from functools import cache
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import numpy as np
@@ -62,12 +58,11 @@ from hil.report import kpi_info
 from hil.report.gate import device_gates, external_gates, study_checks
 from hil.report.kpi_info import Kpi
 from hil.report.summary import host_stalls_text
+from hil.runtime.truth import read_truth_csv
 from hil.scenario import registry
 from hil.scenario.params import KMH_PER_MPS
 
 REPORT_NAME = "report.html"
-#: distributions whose versions go into run.json (and the report): what a reproduction needs to match
-VERSIONED = ("railhil", "python-can", "cantools", "numpy", "pydantic", "matplotlib")
 MAX_FAULT_EVENTS = 200       # fault events listed in a report (run.json keeps them all)
 MAX_TABLE_ROWS = 2000        # campaign rows shown in the page (results.csv keeps them all)
 MAX_POINTS = 2000            # samples a curve of the interactive figures keeps at most (min/max decimation)
@@ -83,71 +78,6 @@ PLOTLY_CONFIG = {"displaylogo": False, "responsive": True, "showSendToCloud": Fa
 
 class ReportError(RailhilError):
     """A folder that is not a run folder or a campaign folder, or whose files do not read (exit 2)."""
-
-
-# ------------------------------------------------------------------------------------ reproduction data
-def _repo_root(start: Path) -> Path | None:
-    for folder in (start, *start.parents):
-        if (folder / ".git").exists():
-            return folder
-    return None
-
-
-def git_commit(start: Path | None = None) -> str | None:
-    """The commit checked out in the git repository holding `start` (default: railhil's own source), as
-    40 hex digits; None outside a repository or when .git cannot be read. Reads .git's files only."""
-    root = _repo_root((start or Path(__file__)).resolve().parent)
-    if root is None:
-        return None
-    git = root / ".git"
-    try:
-        if git.is_file():                              # a worktree or submodule: "gitdir: <path>"
-            git = (root / git.read_text().split(":", 1)[1].strip()).resolve()
-        head = (git / "HEAD").read_text().strip()
-        if not head.startswith("ref:"):
-            return head or None                        # detached HEAD: the commit itself
-        ref = head.split(":", 1)[1].strip()
-        common = git / "commondir"
-        base = (git / common.read_text().strip()).resolve() if common.exists() else git
-        for folder in (git, base):
-            loose = folder / ref
-            if loose.is_file():
-                return loose.read_text().strip() or None
-        packed = base / "packed-refs"
-        if packed.is_file():
-            for line in packed.read_text().splitlines():
-                parts = line.split()
-                if len(parts) == 2 and parts[1] == ref:
-                    return parts[0]
-    except (OSError, IndexError, UnicodeDecodeError):
-        return None
-    return None
-
-
-@cache
-def _versions() -> dict[str, str]:
-    out = {"python": platform.python_version()}
-    for dist in VERSIONED:
-        try:
-            out[dist] = version(dist)
-        except PackageNotFoundError:
-            out[dist] = "not installed"
-    return out
-
-
-def sha256_of(path: Path) -> str | None:
-    """SHA-256 (hex) of a file's bytes; None when it cannot be read."""
-    try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError:
-        return None
-
-
-def run_metadata(dbc_path: Path, seed: int) -> dict:
-    """What reproduces a run, for run.json: versions, seed, the DBC and its SHA-256, the git commit of
-    railhil's source, the command line that started the process."""
-    return {"versions": dict(_versions()), "seed": seed, "dbc_sha256": sha256_of(dbc_path),
-            "git_commit": git_commit(), "command": " ".join(sys.argv), "platform": platform.platform()}
 
 
 # --------------------------------------------------------------------------------------------- verdicts
@@ -446,8 +376,6 @@ def decimate(t: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS) -> tupl
 
 def _read_truth(run_dir: Path) -> tuple[dict[str, np.ndarray] | None, str]:
     """truth.csv of a run folder as columns, or None and why not."""
-    from hil.report.kpis import read_truth_csv
-
     path = run_dir / "truth.csv"
     if not path.is_file():
         return None, f"no {path.name} in the folder"

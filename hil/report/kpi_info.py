@@ -1,6 +1,6 @@
 """What each KPI of kpis.json is: its display name, its unit, a one-line meaning and whether it is per car.
 
-kpis.json holds the foundation's KPIs (hil.report.kpis.compute_kpis and hil.runtime.run.finish_run) at its
+kpis.json holds the foundation's KPIs (hil.report.kpis.compute_kpis and hil.report.run.finish_run) at its
 top level, two groups of them (`bus`, `realtime`) and each study's under the study's name.  The table of
 the foundation's is `FOUNDATION` below (a group's members by their dotted path, `bus.load`); each study
 keeps its own as `KPI_INFO` at the end of hil/studies/<name>/kpis.py, in the same shape, and the report

@@ -14,9 +14,7 @@ one read.
 
 from __future__ import annotations
 
-import csv
 import json
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -27,7 +25,8 @@ from cantools.database.can import Database
 
 from hil.can.codec import Codec
 from hil.errors import RailhilError
-from hil.runtime.plant_node import STANDSTILL_MPS
+from hil.runtime.clock import LOCKSTEP_CLOCK, RunClock
+from hil.runtime.truth import STANDSTILL_MPS, read_truth_csv
 from hil.scenario import registry
 from hil.scenario.params import run_params
 from hil.trace.columns import BlockReader, FrameBlock
@@ -41,41 +40,10 @@ MOVING_MPS = 0.5        # a car below this speed is not judged for slip or decel
 NO_SIGNAL = (np.zeros(0), np.zeros(0))
 
 
-def write_truth_csv(columns: dict[str, np.ndarray], path: Path) -> None:
-    """truth.csv: a header of the column names, then one line per sample, every value to 6 significant
-    digits (`%.6g`), as csv.writer writes them (CRLF line ends); one format operation per line."""
-    names = list(columns)
-    rows = np.column_stack([columns[n] for n in names])
-    line = ",".join(["%.6g"] * len(names)) + "\r\n"
-    with path.open("w", newline="") as f:
-        csv.writer(f).writerow(names)
-        f.write("".join([line % tuple(row) for row in rows.tolist()]))
-
-
-def run_trace(folder: Path, meta: dict, scenario) -> tuple[Path, float, float]:
+def run_trace(folder: Path, meta: dict) -> tuple[Path, RunClock]:
     """The trace of a run folder and how its timestamps map to simulated time, from its run.json
-    (`meta`): (path, trace_t0_s, speed); simulated t = (trace t - trace_t0_s) * speed (lockstep: 0, 1)."""
-    speed = scenario.realtime.speed if meta.get("mode") == "realtime" else 1.0
-    return Path(folder) / meta.get("trace", "trace.blf"), float(meta.get("trace_t0_s") or 0.0), speed
-
-
-def read_truth_csv(path: Path) -> dict[str, np.ndarray]:
-    """truth.csv (written by `write_truth_csv`) back as columns, each a 1-d array (numpy's C reader
-    `loadtxt`: a fifth of `genfromtxt`'s time on a default run's truth); unreadable: RailhilError."""
-    try:
-        with path.open(newline="") as f:
-            names = next(csv.reader(f), [])
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)      # "input contained no data": no samples
-                data = np.loadtxt(f, delimiter=",", ndmin=2, dtype=float)
-    except OSError as exc:
-        raise RailhilError(f"{path}: cannot read the truth of a run: {exc}") from None
-    except ValueError as exc:
-        raise RailhilError(f"{path}: not a truth.csv of railhil (numbers under a header): "
-                           f"{' '.join(str(exc).split())}") from None
-    if data.size and data.shape[1] != len(names):
-        raise RailhilError(f"{path}: {data.shape[1]} values per line under {len(names)} column names")
-    return {name: (data[:, k].copy() if data.size else np.zeros(0)) for k, name in enumerate(names)}
+    (`meta`): (path, the run's clock, hil.runtime.clock.RunClock.of_run)."""
+    return Path(folder) / meta.get("trace", "trace.blf"), RunClock.of_run(meta)
 
 
 def read_run_trace(trace: Path, db: Database, codec: Codec) -> DecodedTrace:
@@ -95,18 +63,18 @@ def read_run_trace(trace: Path, db: Database, codec: Codec) -> DecodedTrace:
     return DecodedTrace(Path(trace), db, frames, codec)
 
 
-def _series(table, signal: str, t0_s: float, speed: float) -> tuple[np.ndarray, np.ndarray]:
+def _series(table, signal: str, clock: RunClock) -> tuple[np.ndarray, np.ndarray]:
     """Simulated times [s] and values of one signal of a decoded message (hil.trace.decoded)."""
-    return (table.t - t0_s) * speed, table.columns[signal]
+    return clock.simulated_s(table.t), table.columns[signal]
 
 
 def read_signal(trace: Path | DecodedTrace, db: Database, codec: Codec, message: str, signal: str,
-                t0_s: float = 0.0, speed: float = 1.0) -> tuple[np.ndarray, np.ndarray, int]:
-    """Simulated times [s] ((timestamp - t0) * speed) and values of one signal in a trace, and the
-    number of frames in the whole trace: from a trace already read (`read_run_trace`), or in one pass
-    over the file at `trace`."""
+                clock: RunClock = LOCKSTEP_CLOCK) -> tuple[np.ndarray, np.ndarray, int]:
+    """Simulated times [s] (the run's `clock`) and values of one signal in a trace, and the number of
+    frames in the whole trace: from a trace already read (`read_run_trace`), or in one pass over the file
+    at `trace`."""
     if isinstance(trace, DecodedTrace):
-        return (*_series(trace.table(message), signal, t0_s, speed), len(trace.frames))
+        return (*_series(trace.table(message), signal, clock), len(trace.frames))
     fid = db.get_message_by_name(message).frame_id
     fc = codec[fid]
     ts, vs = [], []
@@ -115,13 +83,13 @@ def read_signal(trace: Path | DecodedTrace, db: Database, codec: Codec, message:
         for msg in reader:
             total += 1
             if msg.arbitration_id == fid and not msg.is_error_frame and not msg.is_remote_frame:
-                ts.append((msg.timestamp - t0_s) * speed)
+                ts.append(clock.simulated_s(msg.timestamp))
                 vs.append(fc.decode(bytes(msg.data))[signal])
     return np.asarray(ts), np.asarray(vs), total
 
 
 def read_signals(trace: Path | DecodedTrace, db: Database, codec: Codec, wanted: dict[str, tuple[str, str]],
-                 t0_s: float = 0.0, speed: float = 1.0) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+                 clock: RunClock = LOCKSTEP_CLOCK) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Several signals of a trace (already read, `read_run_trace`, or in one pass over the file):
     name -> (message, signal) in, name -> (simulated times [s], values) out (a message the DBC lacks
     gives empty arrays)."""
@@ -133,7 +101,7 @@ def read_signals(trace: Path | DecodedTrace, db: Database, codec: Codec, wanted:
             except KeyError:
                 out[name] = NO_SIGNAL
                 continue
-            out[name] = _series(table, signal, t0_s, speed)
+            out[name] = _series(table, signal, clock)
         return out
     by_id: dict[int, list[tuple[str, str]]] = {}
     for name, (message, signal) in wanted.items():
@@ -150,7 +118,7 @@ def read_signals(trace: Path | DecodedTrace, db: Database, codec: Codec, wanted:
                 continue
             decoded = codec[msg.arbitration_id].decode(bytes(msg.data))
             for name, signal in entries:
-                series[name][0].append((msg.timestamp - t0_s) * speed)
+                series[name][0].append(clock.simulated_s(msg.timestamp))
                 series[name][1].append(decoded[signal])
     return {name: (np.asarray(ts), np.asarray(vs)) for name, (ts, vs) in series.items()}
 
@@ -197,8 +165,7 @@ class RunView:
     trace: Path | None = None
     db: Database | None = None
     codec: Codec | None = None
-    trace_t0_s: float | None = 0.0       # the trace's timestamp at simulated time 0 (None: not known)
-    trace_speed: float = 1.0
+    clock: RunClock | None = LOCKSTEP_CLOCK   # the trace's time base (hil.runtime.clock; None: not known)
     mode: str = "lockstep"
     decoded: DecodedTrace | None = field(default=None, repr=False)
     _cache: dict = field(default_factory=dict, repr=False)
@@ -231,13 +198,13 @@ class RunView:
         cols = read_truth_csv(folder / "truth.csv")
         db = load_dbc(Path(scenario.dbc) if scenario.dbc else DEFAULT_DBC)
         codec = Codec(db)
-        trace, t0, speed = run_trace(folder, meta, scenario)
+        trace, clock = run_trace(folder, meta)
         decoded = read_run_trace(trace, db, codec) if trace.exists() else None
         wanted = {"r0": ("BCU_DEMAND", "TargetDecel")}
-        target = (read_signals(decoded, db, codec, wanted, t0, speed)["r0"] if decoded is not None
+        target = (read_signals(decoded, db, codec, wanted, clock)["r0"] if decoded is not None
                   else NO_SIGNAL)
         return cls.of(scenario, cols, target, None, out_dir=folder, trace=trace, db=db, codec=codec,
-                      trace_t0_s=t0, trace_speed=speed, mode=meta.get("mode", "lockstep"), decoded=decoded)
+                      clock=clock, mode=meta.get("mode", "lockstep"), decoded=decoded)
 
     @property
     def t(self) -> np.ndarray:
@@ -262,9 +229,9 @@ class RunView:
                 return empty
             self.decoded = read_run_trace(self.trace, self.db, self.codec)
         sig = read_signals(self.decoded, self.db, self.codec, wanted,
-                           0.0 if self.trace_t0_s is None else self.trace_t0_s, self.trace_speed)
+                           LOCKSTEP_CLOCK if self.clock is None else self.clock)
         end = float(self.t[-1]) + 1.0 if len(self.t) else 0.0
-        if self.trace_t0_s is None and any(ts.size and ts[0] > end for ts, _ in sig.values()):
+        if self.clock is None and any(ts.size and ts[0] > end for ts, _ in sig.values()):
             sig = empty
         self._cache[key] = sig
         return sig
@@ -342,11 +309,3 @@ def study_kpis(run: RunView) -> dict:
 
 def write_kpis(kpis: dict, path: Path) -> None:
     path.write_text(json.dumps(kpis, indent=2, sort_keys=True) + "\n")
-
-
-def check_out_dir(out: Path) -> Path:
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise RailhilError(f"{out}: cannot create the run folder: {exc.strerror}") from None
-    return out

@@ -10,10 +10,10 @@
     run.frames                                               # the raw frames
 
 Times: a run's are simulated seconds (a real-time trace's wall-clock timestamps are taken back to the
-run's start with run.json's trace_t0_s and speed), so truth and signals share one axis; a trace opened
-on its own keeps its own timestamps.  The trace is read once, through the fast column readers
-(hil.trace.columns), and each message decoded once, on first use (hil.trace.decoded).  A signal is named
-`MESSAGE.Signal`, or `Signal` alone where one message of the DBC has it.
+run's start with the run's clock from run.json, hil.runtime.clock.RunClock.of_run), so truth and signals
+share one axis; a trace opened on its own keeps its own timestamps.  The trace is read once, through the
+fast column readers (hil.trace.columns), and each message decoded once, on first use (hil.trace.decoded).
+A signal is named `MESSAGE.Signal`, or `Signal` alone where one message of the DBC has it.
 """
 
 from __future__ import annotations
@@ -27,7 +27,9 @@ import numpy as np
 from hil.can.codec import Codec
 from hil.can.dbc import DEFAULT_DBC, closest, load_dbc
 from hil.errors import RailhilError
-from hil.report.kpis import read_truth_csv, run_trace
+from hil.report.kpis import run_trace
+from hil.runtime.clock import LOCKSTEP_CLOCK, RunClock
+from hil.runtime.truth import read_truth_csv
 from hil.trace.decoded import DecodedTrace
 
 
@@ -38,19 +40,19 @@ class RunFolderError(RailhilError, ValueError):
 class TraceView:
     """A trace with its DBC: `.frames`, `.signal()`, `.signals()`, `.message()` (module docstring)."""
 
-    def __init__(self, path: str | Path, dbc: str | Path | None = None, t0_s: float = 0.0,
-                 speed: float = 1.0) -> None:
+    def __init__(self, path: str | Path, dbc: str | Path | None = None,
+                 clock: RunClock = LOCKSTEP_CLOCK) -> None:
         self.path = Path(path)
         self.dbc_path = Path(dbc) if dbc is not None else DEFAULT_DBC
         self.db = load_dbc(self.dbc_path)
-        self._t0, self._speed = t0_s, speed
+        self._clock = clock
 
     @cached_property
     def decoded(self) -> DecodedTrace:
         return DecodedTrace.read(self.path, self.db, Codec(self.db))
 
     def _time(self, t: np.ndarray) -> np.ndarray:
-        return (t - self._t0) * self._speed
+        return self._clock.simulated_s(t)
 
     @cached_property
     def frames(self):
@@ -148,8 +150,8 @@ class RunFolder(TraceView):
 
         self.folder, self.meta, self.kpis = folder, meta, kpis
         self.scenario = scenario_model().model_validate(meta["scenario"])
-        trace, t0, speed = run_trace(folder, meta, self.scenario)
-        super().__init__(trace, meta.get("dbc") or None, t0_s=t0, speed=speed)
+        trace, clock = run_trace(folder, meta)
+        super().__init__(trace, meta.get("dbc") or None, clock=clock)
 
     @cached_property
     def truth(self):

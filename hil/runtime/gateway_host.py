@@ -30,6 +30,7 @@ import numpy as np
 from hil.can.frame_io import FrameIO
 from hil.devices.device import TRUTH_FIELDS
 from hil.devices.opcua import OpcUaLink
+from hil.runtime.clock import RunClock
 from hil.runtime.host import PARENT_CHECK_US, TIMESTAMP_TRUST_US, CycleTiming
 from hil.runtime.release import NodeRelease
 
@@ -69,12 +70,11 @@ class GatewayHost:
     """A gateway between `bench_bus` and `device_bus` (None: the device is on the bench's bus, each frame
     goes to the side whose DBC has its identifier): `run(stop)` until `stop` is set or `orphaned()`."""
 
-    def __init__(self, gateway, bench_bus: can.BusABC, device_bus, t0_ns: int, *,
-                 speed: float = 1.0, orphaned: Callable[[], bool] | None = None,
+    def __init__(self, gateway, bench_bus: can.BusABC, device_bus, clock: RunClock, *,
+                 orphaned: Callable[[], bool] | None = None,
                  first_device_frame: Callable[[float], None] | None = None) -> None:
         self.gateway = gateway
-        self.t0_ns, self.speed, self.orphaned = t0_ns, speed, orphaned
-        self.epoch_t0 = time.time() + (t0_ns - time.monotonic_ns()) / 1e9   # t0 on the wall clock [s]
+        self.clock, self.orphaned = clock, orphaned         # the run's (hil.runtime.clock.RunClock.starting)
         self.sides = {"bench": gateway.bench, "device": gateway.device_side}
         unread = [fc.frame_id for fc in gateway.bench.codec if fc.frame_id not in gateway.bench.rx_ids]
         bench_io = FrameIO(bench_bus, drop_own=True, drop_ids=unread)
@@ -97,7 +97,7 @@ class GatewayHost:
         self.reason: str | None = None
 
     def now_us(self) -> int:
-        return int((time.monotonic_ns() - self.t0_ns) * self.speed) // 1000
+        return self.clock.now_us()
 
     def _take(self, side: str) -> None:
         """Every frame the bus of `side` holds, to that side of the gateway (one bus: to the side its
@@ -108,7 +108,7 @@ class GatewayHost:
         def on_frame(timestamp: float, frame_id: int, _extended: bool, data: bytes, msg) -> None:
             if msg is not None and (msg.is_error_frame or msg.is_remote_frame):
                 return
-            t_us = int((timestamp - self.epoch_t0) * 1e6 * self.speed)
+            t_us = self.clock.simulated_us(timestamp)
             if not (now_us - TIMESTAMP_TRUST_US < t_us <= now_us + 1000):   # not this run's clock
                 t_us = now_us
                 self.timestamps_untrusted += 1
@@ -156,11 +156,11 @@ class GatewayHost:
                 self.io[side].close()
 
     def _loop(self, stop, selector, polled: list[str]) -> None:
-        t0, speed = self.t0_ns, self.speed
+        deadline_of, t0 = self.clock.deadline_ns, self.clock.t0_ns
         slot, nominal, deadline = {}, {}, {}
         for side, release in self.releases.items():
             slot[side], nominal[side], _ = release.next()
-            deadline[side] = t0 + round(slot[side] / speed)
+            deadline[side] = deadline_of(slot[side])
         next_check = time.monotonic_ns()
         while not stop.is_set():
             now = time.monotonic_ns()
@@ -184,12 +184,12 @@ class GatewayHost:
                 if side == "bench":
                     self.timing.ended(t0)
                 slot[side], nominal[side], _ = self.releases[side].next()
-                deadline[side] = t0 + round(slot[side] / speed)
+                deadline[side] = deadline_of(slot[side])
                 if side == "bench":                    # far behind: skip to the next slot, counted
                     late_us = (time.monotonic_ns() - deadline[side]) // 1000
                     for _ in range(self.timing.cycles_to_skip(late_us, slot[side] // 1000)):
                         slot[side], nominal[side], _ = self.releases[side].next()
-                        deadline[side] = t0 + round(slot[side] / speed)
+                        deadline[side] = deadline_of(slot[side])
             if now >= next_check:
                 next_check = now + PARENT_CHECK_US * 1000
                 if self.orphaned is not None and self.orphaned():

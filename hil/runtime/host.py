@@ -51,6 +51,7 @@ import numpy as np
 
 from hil.can.codec import FrameError
 from hil.can.frame_io import FrameIO
+from hil.runtime.clock import RunClock
 
 CATCH_UP_CYCLES = 5            # a node at most this many periods late catches up instead of skipping
 PLANT_CATCH_UP_US = 50_000     # the plant further behind than this rebases its schedule (slips) [µs]
@@ -381,17 +382,16 @@ class Host:
     """Nodes hosted in this process, their releases and the bus: `run()` until `stop` is set, the plant
     ends the run, or `orphaned()` says the runner died."""
 
-    def __init__(self, nodes: list, releases: list, codec, bus: can.BusABC, t0_ns: int, *, speed: float = 1.0,
+    def __init__(self, nodes: list, releases: list, codec, bus: can.BusABC, clock: RunClock, *,
                  margin_ns: int = 0, plant_wake: str = "frames", end: PlantEnd | None = None,
                  orphaned: Callable[[], bool] | None = None,
                  publish: Callable[[object], None] | None = None) -> None:
-        """`publish(plant controller)`: called after each wake's plant steps (a device's truth quantities,
+        """`clock`: the run's (hil.runtime.clock.RunClock.starting: its t0 and speed); `publish(plant
+        controller)`: called after each wake's plant steps (a device's truth quantities,
         hil.runtime.gateway_host.SharedTruth)."""
         self.nodes, self.releases, self.bus = nodes, releases, bus
         self.publish = publish
-        self.t0_ns, self.speed, self.margin_ns = t0_ns, speed, margin_ns
-        self.epoch_t0 = time.time() + (t0_ns - time.monotonic_ns()) / 1e9   # t0 on the wall clock [s]
-        self._scale = 1e6 * speed                  # bus seconds to µs of simulated time
+        self.clock, self.margin_ns = clock, margin_ns
         self._now_us: int | None = None            # now, once per drain
         self.plant = next((k for k, n in enumerate(nodes) if n.name == "PLANT"), None)
         self.batched = self.plant is not None and plant_wake == "frames"
@@ -419,12 +419,12 @@ class Host:
                 truth.rt_lag_us = []
         self.frames_received = 0
         self.timestamps_untrusted = 0    # frames stamped on reception, their own timestamp implausible
-        self.stalls = StallWatch(t0_ns, allowance_ns=margin_ns)
+        self.stalls = StallWatch(clock.t0_ns, allowance_ns=margin_ns)
 
     # -- time --------------------------------------------------------------------------------------
     def now_us(self) -> int:
         """Bus time [µs since t0, simulated: × speed]."""
-        return int((time.monotonic_ns() - self.t0_ns) * self.speed) // 1000
+        return self.clock.now_us()
 
     def _drain(self) -> None:
         """Every frame the socket holds, delivered with its reception time."""
@@ -437,7 +437,7 @@ class Host:
         now_us = self._now_us
         if now_us is None:
             now_us = self._now_us = self.now_us()
-        t_us = int((timestamp - self.epoch_t0) * self._scale)
+        t_us = self.clock.simulated_us(timestamp)
         if not (now_us - TIMESTAMP_TRUST_US < t_us <= now_us + 1000):   # not this run's clock
             t_us = now_us
             self.timestamps_untrusted += 1
@@ -497,7 +497,7 @@ class Host:
 
     def _loop(self, stop) -> None:
         nodes, releases, timings = self.nodes, self.releases, self.timings
-        speed, t0 = self.speed, self.t0_ns
+        deadline_of, t0 = self.clock.deadline_ns, self.clock.t0_ns
         plant = self.plant
         nominal = [0] * len(nodes)
         slot = [0] * len(nodes)              # each node's next release on its own clock [ns]
@@ -516,7 +516,7 @@ class Host:
                 if self.orphaned is not None and self.orphaned():
                     self.reason = "orphaned"
                     return
-            deadline_ns = t0 + round(wake_ns / speed)
+            deadline_ns = deadline_of(wake_ns)
             now_ns = self._wait(deadline_ns)
             watch = self.stalls
             lost_ns = watch.released(now_ns)

@@ -15,6 +15,10 @@ then node cycles in the node order of `assembly.node_names` (PLANT first, so the
 with the commands received up to that instant), then delayed releases, then arbitration (so every
 frame released at an instant competes in the arbitration that starts then).
 
+Faults ([[faults]] in the scenario) are the caller's: it builds an injector (hil.safety.injection
+build_injector) and hands it in (`injector`, a `FaultHook`); the runner asks it what becomes of each frame
+a node releases and when a node babbles, and knows no fault kinds itself.
+
 A device in a node's place (hil.devices: [devices.NAME]) has a bus of its own (`DeviceBus`): the
 gateway's device side and the device's model on a bit-timed bus at the device's bit rate, whose events
 share the run's schedule after the bench's at equal times, its frames in a trace of their own.  A frame
@@ -29,7 +33,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 import can
 from cantools.database.can import Database
@@ -45,7 +49,6 @@ from hil.runtime.node import Node
 from hil.runtime.outcome import RunOutcome
 from hil.runtime.plant_node import PlantController
 from hil.runtime.release import NodeRelease, message_delays, node_releases
-from hil.safety.injection import ROGUE, build_injector
 from hil.scenario import Scenario
 from hil.scenario.params import secoc_keys
 
@@ -54,6 +57,27 @@ DEFAULT_BITRATE = 500_000   # bit/s, when neither the scenario nor the DBC gives
 DELIVER, CYCLE, RELEASE, ARBITRATE, BABBLE = 0, 1, 2, 3, 4   # event phases: their order at equal times
 DEVICE_DELIVER, DEVICE_CYCLE, DEVICE_ARBITRATE = 5, 6, 7      # ... then a device bus's (DeviceBus)
 NEVER = 1 << 63             # ns: no such event scheduled
+ROGUE = -1                  # FaultHook.on_release's sender of an attacker's frames: a transmit queue apart
+
+
+class FaultHook(Protocol):
+    """What the runner asks of a fault injector (hil.safety.injection.FaultInjector, which the caller builds
+    from the scenario's [[faults]]): install the faults that live in the nodes, what becomes of each frame a
+    node releases, when nodes babble, and what it did (`log`: `add(t_ns, kind, what)`, `counts`,
+    `events`, for RunOutcome.faults)."""
+
+    log: Any
+    babble_rng: Any               # random.Random: a babbling node's payloads
+
+    def attach(self, nodes: list[Node]) -> None:
+        """Install the faults that live in the nodes (stuck signals, failed sensors)."""
+
+    def on_release(self, t_ns: int, node: int, frame_id: int, data: bytes) -> list[tuple[int, bytes, int]]:
+        """The frames (time [ns], payload, sender index; ROGUE: the attacker's) that enter the transmit
+        queues for one frame node `node` released at `t_ns`."""
+
+    def babble_windows(self) -> list[tuple[int, int, int, int]]:
+        """(start ns, end ns, node index, frame id) of each babbling node."""
 
 
 class RawFrame(NamedTuple):
@@ -267,21 +291,26 @@ class LockstepSetup:
     """The nodes of a lockstep run, built and checked against the DBC before anything is written."""
 
     nodes: list[Node]
-    injector: object | None
+    injector: FaultHook | None
     releases: list
     delays: dict
     devices: list[DeviceBus | DeviceOnBench | DeviceLink] = field(default_factory=list)
 
 
-def prepare_lockstep(scenario: Scenario, db: Database, codec: Codec, dbc_name: str = "DBC") -> LockstepSetup:
-    """Build every node, the fault injector, the release schedules and the message delays: a scenario the
-    DBC cannot carry fails here, with one line (RailhilError), before a run folder or trace exists."""
+def prepare_lockstep(scenario: Scenario, db: Database, codec: Codec, dbc_name: str = "DBC",
+                     injector: FaultHook | None = None) -> LockstepSetup:
+    """Build every node, the release schedules and the message delays, and attach the fault `injector` (the
+    scenario's [[faults]], built by the caller: hil.safety.injection.build_injector): a scenario the DBC
+    cannot carry fails here, with one line (RailhilError), before a run folder or trace exists.  A scenario
+    with faults and no injector is a ValueError: its faults are not silently left out."""
+    if scenario.faults and injector is None:
+        raise ValueError(f"scenario {scenario.name!r} has [[faults]] and the lockstep run no injector: build "
+                         "it with hil.safety.injection.build_injector and pass it as injector=")
     check_devices(scenario)
     nodes = [build_node(name, scenario, db, codec, dbc_name) for name in node_names(scenario)]
     keys = secoc_keys(scenario)
     for node in nodes:
         node.use_keys(keys, scenario.secoc.window)
-    injector = build_injector(scenario, db, codec, [n.name for n in nodes])
     if injector is not None:
         injector.attach(nodes)              # stuck signals and failed sensors live in the nodes
     releases = node_releases(scenario, db, nodes)
@@ -319,11 +348,12 @@ def prepare_lockstep(scenario: Scenario, db: Database, codec: Codec, dbc_name: s
 def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Listener | None,
                  progress: Callable[[int, dict], None] | None = None, dbc_name: str = "DBC",
                  setup: LockstepSetup | None = None,
-                 device_writers: dict[str, can.Listener] | None = None) -> RunOutcome:
-    """Run `scenario` to its end in simulated time; `setup` from prepare_lockstep (built here if None);
-    `device_writers`: the trace of each device's own bus, by the node it replaces."""
+                 device_writers: dict[str, can.Listener] | None = None,
+                 injector: FaultHook | None = None) -> RunOutcome:
+    """Run `scenario` to its end in simulated time; `setup` from prepare_lockstep (built here if None, with
+    the fault `injector`); `device_writers`: the trace of each device's own bus, by the node it replaces."""
     wall0 = time.perf_counter()
-    setup = setup or prepare_lockstep(scenario, db, codec, dbc_name)
+    setup = setup or prepare_lockstep(scenario, db, codec, dbc_name, injector)
     nodes, injector, releases, delays = setup.nodes, setup.injector, setup.releases, setup.delays
     devices = setup.devices
     plant_node = nodes[0]
@@ -331,7 +361,7 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
     delivery = LockstepBus(nodes, writer)
     deliver = delivery.send
     timed = scenario.bus.timing == "bit"
-    rogue = len(nodes)                   # the transmit queue of an attacker's frames (hil.safety.injection)
+    rogue = len(nodes)                   # the transmit queue of an attacker's frames (FaultHook, ROGUE)
     bus = None
     if timed:
         deadlines = {m.frame_id: int(m.cycle_time) * 1_000_000 for m in db.messages if m.cycle_time}

@@ -3,7 +3,7 @@
 Received frames are decoded into a latest-value table with reception times (`RxTable`); each cycle
 the node calls `controller.step(now_us, rx)` and encodes the frames that are due at their DBC cycle
 time.  Frames the DBC marks for E2E protection (message attributes `E2EProfile` = P01/P02 and
-`E2EDataID`, see `e2e_config`) are protected by the sender (counter and CRC, hil.can.e2e) and checked by
+`E2EDataID`, see hil.can.attributes) are protected by the sender (counter and CRC, hil.can.e2e) and checked by
 every receiver: a frame whose status is not usable (ERROR, REPEATED, WRONGSEQUENCE, INITIAL) does
 not reach the controller, and the status of each protected message is counted and given to the
 controller each cycle (`RxTable.e2e`).  The same Node runs in lockstep (driven by the
@@ -25,14 +25,14 @@ from dataclasses import dataclass, field
 from cantools.database.can import Database
 
 from hil.can import e2e, secoc
+from hil.can.attributes import E2E_COUNTER, e2e_config, multiplexer_pages, secoc_data_id
 from hil.can.codec import Codec, FrameCodec, FrameError
 from hil.can.dbc import closest
-from hil.errors import BindingError, DbcError
+from hil.errors import BindingError
 
 NAN = float("nan")
 NEVER_US = 1 << 62               # µs: a frame that is never due on the schedule
 _E2E_OK = e2e.Status.OK
-E2E_COUNTER = "COUNTER"
 E2E_COUNTER_MODULO = 15          # AUTOSAR E2E profile 1 alive counter runs 0..14
 
 
@@ -140,48 +140,6 @@ class TxFrame:
             self.encode = self.codec.encoder(self.fields, E2E_COUNTER if self.counter else None)
 
 
-def _attribute(msg, name: str):
-    attrs = getattr(getattr(msg, "dbc", None), "attributes", None) or {}
-    a = attrs.get(name)
-    if a is None:
-        return None
-    choices = getattr(a.definition, "choices", None)
-    if choices and isinstance(a.value, int) and not isinstance(a.value, bool):
-        return choices[a.value] if isinstance(choices, (list, tuple)) else choices.get(a.value, a.value)
-    return a.value
-
-
-def e2e_config(msg) -> e2e.P01Config | e2e.P02Config | None:
-    """The E2E configuration the DBC gives a message, or None.
-
-    Message attributes: `E2EProfile` ("NONE", "P01", "P02"); `E2EDataID` (P01: 16-bit data id, mode
-    BOTH, CRC in byte 0 and counter in the low nibble of byte 1 as the CHECKSUM/COUNTER signals of
-    our DBC); P02 needs `E2EDataIDList` (16 bytes as hex, e.g. "1F1F...", one per counter value)."""
-    profile = _attribute(msg, "E2EProfile")
-    if profile in (None, "NONE", "None", 0):
-        return None
-    where = f"message {msg.name}"
-    try:
-        if profile == "P01":
-            data_id = _attribute(msg, "E2EDataID")
-            if data_id is None:
-                raise DbcError(f"{where}: E2EProfile P01 needs the E2EDataID attribute")
-            return e2e.P01Config(int(data_id), length=authentic_length(msg), name=msg.name)
-        if profile == "P02":
-            text = _attribute(msg, "E2EDataIDList")
-            try:
-                ids = tuple(bytes.fromhex(str(text)))
-            except ValueError:
-                ids = ()
-            if len(ids) != 16:
-                raise DbcError(f"{where}: E2EProfile P02 needs E2EDataIDList = 16 bytes as 32 hex digits, "
-                               f"got {text!r}")
-            return e2e.P02Config(ids, length=authentic_length(msg), name=msg.name)
-    except e2e.E2EConfigError as exc:
-        raise DbcError(f"{where}: {exc}") from None
-    raise DbcError(f"{where}: E2EProfile {profile!r} is not one of NONE, P01, P02")
-
-
 #: the key every authenticated message uses unless the scenario gives one ([secoc]): a test-bench
 #: development key, public by design (AES-128, 16 bytes)
 DEV_SECOC_KEY = bytes.fromhex("2b7e151628aed2a6abf7158809cf4f3c")
@@ -189,42 +147,6 @@ DEV_SECOC_KEY = bytes.fromhex("2b7e151628aed2a6abf7158809cf4f3c")
 
 def msg_name_of(db: Database, frame_id: int) -> str:
     return db.get_message_by_frame_id(frame_id).name
-
-
-def secoc_data_id(msg) -> int | None:
-    """The message's SecOC data id (attribute `SecOCDataID` > 0), or None: not authenticated."""
-    value = _attribute(msg, "SecOCDataID")
-    return int(value) if value else None
-
-
-def authentic_length(msg) -> int:
-    """Bytes of the frame before a SecOC trailer (freshness byte + 3 MAC bytes), all without one."""
-    return msg.length - secoc.AUTH_BYTES if secoc_data_id(msg) else msg.length
-
-
-def bench_filled_signals(msg) -> set[str]:
-    """The signals of a message that its sending node fills itself, not its controller: the E2E CRC and
-    counter (CHECKSUM, COUNTER), the alive counter of a message without E2E (COUNTER), the SecOC trailer
-    (SecOCFreshness, SecOCMAC)."""
-    names = {s.name for s in msg.signals}
-    filled = names & {"CHECKSUM", E2E_COUNTER} if e2e_config(msg) is not None else names & {E2E_COUNTER}
-    if secoc_data_id(msg):
-        filled |= names & {"SecOCFreshness", "SecOCMAC"}
-    return filled
-
-
-def multiplexer_pages(msg, fields: Iterable[tuple[str, str]]) -> tuple[str, tuple[int, ...]] | None:
-    """(multiplexer signal, its values in the DBC's order) of a multiplexed message whose multiplexer is not
-    among the signals a node sets (`fields`): the node sends one page a frame, in turn (a status frame
-    that pages through its contents).  None for any other message."""
-    if not msg.is_multiplexed():
-        return None
-    set_by_node = {sig for sig, _ in fields}
-    for item in msg.signal_tree:
-        if isinstance(item, dict):
-            (mux, pages), = item.items()
-            return None if mux in set_by_node else (mux, tuple(int(v) for v in pages))
-    return None
 
 
 @dataclass

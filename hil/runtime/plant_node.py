@@ -12,12 +12,12 @@ import numpy as np
 from cantools.database.can import Database
 
 from hil.errors import BindingError
+from hil.runtime.truth import STANDSTILL_MPS
 from plant_sim.brake import WSP_FILL, WSP_HOLD
 from plant_sim.plant import Plant, TruthSnapshot
 from plant_sim.sensors import quantise
 
 TRUTH_PERIOD_US = 10_000         # ground truth is sampled every 10 ms
-STANDSTILL_MPS = 0.01            # every car slower than this counts as standing still (chosen)
 SENSOR_FIELDS = (("AxleSpeed", "axle_speed_rad_s"), ("CylPressure", "cyl_pressure_Pa"),
                  ("AccelLong", "accel_mps2"))
 

@@ -55,6 +55,7 @@ import can
 
 from hil.can.frame_io import FrameIO
 from hil.errors import BusError, NodeDied, RailhilError, ScenarioError
+from hil.runtime.clock import RunClock
 from hil.runtime.gctune import LOOP_THRESHOLDS
 from hil.runtime.host import orphaned
 from hil.runtime.outcome import RunOutcome
@@ -70,11 +71,20 @@ from hil.runtime.rtos import (
     make_realtime,
     pin_plan,
 )
+from hil.runtime.run import (
+    RunRecord,
+    check_out_dir,
+    dbc_path_of,
+    device_trace_name,
+    messages_sent,
+    trace_name,
+    write_run_folder,
+)
 from hil.scenario import Scenario
 from hil.trace.writers import open_writer
 
 __all__ = ["describe_bus", "hosts", "open_bus", "resolve_bus_config", "run_realtime",
-           "run_scenario_realtime", "watch_command"]
+           "run_realtime_folder", "watch_command"]
 
 READY_TIMEOUT_S = 60.0         # processes importing numpy/cantools on a loaded 2-core machine
 START_MARGIN_S = 0.3           # t0 lies this far after the last process reported ready
@@ -333,9 +343,9 @@ def _host_process(host: str, names: tuple[str, ...], scenario_json: str, dbc_pat
             from hil.runtime.gateway_host import SharedTruth
 
             publish = SharedTruth(truth, scenario.train.cars).write
-        runner = Host(nodes, releases, codec, bus, shared.t0_ns.value, speed=scenario.realtime.speed,
-                      margin_ns=shared.margin_ns.value, plant_wake=scenario.realtime.plant_wake, end=end,
-                      orphaned=orphaned, publish=publish)
+        clock = RunClock.starting(shared.t0_ns.value, scenario.realtime.speed)
+        runner = Host(nodes, releases, codec, bus, clock, margin_ns=shared.margin_ns.value,
+                      plant_wake=scenario.realtime.plant_wake, end=end, orphaned=orphaned, publish=publish)
         runner.run(shared.stop)
         if runner.reason == "orphaned":          # nobody reads the results: a large put would block the exit
             return
@@ -417,15 +427,15 @@ def _gateway_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, de
         if not _ready_to_go(name, shared, results, rt):
             return
         device_port = link if link is not None else buses[1] if len(buses) > 1 else None
-        host = GatewayHost(node.gateway, buses[0], device_port, shared.t0_ns.value,
-                           speed=scenario.realtime.speed, orphaned=orphaned,
+        clock = RunClock.starting(shared.t0_ns.value, scenario.realtime.speed)
+        host = GatewayHost(node.gateway, buses[0], device_port, clock, orphaned=orphaned,
                            first_device_frame=lambda t: results.put(("seen", name, t)))
         host.run(shared.stop)
         if host.reason == "orphaned":
             return
         payload = host.payload()
         if link is not None:                      # the PLC's cycle, read age, round trip: its own terms
-            payload["device"]["opcua"] = link.payload(host.epoch_t0, host.stopped_epoch)
+            payload["device"]["opcua"] = link.payload(host.clock.t0_s, host.stopped_epoch)
             payload["device"]["bus_mode"] = OPCUA
         payload["stats"]["host"] = name
         results.put(("result", name, payload))
@@ -557,8 +567,6 @@ def _device_cached(path: str, mtime_ns: int, dbc_path: str, scenario_json: str, 
 
 def _device_of(scenario: Scenario, node: str):
     """The device in `node`'s place (hil.devices.device.Device), loaded once."""
-    from hil.runtime.run import dbc_path_of
-
     file = scenario.devices[node].file
     return _device_cached(file, Path(file).stat().st_mtime_ns, str(dbc_path_of(scenario)),
                           scenario.model_dump_json(), node)
@@ -644,12 +652,12 @@ def _external_ids(db, external: list[str]) -> dict[str, set[int]]:
 def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                  progress: Callable[[int, dict], None] | None = None,
                  external: list[str] | tuple[str, ...] = (),
-                 device_traces: dict[str, Path] | None = None) -> tuple[RunOutcome, float, str | None]:
+                 device_traces: dict[str, Path] | None = None) -> tuple[RunOutcome, RunClock, str | None]:
     """Run the simulated nodes in their hosts, the recorder and the probe, and for each device in a node's
     place ([devices.NODE]) its gateway and a recorder of its own bus (into `device_traces[NODE]`); returns
-    the outcome, the trace's epoch at t0 and the failure (None: none)."""
+    the outcome, the run's clock (its t0 on the trace's clock: 0 when it never started) and the failure
+    (None: none)."""
     from hil.can.codec import loaded_dbc
-    from hil.report.kpis import check_out_dir
     from hil.runtime.assembly import node_names
     from hil.runtime.probe import PROBE_PERIOD_US, probe_cpus, probe_process
     from hil.runtime.rtos import PROBE_PRIORITY
@@ -745,7 +753,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     host_info: dict[str, dict] = {}
     reason = "interrupted"
     wall0 = time.perf_counter()
-    epoch_t0 = 0.0
+    clock = RunClock(speed=rt.speed)    # until t0 is handed out
     failure: str | None = None
     external_seen: dict[str, float] = {}
     device_seen: dict[str, float] = {}
@@ -786,7 +794,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                 ready.add(name)
         shared.margin_ns.value = calibration["margin_ns"] if calibration and rt.precise_wait else 0
         t0 = time.monotonic_ns() + int(START_MARGIN_S * 1e9)
-        epoch_t0 = time.time() + (t0 - time.monotonic_ns()) / 1e9
+        clock = RunClock.starting(t0, rt.speed)
         shared.t0_ns.value = t0
         wall0 = time.perf_counter() + START_MARGIN_S
         shared.go.set()
@@ -809,7 +817,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
             print(f"realtime: device {device.node} ({device.dbc_path.name}) in {name}'s place, on {where} "
                   f"behind the gateway; waiting up to {rt.external_wait_s:g} s for its first {first}",
                   file=sys.stderr, flush=True)
-        limit = time.monotonic() + START_MARGIN_S + scenario.max_duration_s / rt.speed + 30.0
+        limit = time.monotonic() + START_MARGIN_S + clock.wall_s(scenario.max_duration_s) + 30.0
         wait_external_until = time.monotonic() + START_MARGIN_S + rt.external_wait_s
         death: str | None = None          # a node died: the others run on for OBSERVE_AFTER_DEATH_S
         observe_until = 0.0
@@ -817,7 +825,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
             if progress_q is not None:
                 _show_progress(progress_q, progress)
             if watch is not None:
-                _watch_external(watch, external_ids, external_seen, epoch_t0)
+                _watch_external(watch, external_ids, external_seen, clock.t0_s)
                 if len(external_seen) == len(external_ids):
                     watch.shutdown()
                     watch = None
@@ -830,7 +838,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                                    f"{','.join(silent)} SCENARIO {bus_flags(cfg)}, or the device on that "
                                    "bus)")
             for name in list(device_watch):
-                _watch_external(device_watch[name], {name: device_ids[name]}, device_seen, epoch_t0)
+                _watch_external(device_watch[name], {name: device_ids[name]}, device_seen, clock.t0_s)
                 if name in device_seen:
                     device_watch.pop(name).shutdown()
                 elif time.monotonic() > wait_external_until:
@@ -862,9 +870,8 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                         raise NodeDied(death) from None
                     print(f"realtime: {what} died; the others run on for "
                           f"{OBSERVE_AFTER_DEATH_S:g} s so their reaction is recorded", file=sys.stderr)
-                    now_us = int((time.monotonic_ns() - t0) * rt.speed) // 1000
-                    shared.end_at_us.value = now_us + round(OBSERVE_AFTER_DEATH_S * 1e6)
-                    observe_until = time.monotonic() + OBSERVE_AFTER_DEATH_S / rt.speed + OBSERVE_GRACE_S
+                    shared.end_at_us.value = clock.now_us() + round(OBSERVE_AFTER_DEATH_S * 1e6)
+                    observe_until = time.monotonic() + clock.wall_s(OBSERVE_AFTER_DEATH_S) + OBSERVE_GRACE_S
                 if time.monotonic() > limit:
                     raise NodeDied("the plant did not finish within the scenario's max_duration_s") from None
                 continue
@@ -880,7 +887,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
             elif kind == "host":
                 host_info[name] = detail
             elif kind == "seen":                   # an OPC UA device's first write (its gateway saw it)
-                device_seen.setdefault(name, round(detail - epoch_t0, 4))
+                device_seen.setdefault(name, round(detail - clock.t0_s, 4))
     except (KeyboardInterrupt, _Terminate):
         reason = "interrupted"
         print("\nstopping: interrupt received, closing the trace", file=sys.stderr)
@@ -959,7 +966,7 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
         node_stats={n: payloads[n]["stats"] for n in nodes}, wall_s=wall,
         lateness_us={n: payloads[n]["lateness_us"] for n in nodes}, realtime=realtime,
         devices={n: payloads[n].pop("device") for n in devices if n in payloads})
-    return outcome, epoch_t0, failure
+    return outcome, clock, failure
 
 
 PER_CYCLE = ("deadline_us", "lateness_us", "ended_us", *HOST_SEEN)     # a node's records, one per cycle
@@ -1039,11 +1046,15 @@ def _show_progress(q, progress: Callable[[int, dict], None]) -> None:
         progress(now_us, truth)
 
 
-def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dict,
-                          progress: Callable[[int, dict], None] | None = None,
-                          external: tuple[str, ...] = ()):
+def run_realtime_folder(scenario: Scenario, out_dir: Path, cli_bus_config: dict,
+                        progress: Callable[[int, dict], None] | None = None,
+                        external: tuple[str, ...] = ()) -> RunRecord:
+    """Run `scenario` in real time into the run folder `out_dir`: its trace (and each device's own bus's),
+    truth.csv and run.json with the bus and the failure (`RunRecord.failure`: why the run ended early, a
+    node died; None: it did not).  The bus: `cli_bus_config`, then python-can's configuration, then the
+    scenario's [realtime] (resolve_bus_config); `external`: nodes another process or host runs.  Bad input
+    is one line before any process starts, and leaves no folder."""
     from hil.can.codec import loaded_dbc
-    from hil.runtime.run import dbc_path_of, device_trace_name, finish_run, messages_sent, trace_name
 
     if scenario.faults:                           # not silently dropped: say where they work
         kinds = ", ".join(sorted({f.kind for f in scenario.faults}))
@@ -1077,12 +1088,8 @@ def run_scenario_realtime(scenario: Scenario, out_dir: Path, cli_bus_config: dic
               file=sys.stderr)
     trace = out_dir / trace_name(scenario)        # its folder is made once the bus opened
     device_traces = {n: out_dir / device_trace_name(scenario, n) for n in scenario.devices}   # own buses
-    outcome, epoch_t0, failure = run_realtime(scenario, str(dbc_path), trace, cfg, progress=progress,
-                                              external=external, device_traces=device_traces)
-    report = finish_run(scenario, outcome, out_dir, db, codec, trace_t0_s=epoch_t0,
-                        trace_speed=scenario.realtime.speed,
-                        extra={"bus": {k: str(v) for k, v in cfg.items()}, "failure": failure},
-                        sent_by=messages_sent(nodes))
-    if failure is not None:                      # nothing recorded is lost: the folder is written first
-        raise NodeDied(f"{failure}; what was recorded is in {out_dir}")
-    return report
+    outcome, clock, failure = run_realtime(scenario, str(dbc_path), trace, cfg, progress=progress,
+                                           external=external, device_traces=device_traces)
+    run = RunRecord(scenario, outcome, out_dir, db, codec, outcome.truth.columns(), clock,
+                    messages_sent(nodes), failure)
+    return write_run_folder(run, extra={"bus": {k: str(v) for k, v in cfg.items()}, "failure": failure})

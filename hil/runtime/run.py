@@ -1,9 +1,11 @@
-"""One run of a scenario, in lockstep or real time, and the run folder it leaves.
+"""One run of a scenario and the run folder it leaves: the trace(s), truth.csv and run.json.
 
-A run folder holds the trace, truth.csv, kpis.json and run.json, and, unless the caller turns them off
-(`plots=False`: a campaign's points, `railhil campaign` without --plots), the figures (plot.png, each
-study's <study>.png) and report.html; `write_figures` draws those later from the folder's own files.
-The trace is read back once (hil.report.kpis.read_run_trace) for everything the KPIs take from it.
+The runtime runs a scenario — in lockstep here (`run_lockstep_folder`), in real time in hil.runtime.realtime
+(`run_realtime_folder`) — and writes what it ran into the run folder (`write_run_folder`): the plant's
+ground truth (truth.csv, hil.runtime.truth), and run.json (the resolved scenario, the DBC, the node
+statistics, the bus, the faults, the devices, the real-time set-up, the run's clock and what reproduces
+it).  It hands back a `RunRecord`, which the report reads (hil.report.run.finish_run: kpis.json, the
+figures, report.html).
 """
 
 from __future__ import annotations
@@ -13,41 +15,30 @@ import json
 import platform
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import can
 import numpy as np
+from cantools.database.can import Database
 
 from hil.can.codec import Codec, loaded_dbc
 from hil.can.dbc import DEFAULT_DBC
+from hil.errors import RailhilError
 from hil.fmi.fmu import describe as describe_fmu
 from hil.fmi.fmu import scenario_fmus
-from hil.report.bus import trace_bus_kpis, worst_case_load
-from hil.report.conduct import frames_sent_by, node_conduct, silence_reported
-from hil.report.devices import device_kpis
-from hil.report.html import REPORT_NAME, run_metadata, write_run_report
-from hil.report.kpis import (
-    RunView,
-    check_out_dir,
-    compute_kpis,
-    read_run_trace,
-    read_signal,
-    study_kpis,
-    write_kpis,
-    write_truth_csv,
-)
-from hil.report.plots import LATENESS_NAME, plot_lateness, plot_run, study_plots
-from hil.report.summary import summary_lines
-from hil.runtime.desk import DeskScript
-from hil.runtime.lockstep import prepare_lockstep, run_lockstep
-from hil.runtime.outcome import RunOutcome, realtime_verdict
+from hil.runtime.clock import LOCKSTEP_CLOCK, RunClock
+from hil.runtime.lockstep import FaultHook, prepare_lockstep, run_lockstep
+from hil.runtime.outcome import RunOutcome
+from hil.runtime.provenance import run_metadata
+from hil.runtime.truth import write_truth_csv
 from hil.scenario import Scenario
-from hil.trace.decoded import DecodedTrace
 from hil.trace.writers import open_writer
 
 TRACE_NAME = "trace.blf"       # the default trace's name; [trace] format chooses another (trace_name)
-PLOT_NAME = "plot.png"         # the run's figure of the truth (hil.report.plots.plot_run)
+TRUTH_NAME = "truth.csv"       # the plant's ground truth (hil.runtime.truth)
+RUN_NAME = "run.json"          # what ran: what makes a folder a run folder
 
 
 def trace_name(scenario: Scenario) -> str:
@@ -68,62 +59,70 @@ def device_trace_of(scenario: Scenario, node: str, record: dict) -> str:
 
 
 @dataclass
-class RunReport:
-    out_dir: Path
+class RunRecord:
+    """A run the runtime finished, and its folder: the trace(s), truth.csv and run.json are there.  What the
+    report needs beside the folder is kept here: the outcome, the truth's columns at full precision
+    (truth.csv keeps 6 significant digits), the DBC and codec it ran with, its clock and the messages each
+    node sends."""
+
+    scenario: Scenario
     outcome: RunOutcome
-    kpis: dict
-    files: list[Path]
+    out_dir: Path
+    db: Database
+    codec: Codec
+    cols: dict[str, np.ndarray]                  # the truth's columns (outcome.truth.columns())
+    clock: RunClock = LOCKSTEP_CLOCK             # the trace's time base
+    sent_by: dict[str, list[str]] | None = None  # the messages each node sends (messages_sent)
+    failure: str | None = None                   # real time: why the run ended early (run.json "failure")
 
-    def summary(self) -> list[str]:
-        o = self.outcome
-        head = (f"{o.mode} run: {o.end_us / 1e6:.2f} s simulated in {o.wall_s:.2f} s wall "
-                f"({o.end_us / 1e6 / max(o.wall_s, 1e-9):.1f}x real time), ended by {o.reason}")
-        return [head] + summary_lines(self.kpis, self.files)
+    @property
+    def trace(self) -> Path:
+        return self.out_dir / trace_name(self.scenario)
 
+    @property
+    def device_traces(self) -> list[Path]:
+        """The traces of the devices' own buses (none for a device on the bench's bus or on OPC UA)."""
+        return [self.out_dir / device_trace_name(self.scenario, name)
+                for name, record in self.outcome.devices.items()
+                if record.get("bus_mode") not in ("bench", "opcua")]
 
-def plausibility_events(trace: DecodedTrace | Path, db, codec: Codec, n_cars: int, t0_s: float = 0.0,
-                        speed: float = 1.0) -> dict[str, dict[str, float]]:
-    """When the ECUs first flagged a sensor or a car (issue #9), from the trace (read once:
-    hil.report.kpis.read_run_trace; a path is read here): simulated time [s] of the first BECUn_DIAG
-    frame with SpeedSensorFault / AccelSensorFault / CylSensorFault = 1 and of the first BCU_STATUS frame
-    with a car's CarsImplausible bit, by flag and car ("car2"), in the order the trace has them."""
-    decoded = trace if isinstance(trace, DecodedTrace) else read_run_trace(trace, db, codec)
-    hits: list[tuple[int, int, str, str, float]] = []    # (frame row, order in the frame, flag, car, t)
+    @property
+    def truth_csv(self) -> Path:
+        return self.out_dir / TRUTH_NAME
 
-    def first(message: str, on: np.ndarray, order: int, kind: str, car: str) -> None:
-        k = np.flatnonzero(on)
-        if k.size:
-            table = decoded.table(message)
-            hits.append((int(_rows(decoded, message)[k[0]]), order, kind, car,
-                         float((table.t[k[0]] - t0_s) * speed)))
-
-    for i in range(1, n_cars + 1):
-        name = f"BECU{i}_DIAG"
-        columns = decoded.table(name).columns
-        for order, sig in enumerate(("SpeedSensorFault", "AccelSensorFault", "CylSensorFault")):
-            if sig in columns:
-                first(name, columns[sig] >= 0.5, order, sig, f"car{i}")
-    status = decoded.table("BCU_STATUS").columns
-    if "CarsImplausible" in status:
-        bits = status["CarsImplausible"].astype(np.int64)
-        for k in range(n_cars):
-            first("BCU_STATUS", bits >> k & 1 == 1, k, "CarsImplausible", f"car{k + 1}")
-    flagged: dict[str, dict[str, float]] = {}
-    for _, _, kind, car, t in sorted(hits):
-        flagged.setdefault(kind, {}).setdefault(car, round(t, 4))
-    return flagged
+    @property
+    def run_json(self) -> Path:
+        return self.out_dir / RUN_NAME
 
 
-def _rows(decoded: DecodedTrace, message: str) -> np.ndarray:
-    """The trace rows of a decoded message's frames, in the order of its table (its frames of the right
-    kind and length), so that flags of different messages keep the trace's order."""
-    msg = decoded.db.get_message_by_name(message)
-    f = decoded.frames
-    rows = np.flatnonzero((f.arbitration_id == msg.frame_id) & ~f.remote & ~f.error
-                          & (f.extended == bool(msg.is_extended_frame)) & (f.length >= msg.length))
-    if len(rows) != len(decoded.table(message).t):      # the codec's frame-by-frame path: order by time
-        return np.searchsorted(f.t, decoded.table(message).t)
-    return rows
+def write_run_folder(run: RunRecord, extra: dict | None = None) -> RunRecord:
+    """truth.csv and run.json of a finished run into its folder, beside its trace; `extra`: more of run.json
+    (a real-time run's bus and failure).  Returns `run`."""
+    scenario, outcome = run.scenario, run.outcome
+    write_truth_csv(run.cols, run.truth_csv)
+    fmus = scenario_fmus(scenario)            # the FMUs in nodes' places (hil.fmi), kept with their SHA-256
+    meta = {
+        "scenario": scenario.model_dump(mode="json"),
+        "mode": outcome.mode,
+        "dbc": str(dbc_path_of(scenario)),
+        "python": sys.version.split()[0],
+        "python_can": can.__version__,
+        "platform": platform.platform(),
+        "trace": run.trace.name,
+        "trace_t0_s": run.clock.t0_s,
+        **({"messages_sent": run.sent_by} if run.sent_by else {}),
+        "node_stats": outcome.node_stats,
+        "bus_timing": outcome.bus,
+        "faults": outcome.faults,
+        **({"devices": outcome.devices} if outcome.devices else {}),
+        **({"fmus": {node: describe_fmu(path) for node, path in fmus.items()}} if fmus else {}),
+        "wall_s": round(outcome.wall_s, 3),
+        **({"realtime": realtime_meta(outcome.realtime)} if outcome.realtime else {}),
+        **run_metadata(dbc_path_of(scenario), scenario.seed),   # versions, DBC SHA-256, git commit
+        **(extra or {}),
+    }
+    run.run_json.write_text(json.dumps(meta, indent=2, default=str) + "\n")
+    return run
 
 
 def dbc_path_of(scenario: Scenario) -> Path:
@@ -136,116 +135,6 @@ def messages_sent(nodes) -> dict[str, list[str]]:
     return {node.name: [msg for msg, _ in node.binding.tx] for node in nodes}
 
 
-def finish_run(scenario: Scenario, outcome: RunOutcome, out_dir: Path, db, codec: Codec,
-               trace_t0_s: float = 0.0, trace_speed: float = 1.0, extra: dict | None = None,
-               interactive_report: bool = True, plots: bool = True,
-               sent_by: dict[str, list[str]] | None = None) -> RunReport:
-    """Write the run folder of a finished run: truth.csv, kpis.json (the trace read back once), run.json,
-    and with `plots` plot.png, the studies' figures and report.html.  `sent_by`: the messages each node
-    sends (`messages_sent`), kept in run.json; a real-time run's nodes are judged on those."""
-    trace = out_dir / trace_name(scenario)
-    cols = outcome.truth.columns()
-    truth_csv = out_dir / "truth.csv"
-    write_truth_csv(cols, truth_csv)
-    decoded = read_run_trace(trace, db, codec)                  # the one read of the trace
-    *target, recorded = read_signal(decoded, db, codec, "BCU_DEMAND", "TargetDecel", t0_s=trace_t0_s,
-                                    speed=trace_speed)
-    brake_us = DeskScript(scenario.desk).first_brake_us()
-    brake_s = None if brake_us is None else brake_us / 1e6
-    external = list((outcome.realtime or {}).get("external") or [])
-    for name in external:                      # a device under test sent what the trace holds of its frames
-        outcome.frames_by_node[name] = frames_sent_by(decoded, db, name)
-    for name, record in (outcome.devices or {}).items():
-        if record.get("bus_mode") == "bench" and record.get("mode") == "device":    # real time, one bus:
-            ddb, _ = loaded_dbc(record["dbc"])     # the device's frames and the gateway's to it are the run's
-            outcome.frames_by_node[f"{name}.device"] = frames_sent_by(decoded, ddb, record["node"])
-            outcome.frames_by_node[f"{name}.gateway"] = record["gateway"]["device_side"]["frames_sent"]
-    kpis = compute_kpis(scenario, cols, target, brake_s, outcome.frames_by_node, recorded,
-                        outcome.frames_in_flight, outcome.frames_overwritten, outcome.frames_faulted)
-    view = RunView.of(scenario, cols, tuple(target), brake_s, out_dir=out_dir, trace=trace, db=db,
-                      codec=codec, trace_t0_s=trace_t0_s, trace_speed=trace_speed, mode=outcome.mode,
-                      decoded=decoded)
-    kpis.update(study_kpis(view))                    # each study's own, under its name
-    run_end_s = trace_t0_s + outcome.end_us / 1e6 / trace_speed     # the run's end in the trace's time
-    if outcome.bus is not None:
-        worst = max(outcome.bus["messages"].items(), key=lambda kv: kv[1]["response_max_us"],
-                    default=(None, {"response_max_us": 0.0}))
-        kpis["bus"] = {
-            "bitrate_bps": outcome.bus["bitrate_bps"],
-            "load": round(outcome.bus["load"], 5) if outcome.bus["load"] is not None else None,
-            "worst_response_us": worst[1]["response_max_us"],
-            "worst_response_message": worst[0],
-            "deadline_misses": sum(m["deadline_misses"] for m in outcome.bus["messages"].values()),
-            "load_worst_case": worst_case_load(decoded, trace_t0_s, run_end_s, outcome.bus["bitrate_bps"]),
-            "source": "bus model",
-        }
-    elif outcome.mode == "realtime":           # no bus model: the figures the trace shows (hil.report.bus)
-        bus = trace_bus_kpis(decoded, db, trace_t0_s, run_end_s, scenario.bus.bitrate)
-        if bus is not None:
-            kpis["bus"] = bus
-    detected: dict[str, int] = {}              # what the receivers' E2E / SecOC checks reported
-    for stats in outcome.node_stats.values():
-        for _, _, status in stats.get("e2e_events") or ():
-            if status != "INITIAL":
-                detected[status] = detected.get(status, 0) + 1
-    kpis["protection_events"] = dict(sorted(detected.items()))
-    if outcome.faults is not None:
-        kpis["faults_injected"] = dict(sorted(outcome.faults["counts"].items()))
-    flagged = plausibility_events(decoded, db, codec, scenario.train.cars, trace_t0_s, trace_speed)
-    if flagged or outcome.faults is not None:
-        kpis["plausibility_flags"] = flagged       # first time [s] each sensor / car was flagged
-    if outcome.mode == "realtime":
-        kpis["realtime"] = realtime_verdict(outcome)
-        conduct = node_conduct(decoded, db, list(outcome.frames_by_node), outcome.node_stats, external,
-                               trace_t0_s, trace_speed, run_end_s, sent_by)
-        for name in external:
-            conduct[name]["reported_silent_s"] = silence_reported(decoded, db, name, conduct[name]["last_s"],
-                                                                  trace_t0_s, trace_speed)
-        kpis["realtime"]["conduct"] = conduct
-    if outcome.devices:                         # each device on its own terms (hil.report.devices)
-        kpis["devices"] = {name: device_kpis(record, decoded, db, outcome.node_stats,
-                                             out_dir / device_trace_of(scenario, name, record), trace_t0_s,
-                                             trace_speed, run_end_s)
-                           for name, record in outcome.devices.items()}
-    kpis["mode"] = outcome.mode
-    kpis["seed"] = scenario.seed
-    kpis["simulated_s"] = outcome.end_us / 1e6
-    kpis["end_reason"] = outcome.reason
-    kpis_json = out_dir / "kpis.json"
-    write_kpis(kpis, kpis_json)
-    figures = _draw(view, outcome.mode) if plots else []
-    if plots and "realtime" in kpis:
-        figures.append(plot_lateness(kpis["realtime"], out_dir / LATENESS_NAME))
-    fmus = scenario_fmus(scenario)            # the FMUs in nodes' places (hil.fmi), kept with their SHA-256
-    meta = {
-        "scenario": scenario.model_dump(mode="json"),
-        "mode": outcome.mode,
-        "dbc": str(dbc_path_of(scenario)),
-        "python": sys.version.split()[0],
-        "python_can": can.__version__,
-        "platform": platform.platform(),
-        "trace": trace.name,
-        "trace_t0_s": trace_t0_s,
-        **({"messages_sent": sent_by} if sent_by else {}),
-        "node_stats": outcome.node_stats,
-        "bus_timing": outcome.bus,
-        "faults": outcome.faults,
-        **({"devices": outcome.devices} if outcome.devices else {}),
-        **({"fmus": {node: describe_fmu(path) for node, path in fmus.items()}} if fmus else {}),
-        "wall_s": round(outcome.wall_s, 3),
-        **({"realtime": realtime_meta(outcome.realtime)} if outcome.realtime else {}),
-        **run_metadata(dbc_path_of(scenario), scenario.seed),   # versions, DBC SHA-256, git commit
-        **(extra or {}),
-    }
-    run_json = out_dir / "run.json"
-    run_json.write_text(json.dumps(meta, indent=2, default=str) + "\n")
-    report = [write_run_report(out_dir, interactive_report)] if plots else []   # one self-contained page
-    devices = [out_dir / device_trace_name(scenario, name) for name, record in outcome.devices.items()
-               if record.get("bus_mode") not in ("bench", "opcua")]
-    return RunReport(out_dir, outcome, kpis, [trace, *devices, truth_csv, kpis_json, *figures, run_json,
-                                              *report])
-
-
 def realtime_meta(rt: dict) -> dict:
     """run.json's record of a real-time run: hosting, what the OS granted each process, the sleep
     calibration and the precise wait's margin, the external nodes (the per-cycle figures are in kpis.json's
@@ -254,25 +143,13 @@ def realtime_meta(rt: dict) -> dict:
     return {k: v for k, v in rt.items() if k not in skip}
 
 
-def _draw(view: RunView, mode: str) -> list[Path]:
-    """plot.png and each study's figures of a run, into its folder; the files written."""
-    s = view.scenario
-    plot = plot_run(s, view.cols, view.out_dir / PLOT_NAME, f"{s.name} ({mode}, seed {s.seed})")
-    return [plot, *study_plots(view)]
-
-
-def has_figures(folder: Path) -> bool:
-    """Whether a run folder has its figures and report.html (a campaign point run without --plots has
-    not)."""
-    return (Path(folder) / PLOT_NAME).is_file() and (Path(folder) / REPORT_NAME).is_file()
-
-
-def write_figures(folder: Path, interactive_report: bool = False) -> list[Path]:
-    """plot.png, the studies' figures and report.html of a run folder that has none (a campaign point run
-    without plots), drawn from its own files: run.json, truth.csv (6 significant digits) and the trace;
-    the files written."""
-    view = RunView.from_folder(folder)
-    return [*_draw(view, view.mode), write_run_report(Path(folder), interactive_report)]
+def check_out_dir(out: Path) -> Path:
+    """`out`, made where it is not (a run's folder, a campaign's, a report's): one line where it cannot be."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RailhilError(f"{out}: cannot create the run folder: {exc.strerror}") from None
+    return out
 
 
 def prepare_worker(scenario: Scenario) -> float:
@@ -292,13 +169,15 @@ def prepare_worker(scenario: Scenario) -> float:
     return time.perf_counter() - t0
 
 
-def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None,
-                          interactive_report: bool = True, plots: bool = True) -> RunReport:
-    """Run `scenario` in lockstep into the run folder `out_dir` (finish_run: `plots` False leaves out the
-    figures and report.html)."""
+def run_lockstep_folder(scenario: Scenario, out_dir: Path,
+                        progress: Callable[[int, dict], None] | None = None,
+                        injector: FaultHook | None = None) -> RunRecord:
+    """Run `scenario` in lockstep into the run folder `out_dir`: its trace (and each device's own bus's),
+    truth.csv and run.json.  `injector`: the scenario's [[faults]] (hil.safety.injection.build_injector);
+    a scenario with faults needs it."""
     dbc_path = dbc_path_of(scenario)
     db, codec = loaded_dbc(dbc_path)
-    setup = prepare_lockstep(scenario, db, codec, str(dbc_path))   # bad input: no run folder is left
+    setup = prepare_lockstep(scenario, db, codec, str(dbc_path), injector)   # bad input: no run folder
     out_dir = check_out_dir(out_dir)
     with contextlib.ExitStack() as open_traces:                    # simulated s from 0
         writer = open_traces.enter_context(open_writer(out_dir / trace_name(scenario), start_time_s=0.0))
@@ -307,5 +186,5 @@ def run_scenario_lockstep(scenario: Scenario, out_dir: Path, progress=None,
             for dev in setup.devices if dev.bus_mode == "own"}
         outcome = run_lockstep(scenario, db, codec, writer, progress=progress, dbc_name=str(dbc_path),
                                setup=setup, device_writers=device_writers)
-    return finish_run(scenario, outcome, out_dir, db, codec, interactive_report=interactive_report,
-                      plots=plots, sent_by=messages_sent(setup.nodes))
+    return write_run_folder(RunRecord(scenario, outcome, out_dir, db, codec, outcome.truth.columns(),
+                                      sent_by=messages_sent(setup.nodes)))

@@ -2,8 +2,9 @@
 going bus-off, each declared in the scenario with a time window and seeded.
 
 Pure logic: `FaultInjector.on_release` gets every frame a node releases (time, node, frame id,
-payload) and returns what reaches the transmit queues instead, with times; `babble` gives the
-frames a babbling node adds.  `hil.runtime.lockstep` calls both.
+payload) and returns what reaches the transmit queues instead, with times; `babble_windows` gives the
+babbling nodes.  The caller of a lockstep run builds the injector (`build_injector`) and hands it to the
+runner, whose hook it fills (hil.runtime.lockstep.FaultHook): the runtime names no fault.
 
 Threats (EN 50159 §5.1; applied to the frames of `message` released in [from_s, to_s), each with
 `probability`, seeded):
@@ -49,12 +50,14 @@ from dataclasses import dataclass
 from cantools.database.can import Database
 
 from hil.can import e2e
+from hil.can.attributes import authentic_length as _authentic_length
+from hil.can.attributes import e2e_config as _e2e_config
 from hil.can.codec import Codec
 from hil.can.dbc import closest
 from hil.errors import ScenarioError
+from hil.runtime.assembly import node_names
+from hil.runtime.lockstep import ROGUE
 from hil.runtime.node import StuckSignal
-from hil.runtime.node import authentic_length as _authentic_length
-from hil.runtime.node import e2e_config as _e2e_config
 from hil.runtime.plant_node import SensorFault
 from hil.scenario.faults import (
     FAULT_KINDS,
@@ -66,8 +69,6 @@ from hil.scenario.faults import (
 
 __all__ = ["FAULT_KINDS", "MESSAGE_THREATS", "ROGUE", "SENSOR_SIGNALS", "SOURCE_FAULTS", "FaultInjector",
            "FaultLog", "FaultSpec", "build_injector"]
-
-ROGUE = -1           # sender index of the attacker's frames (a node of its own on the bus)
 
 @dataclass
 class FaultLog:
@@ -226,10 +227,15 @@ def _check_stuck(i: int, f: FaultSpec, msg, e2e_protected: bool, authentic: int)
                             f"{msg.name}.{f.signal}, [{lo}, {hi}] {sig.unit or ''}".rstrip())
 
 
-def build_injector(scenario, db: Database, codec: Codec, node_names_: list[str]) -> FaultInjector | None:
-    """The scenario's faults, checked against the DBC and the nodes (one ScenarioError line each)."""
+def build_injector(scenario, db: Database, codec: Codec,
+                   node_names_: list[str] | None = None) -> FaultInjector | None:
+    """The scenario's faults, checked against the DBC and the nodes (one ScenarioError line each), for a
+    lockstep run (its `injector`); `node_names_`: the run's nodes in their order (default: the scenario's,
+    hil.runtime.assembly.node_names).  None: the scenario has no faults."""
     if not scenario.faults:
         return None
+    if node_names_ is None:
+        node_names_ = node_names(scenario)
     names = [m.name for m in db.messages]
     for i, f in enumerate(scenario.faults):
         if f.message is not None and f.message not in names:

@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 
 from cantools.database.can import Database
 
+from hil.can.attributes import e2e_config, secoc_data_id
 from hil.can.codec import Codec, loaded_dbc
-from hil.runtime.node import e2e_config, secoc_data_id
 
 __all__ = ["Link", "actuating_links", "influence", "record_run", "unprotected"]
 
@@ -98,9 +98,10 @@ def record_run(scenario, db: Database | None = None) -> tuple[dict[str, Recordin
     """Run `scenario` in lockstep (no trace) with every node recorded; returns the recordings and the
     nodes' bindings: name -> (rx {frame id: [(signal, key)]}, tx [(message, [(signal, key)])])."""
     from hil.runtime.lockstep import prepare_lockstep, run_lockstep
+    from hil.safety.injection import build_injector
 
     db, codec = (loaded_dbc(scenario.dbc) if db is None else (db, Codec(db)))
-    setup = prepare_lockstep(scenario, db, codec)
+    setup = prepare_lockstep(scenario, db, codec, injector=build_injector(scenario, db, codec))
     recordings: dict[str, Recording] = {}
     bindings: dict[str, tuple] = {}
     for node in setup.nodes:

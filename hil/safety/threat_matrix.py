@@ -91,10 +91,10 @@ import numpy as np
 from cantools.database.can import Database
 
 from firmware_py.decel_feedback import PhiParams
+from hil.can.attributes import authentic_length, e2e_config
 from hil.can.codec import Codec, loaded_dbc
 from hil.report.kpis import RunView
 from hil.runtime.desk import DeskScript
-from hil.runtime.node import authentic_length, e2e_config
 from hil.scenario import Scenario, parse_scenario, registry
 from hil.scenario.faults import MESSAGE_THREATS, NODE_FAULTS
 from hil.scenario.params import run_params
@@ -352,13 +352,14 @@ def run_baseline(scenario: Scenario, window_s: float = WINDOW_S) -> Baseline:
     scenario whose family needs a stop and that does not stop runs again with its horizon HORIZON_FACTOR
     times longer."""
     from hil.runtime.lockstep import run_lockstep
+    from hil.safety.injection import build_injector
 
     t0 = time.perf_counter()
     db, codec = loaded_dbc(scenario.dbc)
     family = family_of(scenario)
     for attempt in range(2):
         log = _DemandLog(codec)
-        outcome = run_lockstep(scenario, db, codec, writer=log)
+        outcome = run_lockstep(scenario, db, codec, writer=log, injector=build_injector(scenario, db, codec))
         cols = outcome.truth.columns()
         on = [t for t, v in zip(log.t, log.v, strict=True) if v > 0.0]
         desk_us = DeskScript(scenario.desk).first_brake_us()
@@ -520,13 +521,14 @@ def run_cell(scenario: Scenario, spec: CellSpec, baseline: Baseline,
              frames: dict[str, Frame] | None = None) -> Cell:
     """One cell of the matrix (module docstring) against the fault-free `baseline`."""
     from hil.runtime.lockstep import prepare_lockstep, run_lockstep
+    from hil.safety.injection import build_injector
 
     db, codec = loaded_dbc(scenario.dbc)
     frames = protected_frames(scenario, db) if frames is None else frames
     fault = fault_for(scenario, db, spec, baseline.window)
     data = {**scenario.model_dump(), "max_duration_s": baseline.horizon_s, "faults": [fault]}
     faulty = parse_scenario(data, f"{scenario.name} + {spec.threat} on {spec.target}")
-    setup = prepare_lockstep(faulty, db, codec)
+    setup = prepare_lockstep(faulty, db, codec, injector=build_injector(faulty, db, codec))
     watch = _Watch(setup, db, codec, spec.frames, fault["from_s"])
     try:
         outcome = run_lockstep(faulty, db, codec, writer=None, setup=setup)

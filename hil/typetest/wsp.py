@@ -71,7 +71,8 @@ def available_for(scenario: Scenario) -> Callable[[float, float], float]:
 def run_job(spec: RunSpec, run_dir: str, params: MetricParams, demand: Demand | None) -> RunResult:
     """One run in lockstep into `run_dir` and its metrics (the worker's job; never raises).  A reference run
     without a demand derives its strategy's demand from itself."""
-    from hil.runtime.run import prepare_worker, run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
+    from hil.runtime.run import prepare_worker
 
     prepare_worker(spec.scenario)
     t0 = time.perf_counter()

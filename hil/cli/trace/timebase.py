@@ -29,6 +29,7 @@ import can
 import numpy as np
 
 from hil.cli.trace.common import TraceArgError, check_window
+from hil.runtime.clock import RunClock
 from hil.trace.columns import FrameBlock
 from hil.trace.readers import STDIN
 
@@ -37,7 +38,7 @@ if TYPE_CHECKING:
 
 __all__ = ["RUN_FILE", "RunOfTrace", "TimeBase", "add_time_arguments", "run_of_trace"]
 
-RUN_FILE = "run.json"     # what makes a folder a run folder (hil.runtime.run.finish_run writes it)
+RUN_FILE = "run.json"     # what makes a folder a run folder (hil.runtime.run.write_run_folder writes it)
 #: shifted times are rounded to the ns: an epoch timestamp in float64 is only good to ~0.2 µs, and what the
 #: subtraction leaves below the ns is that rounding's noise, not the trace's (0.0023326873779296875 s)
 NS_DIGITS = 9
@@ -51,9 +52,14 @@ class RunOfTrace:
     meta: dict
 
     @property
+    def clock(self) -> RunClock:
+        """The run's clock: its trace's time base (run.json, hil.runtime.clock.RunClock.of_run)."""
+        return RunClock.of_run(self.meta)
+
+    @property
     def t0_s(self) -> float:
         """The trace's timestamp at the run's start (run.json trace_t0_s; 0 in lockstep)."""
-        return float(self.meta.get("trace_t0_s") or 0.0)
+        return self.clock.t0_s
 
     @property
     def scenario(self) -> dict:

@@ -104,12 +104,13 @@ def run_judged(scenario_json: str) -> dict:
     from hil.can.codec import loaded_dbc
     from hil.runtime.lockstep import run_lockstep
     from hil.runtime.run import dbc_path_of
+    from hil.safety.injection import build_injector
 
     scenario = Scenario.model_validate_json(scenario_json)
     t0 = time.perf_counter()
     db, codec = loaded_dbc(dbc_path_of(scenario))     # once per worker process, not per run
     log = RequestLog(codec)
-    outcome = run_lockstep(scenario, db, codec, log)
+    outcome = run_lockstep(scenario, db, codec, log, injector=build_injector(scenario, db, codec))
     j = judge(scenario, outcome.truth.columns(), np.asarray(log.t), np.asarray(log.req))
     return {**j.as_dict(), "seed": scenario.seed, "prediction": spec_of(scenario).prediction,
             "simulated_s": outcome.end_us / 1e6, "end": outcome.reason, "wall_s": time.perf_counter() - t0}
@@ -134,8 +135,8 @@ def judge_run_dir(run_dir: Path) -> dict:
                             f"(run.json, truth.csv, {TRACE_NAME}): {' '.join(str(exc).split())}") from None
     spec_of(scenario)
     db = load_dbc(dbc_path_of(scenario))
-    trace, t0, speed = run_trace(run_dir, meta, scenario)
-    t, req, _ = read_signal(trace, db, Codec(db), "ACD_BRAKE_REQ", "Request", t0_s=t0, speed=speed)
+    trace, clock = run_trace(run_dir, meta)
+    t, req, _ = read_signal(trace, db, Codec(db), "ACD_BRAKE_REQ", "Request", clock)
     cols = {name: np.asarray(data[name]) for name in data.dtype.names}
     j = judge(scenario, cols, np.asarray(t), np.asarray(req))
     return {**j.as_dict(), "seed": scenario.seed, "prediction": spec_of(scenario).prediction,

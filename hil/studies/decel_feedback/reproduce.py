@@ -31,7 +31,7 @@ class DecelFeedbackError(RailhilError):
 
 
 def run_one(job: tuple[bool, str]) -> dict:
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
     from hil.scenario import load_scenario
 
     closed, out = job

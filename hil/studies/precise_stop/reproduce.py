@@ -67,7 +67,7 @@ def randomized_sets(method: str, k: int, distance_m: float | None, balises: bool
 
 def run_one(args: tuple[str, int, float | None, str]) -> dict:
     """One lockstep run (in a worker process): its precise-stop KPIs, labelled with the method."""
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
     from hil.scenario import load_scenario
 
     label, k, distance_m, out = args

@@ -37,7 +37,7 @@ class WheelSlipError(RailhilError):
 
 def run_one(job: tuple[str, bool, str]) -> dict:
     """One lockstep run: figure, governor on/off, run folder -> its kpis.json entries."""
-    from hil.runtime.run import run_scenario_lockstep
+    from hil.report.run import run_scenario_lockstep
     from hil.scenario import load_scenario
 
     figure, governor, out = job
