@@ -31,7 +31,8 @@ from firmware_py.acd import (
     pair_on_sections,
     required_decel_mps2,
 )
-from hil.runtime.node import Binding, RxTable
+from firmware_py.rx import RxTable
+from hil.runtime.node import Binding
 from plant_sim import geo
 
 DBC = Path(__file__).resolve().parents[1] / "dbc" / "train_brake.dbc"

@@ -355,7 +355,7 @@ def test_feedback_without_pad_model_is_one_clear_error(tmp_path):
 def test_becu_drops_a_phi_older_than_three_correction_cycles():
     """A correction that stops arriving (the BCU_BRAKE_CORR deleted or lost) falls back to φ = 1 after
     `phi_timeout_us` (3 cycles of 100 ms): the last φ received is not applied for ever."""
-    from hil.runtime.node import RxTable
+    from firmware_py.rx import RxTable
 
     becu = phi_becu()
     rx = RxTable(becu.inputs)

@@ -25,11 +25,12 @@ import cantools
 import numpy as np
 import pytest
 
+from firmware_py.rx import RxTable
 from hil.can import e2e, secoc
 from hil.can.codec import Codec
 from hil.can.dbc import load_dbc
 from hil.runtime.assembly import build_node, node_names
-from hil.runtime.node import DEV_SECOC_KEY, RxTable, e2e_config, secoc_data_id
+from hil.runtime.node import DEV_SECOC_KEY, e2e_config, secoc_data_id
 from hil.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -25,10 +25,10 @@ from conftest import ROOT
 from firmware_py.bcu import Bcu, BcuParams, disagreement
 from firmware_py.becu import Becu, BecuParams
 from firmware_py.reference_speed import RefMode, RefSpeed, RefSpeedParams, reference_speed
+from firmware_py.rx import RxTable
 from firmware_py.sensor_checks import SensorCheckParams
 from hil.can.codec import loaded_dbc
 from hil.report.kpis import read_run_trace
-from hil.runtime.node import RxTable
 from hil.scenario import load_scenario, parse_scenario
 
 DEFAULT = ROOT / "scenarios" / "default.toml"
