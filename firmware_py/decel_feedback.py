@@ -34,6 +34,7 @@ from firmware_py.bcu import BcuMode, Train
 from firmware_py.ekf import DecelEstimator, DecelEstimatorParams
 from firmware_py.limits import clip, finite_or
 from firmware_py.pi import PI, PIParams
+from firmware_py.rx import RxTable
 
 
 class FbState(IntEnum):
@@ -293,7 +294,7 @@ class PhiCorrection:
     def __init__(self, params: PhiParams, preload_Pa: float, p_max_Pa: float) -> None:
         self.p, self.preload_Pa, self.p_max_Pa = params, preload_Pa, p_max_Pa
 
-    def setpoint(self, now_us: int, rx, p_set_Pa: float, loop, out: dict[str, float]) -> float:
+    def setpoint(self, now_us: int, rx: RxTable, p_set_Pa: float, loop, out: dict[str, float]) -> float:
         phi, phi_ok = finite_or(rx.get("FrictionPhi", 1.0), 1.0)
         engaged = finite_or(rx.get("FbState", 0.0), 0.0)[0] in PHI_STATES and not self.stale(now_us, rx)
         if phi_ok and engaged and not (loop.emergency or loop.lost):
@@ -308,9 +309,7 @@ class PhiCorrection:
         lo, hi = self.p.limits
         return clip(pre + (p_set_Pa - pre) / clip(phi, lo, hi), 0.0, self.p_max_Pa)
 
-    def stale(self, now_us: int, rx) -> bool:
-        """φ was received more than `timeout_us` ago (a plain mapping, as in unit tests, has no reception
-        times: never stale)."""
-        age_us = getattr(rx, "age_us", None)
-        age = age_us("FrictionPhi", now_us) if age_us is not None else None
+    def stale(self, now_us: int, rx: RxTable) -> bool:
+        """φ was received more than `timeout_us` ago."""
+        age = rx.age_us("FrictionPhi", now_us)
         return age is not None and age > self.p.timeout_us

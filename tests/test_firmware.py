@@ -7,6 +7,7 @@ import pytest
 from firmware_py.bcu import Bcu, BcuMode, bcu_mode_transition
 from firmware_py.becu import Becu
 from firmware_py.pi import PI, PIParams
+from firmware_py.rx import RxTable
 from firmware_py.stopping import StoppingDemand, StoppingParams, StopState
 from firmware_py.wsp import Wsp, WspParams, wsp_transition
 
@@ -110,35 +111,36 @@ def test_bcu_without_target_does_not_brake():
     assert stopping.out.state == StopState.OFF
 
 
-def rx_becu(**kw):
+def rx_becu(t_us, **kw):
+    """The BECU's inputs, received at t_us."""
     base = {"AxleSpeed": 25 / 0.46, "CylPressure": 0.0, "AccelLong": 0.0, "TargetDecel": 1.0,
             "Mode": 1, "EmergencyActive": 0}
     base.update(kw)
-    return base
+    return RxTable.received(base, t_us)
 
 
 def test_becu_fills_towards_the_setpoint_for_the_demand():
     becu = Becu()
-    out = becu.step(0, rx_becu())
+    out = becu.step(0, rx_becu(0))
     # m a r / alpha + preload = 40000*1.0*0.46/0.08 + 30e3
     assert out["CylPressureSet"] == pytest.approx(260e3)
     assert out["ValveCmd"] > 0 and out["WspValve"] == Wsp.FILL
-    out = becu.step(10_000, rx_becu(CylPressure=300e3))
+    out = becu.step(10_000, rx_becu(10_000, CylPressure=300e3))
     assert out["ValveCmd"] < 0                                  # over pressure: vent through the EP valve
 
 
 def test_becu_vents_on_slip_and_freezes_its_integrator():
     becu = Becu()
-    becu.step(0, rx_becu())
+    becu.step(0, rx_becu(0))
     i_before = becu.pressure_pi.i
-    out = becu.step(10_000, rx_becu(AxleSpeed=20 / 0.46, AccelLong=-1.0))   # 5 m/s slip
+    out = becu.step(10_000, rx_becu(10_000, AxleSpeed=20 / 0.46, AccelLong=-1.0))   # 5 m/s slip
     assert out["WspValve"] == Wsp.VENT and out["WspActive"] == 1 and out["ValveCmd"] == 0.0
     assert becu.pressure_pi.i == i_before
 
 
 def test_becu_treats_missing_inputs_safely():
     becu = Becu()
-    out = becu.step(0, rx_becu(AxleSpeed=math.nan, TargetDecel=math.inf))
+    out = becu.step(0, rx_becu(0, AxleSpeed=math.nan, TargetDecel=math.inf))
     assert out["InputMissing"] == 1
     assert all(math.isfinite(v) for v in out.values())
 
