@@ -55,6 +55,7 @@ from enum import IntEnum
 
 from firmware_py.bcu import Demand, Train
 from firmware_py.limits import clip, finite_or
+from firmware_py.rx import RxTable
 
 # WGS-84 defining constants (NIMA TR8350.2, 3rd ed., table 3.1) and the IUGG mean radius
 # R1 = (2a + b) / 3 of the ellipsoid (H. Moritz, "Geodetic Reference System 1980", J. Geodesy 74 (2000)
@@ -482,14 +483,13 @@ class AcdBrakeRequest:
         self.p = params
         self._last = (False, 0.0)    # the ACD's last usable request (emergency, decel)
 
-    def demand(self, now_us: int, rx: Mapping[str, float], train: Train, out: dict[str, float]) -> Demand:
+    def demand(self, now_us: int, rx: RxTable, train: Train, out: dict[str, float]) -> Demand:
         emergency, decel, silent = self._request(now_us, rx, train.standstill)
         return Demand(decel, decel > 0.0, self.SOURCE if emergency else 0, silent)
 
-    def _request(self, now_us: int, rx: Mapping[str, float], standstill: bool) -> tuple[bool, float, bool]:
+    def _request(self, now_us: int, rx: RxTable, standstill: bool) -> tuple[bool, float, bool]:
         """(emergency requested, service deceleration requested [m/s²], silent) from ACD_BRAKE_REQ."""
-        age_us = getattr(rx, "age_us", None)
-        age = age_us(self.INPUTS[0], now_us) if age_us is not None else 0
+        age = rx.age_us(self.INPUTS[0], now_us)
         request, ok = finite_or(rx[self.INPUTS[0]], 0.0)
         if age is None or age > self.p.timeout_us or not ok:
             if standstill:

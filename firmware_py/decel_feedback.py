@@ -26,7 +26,6 @@ correct and by how much:
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -237,19 +236,17 @@ class TrainFeedback:
         self.out: FeedbackOutput | None = None      # last FeedbackOutput (diagnostic)
         self._speed_rx_us: int | None = None
 
-    def follow(self, now_us: int, rx: Mapping[str, float], train: Train, out: dict[str, float]) -> None:
+    def follow(self, now_us: int, rx: RxTable, train: Train, out: dict[str, float]) -> None:
         accel = [finite_or(rx[key], math.nan)[0] for key in self.accel_keys]
         if not all(a == a for a in accel):             # an accelerometer not heard from: use the other
             good = [a for a in accel if a == a]
             accel = [good[0]] * 2 if good else [0.0, 0.0]
         wsp = any(finite_or(rx[key], 0.0)[0] >= 0.5 for key in self.wsp_keys)
-        # a fresh speed estimate for the EKF: when a new BECU1_STATUS arrived (every cycle for a plain
-        # mapping, which has no reception times)
+        # a fresh speed estimate for the EKF: when a new BECU1_STATUS arrived
         train_speed = train.speed_mps if train.known_mps else 0.0
         speed: float | None = train_speed if train_speed > 0.0 else None
-        age_us = getattr(rx, "age_us", None)
-        if age_us is not None and speed is not None:
-            age = age_us(self.speed_key, now_us)
+        if speed is not None:
+            age = rx.age_us(self.speed_key, now_us)
             t_rx = None if age is None else now_us - age
             if t_rx == self._speed_rx_us:
                 speed = None

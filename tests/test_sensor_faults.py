@@ -337,15 +337,18 @@ def test_disagreeing_cars_table(speeds, trusted, expected):
 def test_the_bcu_excludes_a_car_after_3_status_cycles_and_latches():
     from firmware_py.bcu import Bcu
     bcu = Bcu(4)
-    rx = {"BrakeStep": 7, "EmergencyReq": 0, **{f"BECU{i}_STATUS.SpeedEst": 20.0 for i in range(1, 5)}}
-    out = bcu.step(0, rx)
+    values = {"BrakeStep": 7, "EmergencyReq": 0, **{f"BECU{i}_STATUS.SpeedEst": 20.0 for i in range(1, 5)}}
+    out = bcu.step(0, RxTable.received(values, 0))
     assert out["CarsImplausible"] == 0 and out["Degraded"] == 0 and out["TrainSpeedEst"] == 20.0
-    stuck = {**rx, "BECU3_STATUS.SpeedEst": 35.0}
-    flagged_us = next(k * 10_000 for k in range(1, 100) if bcu.step(k * 10_000, stuck)["CarsImplausible"])
+    stuck = {**values, "BECU3_STATUS.SpeedEst": 35.0}
+    flagged_us = next(t for t in range(10_000, 1_000_000, 10_000)
+                      if bcu.step(t, RxTable.received(stuck, t))["CarsImplausible"])
     assert BP.implausible_after_us < flagged_us - 10_000 <= BP.implausible_after_us + 10_000
-    out = bcu.step(flagged_us + 10_000, rx)                    # back in line: still excluded (latched)
+    t = flagged_us + 10_000
+    out = bcu.step(t, RxTable.received(values, t))             # back in line: still excluded (latched)
     assert out["CarsImplausible"] == 0b100 and out["Degraded"] == 1 and out["TrainSpeedEst"] == 20.0
-    out = bcu.step(flagged_us + 20_000, {**rx, "BECU1_DIAG.AccelSensorFault": 1})
+    t += 10_000
+    out = bcu.step(t, RxTable.received({**values, "BECU1_DIAG.AccelSensorFault": 1}, t))
     assert out["Degraded"] == 1
 
 
