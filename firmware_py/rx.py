@@ -2,7 +2,8 @@
 
 `RxTable` holds the latest value of each input signal, NaN until first received, with the time it was
 received.  The node runtime (hil.runtime.node) fills it from the frames it receives (`update`, `take`);
-a unit test builds one with `RxTable.received(values, t_us)` and refreshes it with `receive`.  A
+a unit test builds one with `RxTable.received(values, t_us)` and refreshes it with `receive`; a device
+that adds inputs of its own to those its node received merges them with `copy_from` and `receive`.  A
 controller asks `rx.age_us(name, now_us)` how old an input is (None: never received), so a test and a
 run on the bus exercise the same freshness and time-out logic.
 """
@@ -67,6 +68,17 @@ class RxTable(Mapping[str, float]):
                 times.pop(name, None)
             else:
                 times[name] = t_us
+        self.version += 1
+
+    def copy_from(self, other: RxTable, names: Iterable[str]) -> None:
+        """`names` as `other` holds them: each value with its reception time (or none: not received)."""
+        store, times, their_times = self._values, self._times, other._times
+        for name in names:
+            store[name] = other._values[name]
+            if name in their_times:
+                times[name] = their_times[name]
+            else:
+                times.pop(name, None)
         self.version += 1
 
     def update(self, pairs: Sequence[tuple[str, str]], values: Mapping[str, float], t_us: int) -> None:

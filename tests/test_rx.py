@@ -32,3 +32,12 @@ def test_update_stores_a_frames_signals_under_their_keys():
     rx = RxTable(["BCU_DEMAND.TargetDecel"])
     rx.update([("TargetDecel", "BCU_DEMAND.TargetDecel")], {"TargetDecel": 0.8, "Mode": 1}, 5_000)
     assert rx["BCU_DEMAND.TargetDecel"] == 0.8 and rx.age_us("BCU_DEMAND.TargetDecel", 8_000) == 3_000
+
+
+def test_copy_from_takes_values_and_reception_times_from_another_table():
+    node = RxTable.received({"RADIO_SIGNAL.Aspect": 2.0, "RADIO_LEADER_INFO.Speed": NAN}, 100_000)
+    rx = RxTable.received({"RADIO_LEADER_INFO.Speed": 12.0, "OwnSpeed": 20.0}, 0)
+    rx.copy_from(node, ["RADIO_SIGNAL.Aspect", "RADIO_LEADER_INFO.Speed"])
+    assert rx["RADIO_SIGNAL.Aspect"] == 2.0 and rx.age_us("RADIO_SIGNAL.Aspect", 150_000) == 50_000
+    assert math.isnan(rx["RADIO_LEADER_INFO.Speed"]) and rx.age_us("RADIO_LEADER_INFO.Speed", 150_000) is None
+    assert rx["OwnSpeed"] == 20.0 and rx.age_us("OwnSpeed", 150_000) == 150_000
