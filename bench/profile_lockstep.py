@@ -25,11 +25,12 @@ ROOT = Path(__file__).resolve().parents[1]
 ENTRY = "_profiled_runs"       # the child's function whose samples are counted (the warm-up run is not)
 
 # (component, what names it in a stack frame: a path or a generated code's file name); the innermost
-# frame that matches one decides, so a callee's own component wins over its caller's
+# frame that matches one decides, so a callee's own component wins over its caller's; in a frame, the first
+# component that names it
 COMPONENTS = (
-    ("controllers (firmware_py: BECU, BCU)", ("firmware_py/",)),
     ("node dispatch (`hil/runtime/node.py`: cycle, output checks, receive, RxTable)",
-     ("hil/runtime/node.py",)),
+     ("hil/runtime/node.py", "firmware_py/rx.py")),       # before the controllers: the table is the node's
+    ("controllers (firmware_py: BECU, BCU)", ("firmware_py/",)),
     ("event loop (`hil/runtime/lockstep.py`, `release.py`)", ("hil/runtime/lockstep.py",
                                                               "hil/runtime/release.py")),
     ("codec encode/decode (generated code)", ("railhil codec", "hil/can/codec.py")),

@@ -49,12 +49,13 @@ nominal gap, uncertainty) in `Acd.last` for tests and plots.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import IntEnum
 
 from firmware_py.bcu import Demand, Train
 from firmware_py.limits import clip, finite_or
+from firmware_py.rx import RxTable
 
 # WGS-84 defining constants (NIMA TR8350.2, 3rd ed., table 3.1) and the IUGG mean radius
 # R1 = (2a + b) / 3 of the ellipsoid (H. Moritz, "Geodetic Reference System 1980", J. Geodesy 74 (2000)
@@ -329,7 +330,7 @@ def acd_evaluate(p: AcdParams, mode: AcdMode, inp: AcdInputs) -> AcdDecision:
                        unc, d_sig, late)
 
 
-def _num(rx: Mapping[str, float], key: str) -> float:
+def _num(rx: RxTable, key: str) -> float:
     return finite_or(rx.get(key, math.nan), math.nan)[0]
 
 
@@ -340,9 +341,9 @@ class Acd:
     no DBC frame carries (the GPS comes over the serial line, hil.links.gpsserial; the route section and the
     signal's position over the radio): OwnLatitude/OwnLongitude [deg], OwnSpeed [m/s], OwnFixValid
     (0/1), OwnFixAge [s] (age of the fix when handed over), OwnRouteSection, SignalLatitude/
-    SignalLongitude [deg].  A missing or non-finite value counts as not received.  When `rx` has
-    `age_us(name, now_us)` (the node runtime's RxTable), the time since a radio frame arrived is added
-    to the age of its report.  LeaderId 0 means "no leader" (the control centre knows nobody ahead).
+    SignalLongitude [deg].  A missing or non-finite value counts as not received.  The time since a radio
+    frame arrived (`rx.age_us`) is added to the age of its report.  LeaderId 0 means "no leader" (the
+    control centre knows nobody ahead).
     """
 
     OUTPUTS = ("Request", "RequestedDecel", "DistanceToObstacle")
@@ -359,14 +360,11 @@ class Acd:
         self.last: AcdDecision | None = None
         self._fix: tuple[float, float, float, int] | None = None   # lat, lon, speed, time of fix [µs]
 
-    def _rx_age_s(self, rx: Mapping[str, float], keys: Iterable[str], now_us: int) -> float:
-        age_us = getattr(rx, "age_us", None)
-        if age_us is None:
-            return 0.0
-        ages = [a for k in keys if (a := age_us(k, now_us)) is not None]
+    def _rx_age_s(self, rx: RxTable, keys: Iterable[str], now_us: int) -> float:
+        ages = [a for k in keys if (a := rx.age_us(k, now_us)) is not None]
         return max(ages, default=0) * 1e-6
 
-    def inputs_from(self, now_us: int, rx: Mapping[str, float]) -> AcdInputs:
+    def inputs_from(self, now_us: int, rx: RxTable) -> AcdInputs:
         """The cycle's AcdInputs from `rx` (keeps the last valid own fix)."""
         lat, lon, speed = _num(rx, "OwnLatitude"), _num(rx, "OwnLongitude"), _num(rx, "OwnSpeed")
         valid, fix_age = _num(rx, "OwnFixValid"), _num(rx, "OwnFixAge")
@@ -396,7 +394,7 @@ class Acd:
                                   + self._rx_age_s(rx, ("RADIO_SIGNAL.Aspect",), now_us))
         return AcdInputs(own, int(round(section)) if section == section else None, leader, signal)
 
-    def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
+    def step(self, now_us: int, rx: RxTable) -> dict[str, float]:
         dec = acd_evaluate(self.p, self.mode, self.inputs_from(now_us, rx))
         self.mode, self.last = dec.mode, dec
         # output gate: only finite values inside the DBC ranges leave the ECU
@@ -482,14 +480,13 @@ class AcdBrakeRequest:
         self.p = params
         self._last = (False, 0.0)    # the ACD's last usable request (emergency, decel)
 
-    def demand(self, now_us: int, rx: Mapping[str, float], train: Train, out: dict[str, float]) -> Demand:
+    def demand(self, now_us: int, rx: RxTable, train: Train, out: dict[str, float]) -> Demand:
         emergency, decel, silent = self._request(now_us, rx, train.standstill)
         return Demand(decel, decel > 0.0, self.SOURCE if emergency else 0, silent)
 
-    def _request(self, now_us: int, rx: Mapping[str, float], standstill: bool) -> tuple[bool, float, bool]:
+    def _request(self, now_us: int, rx: RxTable, standstill: bool) -> tuple[bool, float, bool]:
         """(emergency requested, service deceleration requested [m/s²], silent) from ACD_BRAKE_REQ."""
-        age_us = getattr(rx, "age_us", None)
-        age = age_us(self.INPUTS[0], now_us) if age_us is not None else 0
+        age = rx.age_us(self.INPUTS[0], now_us)
         request, ok = finite_or(rx[self.INPUTS[0]], 0.0)
         if age is None or age > self.p.timeout_us or not ok:
             if standstill:

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 import statistics
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import NamedTuple, Protocol
@@ -34,6 +34,7 @@ from typing import NamedTuple, Protocol
 from firmware_py.brake_valve import BrakeValve, BrakeValveParams, ValvePosition
 from firmware_py.cycle import CycleTimer
 from firmware_py.limits import finite_or, rate_limit
+from firmware_py.rx import RxTable
 
 
 class BcuMode(IntEnum):
@@ -138,7 +139,7 @@ class DemandSource(Protocol):
     INPUTS: tuple[str, ...]     # its input signals (rx keys), bound beside the BCU's own
     OUTPUTS: tuple[str, ...]    # the output signals it writes into `out` every cycle
 
-    def demand(self, now_us: int, rx: Mapping[str, float], train: Train, out: dict[str, float]) -> Demand: ...
+    def demand(self, now_us: int, rx: RxTable, train: Train, out: dict[str, float]) -> Demand: ...
 
 
 class Follower(Protocol):
@@ -147,7 +148,7 @@ class Follower(Protocol):
     INPUTS: tuple[str, ...]
     OUTPUTS: tuple[str, ...]
 
-    def follow(self, now_us: int, rx: Mapping[str, float], train: Train, out: dict[str, float]) -> None: ...
+    def follow(self, now_us: int, rx: RxTable, train: Train, out: dict[str, float]) -> None: ...
 
 
 class Bcu:
@@ -177,17 +178,16 @@ class Bcu:
         self._disagree_since: list[int | None] = [None] * n_cars
         self._disagree_sign = [0] * n_cars            # +1 above the median, −1 below, since _disagree_since
 
-    def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
+    def step(self, now_us: int, rx: RxTable) -> dict[str, float]:
         p = self.p
         dt_s = self.timer.dt_s(now_us)
         step_raw, _ = finite_or(rx["BrakeStep"], 0.0)
         emergency_req, _ = finite_or(rx["EmergencyReq"], 0.0)
         brake_step = int(min(max(step_raw, 0), 7))
         speeds = [finite_or(rx[name], float("nan"))[0] for name in self.speed_keys]
-        age_us = getattr(rx, "age_us", None)         # reception times: the node runtime's RxTable
-        if age_us is not None:                        # a car heard from, but not lately, is silent too
-            speeds = [float("nan") if (a := age_us(name, now_us)) is not None and a > p.status_timeout_us
-                      else v for name, v in zip(self.speed_keys, speeds, strict=True)]
+        # a car heard from, but not lately, is silent too
+        speeds = [float("nan") if (a := rx.age_us(name, now_us)) is not None and a > p.status_timeout_us
+                  else v for name, v in zip(self.speed_keys, speeds, strict=True)]
         self._vote(now_us, speeds)
         known = [v for v, bad in zip(speeds, self.implausible, strict=True) if v == v and not bad]
         train_speed = max(known) if known else float("nan")
@@ -229,7 +229,7 @@ class Bcu:
                    CarsImplausible=implausible)
         return out
 
-    def _valve_step(self, now_us: int, rx: Mapping[str, float], dt_s: float) -> float:
+    def _valve_step(self, now_us: int, rx: RxTable, dt_s: float) -> float:
         """The demand of the driver's brake valve a PLC on the desk sets (DESK_CMD.BrakeValve): 0 while it
         is not used (NONE, or never received); its position integrated (firmware_py.brake_valve); a
         position gone stale, or a value that is no position, brakes (V)."""
@@ -238,8 +238,7 @@ class Bcu:
             self.valve.demand = 0.0                  # not used: the brake step alone
             return 0.0
         position = int(raw) if raw in VALVE_POSITIONS else ValvePosition.SERVICE
-        age_us = getattr(rx, "age_us", None)
-        age = age_us("BrakeValve", now_us) if age_us is not None else None
+        age = rx.age_us("BrakeValve", now_us)
         if age is not None and age > self.p.desk_timeout_us:
             position = ValvePosition.SERVICE
         return self.valve.step(dt_s, position)

@@ -13,7 +13,8 @@ Around it: the car's reference speed (firmware_py.reference_speed) and the check
 pipeline knows only the stage interfaces (a study binds its stages: hil/studies/<name>/nodes.py).
 
 Inputs (DBC signal names, bound by hil): AxleSpeed, CylPressure, AccelLong (the car's sensors),
-TargetDecel and Mode (BCU_DEMAND), EmergencyActive (BCU_EMERGENCY), and the stages' inputs.
+TargetDecel and Mode (BCU_DEMAND), EmergencyActive (BCU_EMERGENCY), and the stages' inputs, in an
+`RxTable` (firmware_py.rx) whose reception times tell a fresh sensor frame and a lost demand.
 Outputs: the pressure command frame (CylPressureSet, ValveCmd, WspValve), the status and estimate frames
 and the diagnostics frame (SpeedSensorFault, AccelSensorFault, CylSensorFault, AccelBiasEst), and the
 stages' outputs.
@@ -22,7 +23,7 @@ stages' outputs.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import NamedTuple, Protocol
@@ -39,6 +40,7 @@ from firmware_py.reference_speed import (
     creep_mps,
     reference_speed,
 )
+from firmware_py.rx import RxTable
 from firmware_py.sensor_checks import SensorCheckParams, SensorMonitor
 from firmware_py.wsp import Wsp, WspMode, WspParams, early_vent, slip_ceiling, vent_watchdog, wsp_transition
 
@@ -131,7 +133,7 @@ class ReferenceStage(Protocol):
     INPUTS: tuple[str, ...]     # its input signals (rx keys), bound beside the BECU's own
     OUTPUTS: tuple[str, ...]    # the output signals it writes into `out` every cycle
 
-    def reference(self, now_us: int, rx: Mapping[str, float], r_mps2: float, loop: Loop,
+    def reference(self, now_us: int, rx: RxTable, r_mps2: float, loop: Loop,
                   out: dict[str, float]) -> float: ...
 
 
@@ -141,7 +143,7 @@ class SetpointStage(Protocol):
     INPUTS: tuple[str, ...]
     OUTPUTS: tuple[str, ...]
 
-    def setpoint(self, now_us: int, rx: Mapping[str, float], p_set_Pa: float, loop: Loop,
+    def setpoint(self, now_us: int, rx: RxTable, p_set_Pa: float, loop: Loop,
                  out: dict[str, float]) -> float: ...
 
 
@@ -214,22 +216,17 @@ class Becu:
         self.u_sent = 0.0 if overridden else u
         return self.u_sent
 
-    def demand_lost(self, now_us: int, rx: Mapping[str, float]) -> bool:
+    def demand_lost(self, now_us: int, rx: RxTable) -> bool:
         """Loss of command: no usable brake demand for more than `failsafe_cycles` cycles.  Frames the
         E2E or SecOC check rejects never update the demand (hil.runtime.node), so a corrupt, forged, stale or
-        missing demand all age it.  Needs the reception times of the node runtime's RxTable; a plain
-        mapping (unit tests) never loses its command; neither does a BECU that never had one."""
-        age_us = getattr(rx, "age_us", None)
-        age = age_us("TargetDecel", now_us) if age_us is not None else None
+        missing demand all age it.  A BECU that never had a demand has none to lose."""
+        age = rx.age_us("TargetDecel", now_us)
         return age is not None and age > self.p.failsafe_cycles * self.p.cycle_us
 
-    def _fresh_sensor_frame(self, now_us: int, rx: Mapping[str, float], dt_s: float) -> tuple[bool, float]:
-        """(a sensor frame arrived since the last cycle, time since the previous one [s]).  A plain
-        mapping (unit tests) has no reception times: every cycle is a fresh frame, `dt_s` apart."""
-        age_us = getattr(rx, "age_us", None)
-        if age_us is None:
-            return True, dt_s
-        age = age_us("AxleSpeed", now_us)
+    def _fresh_sensor_frame(self, now_us: int, rx: RxTable, dt_s: float) -> tuple[bool, float]:
+        """(a sensor frame arrived since the last cycle, time since the previous one [s]): AxleSpeed's
+        reception time, against the one seen last cycle."""
+        age = rx.age_us("AxleSpeed", now_us)
         if age is None:
             return False, dt_s
         t_rx = now_us - age
@@ -249,7 +246,7 @@ class Becu:
             p.wheel_radius_m * p.car_mass_kg * G_MPS2)
         return creep_mps(mu, self.v_ref, p.creep)
 
-    def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
+    def step(self, now_us: int, rx: RxTable) -> dict[str, float]:
         p = self.p
         dt_s = self.timer.dt_s(now_us)
         omega, ok1 = finite_or(rx["AxleSpeed"], 0.0)

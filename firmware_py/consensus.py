@@ -29,8 +29,9 @@ Time is passed in (integer µs); no I/O, no clock.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+
+from firmware_py.rx import RxTable
 
 KMH = 1.0 / 3.6                       # m/s per km/h
 
@@ -276,12 +277,12 @@ class ConsensusBecu:
         self.u = 0.0                    # last command sent [units of u]
         self.last_us: int | None = None
 
-    def _fresh(self, rx: Mapping[str, float], key: str, now_us: int,
+    def _fresh(self, rx: RxTable, key: str, now_us: int,
                limit_us: int | None = None) -> float | None:
         value = rx[key]
         if not _finite(value):
             return None
-        age = rx.age_us(key, now_us) if hasattr(rx, "age_us") else 0
+        age = rx.age_us(key, now_us)
         if age is not None and age > (self.stale_us if limit_us is None else limit_us):
             return None
         return float(value)
@@ -295,7 +296,7 @@ class ConsensusBecu:
         half = SAMPLE_MODULO // 2
         return (int(own_sample) - int(sample) + half) % SAMPLE_MODULO - half
 
-    def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
+    def step(self, now_us: int, rx: RxTable) -> dict[str, float]:
         p, g = self.p, self.gains
         dt_s = 0.0 if self.last_us is None else (now_us - self.last_us) * 1e-6
         self.last_us = now_us
@@ -312,7 +313,7 @@ class ConsensusBecu:
         if v_ref is None or a_ref is None:
             v_star, a_star = v_i, 0.0       # no virtual leader yet: consensus only
         else:
-            age = rx.age_us(self.ref[0], now_us) if hasattr(rx, "age_us") else 0
+            age = rx.age_us(self.ref[0], now_us)
             v_star, a_star = max(0.0, v_ref - a_ref * (age or 0) * 1e-6), a_ref   # v* now, eq. (9)
         period_s = p.sample_period_us * 1e-6
         v_others = []
@@ -362,7 +363,7 @@ class VirtualLeader:
     def __init__(self, p: VirtualLeaderParams) -> None:
         self.p = p
 
-    def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
+    def step(self, now_us: int, rx: RxTable) -> dict[str, float]:
         p = self.p
         t_us = max(0, now_us - p.start_us)
         v = desired_speed_mps(t_us, p.v0_mps, p.decel_mps2)

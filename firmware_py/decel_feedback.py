@@ -26,7 +26,6 @@ correct and by how much:
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -34,6 +33,7 @@ from firmware_py.bcu import BcuMode, Train
 from firmware_py.ekf import DecelEstimator, DecelEstimatorParams
 from firmware_py.limits import clip, finite_or
 from firmware_py.pi import PI, PIParams
+from firmware_py.rx import RxTable
 
 
 class FbState(IntEnum):
@@ -236,19 +236,17 @@ class TrainFeedback:
         self.out: FeedbackOutput | None = None      # last FeedbackOutput (diagnostic)
         self._speed_rx_us: int | None = None
 
-    def follow(self, now_us: int, rx: Mapping[str, float], train: Train, out: dict[str, float]) -> None:
+    def follow(self, now_us: int, rx: RxTable, train: Train, out: dict[str, float]) -> None:
         accel = [finite_or(rx[key], math.nan)[0] for key in self.accel_keys]
         if not all(a == a for a in accel):             # an accelerometer not heard from: use the other
             good = [a for a in accel if a == a]
             accel = [good[0]] * 2 if good else [0.0, 0.0]
         wsp = any(finite_or(rx[key], 0.0)[0] >= 0.5 for key in self.wsp_keys)
-        # a fresh speed estimate for the EKF: when a new BECU1_STATUS arrived (every cycle for a plain
-        # mapping, which has no reception times)
+        # a fresh speed estimate for the EKF: when a new BECU1_STATUS arrived
         train_speed = train.speed_mps if train.known_mps else 0.0
         speed: float | None = train_speed if train_speed > 0.0 else None
-        age_us = getattr(rx, "age_us", None)
-        if age_us is not None and speed is not None:
-            age = age_us(self.speed_key, now_us)
+        if speed is not None:
+            age = rx.age_us(self.speed_key, now_us)
             t_rx = None if age is None else now_us - age
             if t_rx == self._speed_rx_us:
                 speed = None
@@ -293,7 +291,7 @@ class PhiCorrection:
     def __init__(self, params: PhiParams, preload_Pa: float, p_max_Pa: float) -> None:
         self.p, self.preload_Pa, self.p_max_Pa = params, preload_Pa, p_max_Pa
 
-    def setpoint(self, now_us: int, rx, p_set_Pa: float, loop, out: dict[str, float]) -> float:
+    def setpoint(self, now_us: int, rx: RxTable, p_set_Pa: float, loop, out: dict[str, float]) -> float:
         phi, phi_ok = finite_or(rx.get("FrictionPhi", 1.0), 1.0)
         engaged = finite_or(rx.get("FbState", 0.0), 0.0)[0] in PHI_STATES and not self.stale(now_us, rx)
         if phi_ok and engaged and not (loop.emergency or loop.lost):
@@ -308,9 +306,7 @@ class PhiCorrection:
         lo, hi = self.p.limits
         return clip(pre + (p_set_Pa - pre) / clip(phi, lo, hi), 0.0, self.p_max_Pa)
 
-    def stale(self, now_us: int, rx) -> bool:
-        """φ was received more than `timeout_us` ago (a plain mapping, as in unit tests, has no reception
-        times: never stale)."""
-        age_us = getattr(rx, "age_us", None)
-        age = age_us("FrictionPhi", now_us) if age_us is not None else None
+    def stale(self, now_us: int, rx: RxTable) -> bool:
+        """φ was received more than `timeout_us` ago."""
+        age = rx.age_us("FrictionPhi", now_us)
         return age is not None and age > self.p.timeout_us

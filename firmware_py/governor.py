@@ -72,6 +72,7 @@ from numba.extending import register_jitable
 
 from firmware_py.limits import clip
 from firmware_py.pi import PIParams, pi_step_scalar
+from firmware_py.rx import RxTable
 
 
 @dataclass(frozen=True)
@@ -377,7 +378,7 @@ class ReferenceGovernor:
         self.decision: GovernorDecision | None = None   # last decision (diagnostic)
         warm_up()                     # the compiled prediction ready before the first cycle
 
-    def reference(self, now_us: int, rx, r_mps2: float, loop, out: dict[str, float]) -> float:
+    def reference(self, now_us: int, rx: RxTable, r_mps2: float, loop, out: dict[str, float]) -> float:
         """The largest admissible reference towards `r_mps2`, the request r⁰ of eq. (9a)."""
         p = self.p
         gp = p.model.at(loop.v_ref_mps) if isinstance(p.model, GovernorSchedule) else p.model
@@ -406,7 +407,7 @@ class Ungoverned:
     INPUTS: tuple[str, ...] = ()
     OUTPUTS = GOVERNOR_OUTPUTS
 
-    def reference(self, now_us: int, rx, r_mps2: float, loop, out: dict[str, float]) -> float:
+    def reference(self, now_us: int, rx: RxTable, r_mps2: float, loop, out: dict[str, float]) -> float:
         out["GovernorActive"] = 0
         out["GovernedDecel"] = r_mps2
         out["GovernorMargin"] = 0.0

@@ -23,6 +23,8 @@ import bisect
 import math
 from dataclasses import dataclass
 
+from firmware_py.rx import RxTable
+
 LN2 = math.log(2.0)
 METHODS = ("Lf", "Bd", "Dp", "ideal")
 METHOD_CODE = {"Lf": 0, "Bd": 1, "Dp": 2, "ideal": 3}
@@ -258,7 +260,7 @@ class PreviewBecu:
                 o[4]: SOURCE_CODE[self.source], o[5]: 0, o[6]: 0.0, o[7]: 0.0,
                 o[8]: SOURCE_CODE[self.source], o[9]: 0}
 
-    def step(self, now_us: int, rx) -> dict[str, float]:
+    def step(self, now_us: int, rx: RxTable) -> dict[str, float]:
         if rx.version == self._version:
             return self._out                      # nothing new since the last cycle
         self._version = rx.version

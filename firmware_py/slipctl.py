@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 from firmware_py.constants import G_MPS2
 from firmware_py.pi import PI, PIParams
 from firmware_py.preview import EstimatorParams, PreviewBecu, RefParams, k2
+from firmware_py.rx import RxTable
 from firmware_py.wsp import Wsp, WspParams, wsp_transition
 
 
@@ -154,7 +155,7 @@ class SlipBecu:
             self.p_model = u + (self.p_model - u) * math.exp(-dt_s / q.tp_s)      # eq. (4), seed 001
         self.tau_model = play_torque(self.tau_model, self.p_model, q)           # eq. (10a), seed 001
 
-    def step(self, now_us: int, rx) -> dict[str, float]:
+    def step(self, now_us: int, rx: RxTable) -> dict[str, float]:
         out = dict(self.gen.step(now_us, rx))
         dt = self.p.cycle_us * 1e-6 if self._last_us is None else (now_us - self._last_us) * 1e-6
         self._last_us = now_us

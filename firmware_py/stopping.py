@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import math
 import statistics
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -55,6 +54,7 @@ from firmware_py.bcu import BcuMode, Demand, Train
 from firmware_py.brake_valve import BrakeValve, BrakeValveParams, ValvePosition
 from firmware_py.limits import clip, finite_or
 from firmware_py.pi import PI, PIParams
+from firmware_py.rx import RxTable
 
 METHODS = ("adaptive", "adaptive_diff", "pi")
 
@@ -462,17 +462,13 @@ class StoppingDemand:
         self._balise_count: float | None = None
         self._odo_rx_us: int | None = None
 
-    def demand(self, now_us: int, rx: Mapping[str, float], train: Train, out: dict[str, float]) -> Demand:
-        """The cycle: a fresh speed sample to the odometer (its reception time: the newest BECUn_STATUS;
-        every cycle for a plain mapping), the balise, then the controller.  The odometer integrates the
-        median of the cars' estimates: the maximum (the train speed, safe against sliding wheels) is biased
-        upwards by the estimates' noise, and that bias integrates."""
-        age_us = getattr(rx, "age_us", None)
-        if age_us is None:
-            t_rx: int | None = now_us
-        else:
-            ages = [a for a in (age_us(k, now_us) for k in self.speed_keys) if a is not None]
-            t_rx = now_us - min(ages) if ages else None
+    def demand(self, now_us: int, rx: RxTable, train: Train, out: dict[str, float]) -> Demand:
+        """The cycle: a fresh speed sample to the odometer (its reception time: the newest BECUn_STATUS),
+        the balise, then the controller.  The odometer integrates the median of the cars' estimates: the
+        maximum (the train speed, safe against sliding wheels) is biased upwards by the estimates' noise,
+        and that bias integrates."""
+        ages = [a for a in (rx.age_us(k, now_us) for k in self.speed_keys) if a is not None]
+        t_rx = now_us - min(ages) if ages else None
         odo_speed = statistics.median(train.known_mps) if train.known_mps else math.nan
         if t_rx is not None and t_rx != self._odo_rx_us and odo_speed == odo_speed:
             self.controller.odometer.sample(t_rx, odo_speed)
@@ -494,9 +490,9 @@ class StoppingDemand:
         braking = so.state in (StopState.FOLLOWING, StopState.STOPPED)    # or holding the train at the stop
         return Demand(so.command_mps2 if braking else 0.0, braking)
 
-    def _balise(self, now_us: int, rx: Mapping[str, float]) -> None:
+    def _balise(self, now_us: int, rx: RxTable) -> None:
         """A new balise passage in PLANT_BTM (its count changed) re-anchors the odometer: the passage time
-        is the frame's reception time (every cycle for a plain mapping) minus its PassageAge."""
+        is the frame's reception time minus its PassageAge."""
         valid, _ = finite_or(rx["BaliseValid"], 0.0)
         count, ok = finite_or(rx["BaliseCount"], math.nan)
         if valid < 0.5 or not ok or count == self._balise_count:
@@ -506,8 +502,6 @@ class StoppingDemand:
         age_s, ok_age = finite_or(rx["PassageAge"], math.nan)
         if not (ok_pos and ok_age):
             return
-        age_us = getattr(rx, "age_us", None)
-        rx_age = age_us("BaliseCount", now_us) if age_us is not None else 0
-        t_pass = now_us - (rx_age or 0) - age_s * 1e6
+        t_pass = now_us - (rx.age_us("BaliseCount", now_us) or 0) - age_s * 1e6
         self.controller.odometer.anchor(pos, t_pass)
         self.balises_seen += 1

@@ -31,7 +31,8 @@ from firmware_py.acd import (
     pair_on_sections,
     required_decel_mps2,
 )
-from hil.runtime.node import Binding, RxTable
+from firmware_py.rx import RxTable
+from hil.runtime.node import Binding
 from plant_sim import geo
 
 DBC = Path(__file__).resolve().parents[1] / "dbc" / "train_brake.dbc"
@@ -303,22 +304,17 @@ def radio(rx: RxTable, t_us: int, *, lat, lon, leader_id=2, section=7, speed=0.0
                "AgeOfReport": age}, t_us)
 
 
-class Rx(RxTable):
-    """The node runtime's RxTable plus the own-train inputs (GPS over serial, route section)."""
-
-    def __init__(self):
-        super().__init__(Acd.INPUTS)
-        self.local: dict[str, float] = {}
-
-    def get(self, key, default=None):
-        return self.local[key] if key in self.local else super().get(key, default)
+def acd_rx() -> RxTable:
+    """The radio frames and the own-train inputs (GPS over serial, route section), as the ACD device
+    (hil.studies.anticollision.nodes.AcdDevice) gives them to the firmware."""
+    return RxTable(Acd.INPUTS + Acd.LOCAL_INPUTS)
 
 
 def test_step_uses_the_time_since_the_radio_frame_arrived():
     acd = Acd()
-    rx = Rx()
-    rx.local.update(OwnLatitude=LAT0, OwnLongitude=LON0, OwnSpeed=20.0, OwnFixValid=1, OwnFixAge=0.0,
-                    OwnRouteSection=7)
+    rx = acd_rx()
+    rx.receive(dict(OwnLatitude=LAT0, OwnLongitude=LON0, OwnSpeed=20.0, OwnFixValid=1, OwnFixAge=0.0,
+                    OwnRouteSection=7), 0)
     la, lo = ahead(3000.0)
     radio(rx, 0, lat=la, lon=lo, speed=10.0, age=0.4)
     out = acd.step(100_000, rx)
@@ -332,14 +328,14 @@ def test_step_uses_the_time_since_the_radio_frame_arrived():
 
 def test_step_keeps_the_last_valid_fix_and_ages_it():
     acd = Acd()
-    rx = Rx()
-    rx.local.update(OwnLatitude=LAT0, OwnLongitude=LON0, OwnSpeed=20.0, OwnFixValid=1, OwnFixAge=0.2,
-                    OwnRouteSection=7)
+    rx = acd_rx()
+    rx.receive(dict(OwnLatitude=LAT0, OwnLongitude=LON0, OwnSpeed=20.0, OwnFixValid=1, OwnFixAge=0.2,
+                    OwnRouteSection=7), 0)
     la, lo = ahead(2000.0)
     radio(rx, 0, lat=la, lon=lo)
     acd.step(0, rx)
     assert acd.last.speed_worst_mps == pytest.approx(20.0 + P.own_accel_max_mps2 * 0.2)
-    rx.local.update(OwnFixValid=0, OwnLatitude=float("nan"))   # tunnel: no fix
+    rx.receive({"OwnFixValid": 0, "OwnLatitude": float("nan")}, 3_000_000)   # tunnel: no fix
     acd.step(3_000_000, rx)
     assert acd.last.speed_worst_mps == pytest.approx(20.0 + P.own_accel_max_mps2 * 3.2)
     assert acd.last.leader_gap_m == pytest.approx(sphere(2000.0) - max_advance_m(20.0, 3.2, 1.0))
@@ -349,8 +345,8 @@ def test_leader_id_zero_means_no_leader_and_outputs_fit_the_dbc():
     db = cantools.database.load_file(DBC)
     msg = db.get_message_by_name("ACD_BRAKE_REQ")
     acd = Acd()
-    rx = Rx()
-    rx.local.update(OwnLatitude=LAT0, OwnLongitude=LON0, OwnSpeed=20.0, OwnFixValid=1, OwnFixAge=0.0)
+    rx = acd_rx()
+    rx.receive(dict(OwnLatitude=LAT0, OwnLongitude=LON0, OwnSpeed=20.0, OwnFixValid=1, OwnFixAge=0.0), 0)
     la, lo = ahead(20.0)
     radio(rx, 0, lat=la, lon=lo, leader_id=0)
     out = acd.step(0, rx)
@@ -370,7 +366,7 @@ def test_closed_loop_stops_behind_a_standing_leader_and_releases_when_it_leaves(
     short of the leader's last wagon by at least part of the margin, hold while the leader stands, and
     release once the leader has driven off far enough."""
     acd = Acd()
-    rx = Rx()
+    rx = acd_rx()
     dt_us = P.cycle_us
     dt_s = dt_us * 1e-6
     x, v, cmd = 0.0, 25.0, []
@@ -380,8 +376,8 @@ def test_closed_loop_stops_behind_a_standing_leader_and_releases_when_it_leaves(
     for k in range(3000):
         t_us = k * dt_us
         lat, lon = ahead(x)
-        rx.local.update(OwnLatitude=lat, OwnLongitude=lon, OwnSpeed=v, OwnFixValid=1, OwnFixAge=0.0,
-                        OwnRouteSection=7)
+        rx.receive(dict(OwnLatitude=lat, OwnLongitude=lon, OwnSpeed=v, OwnFixValid=1, OwnFixAge=0.0,
+                        OwnRouteSection=7), t_us)
         if k % 10 == 0:                                          # the radio: 1 Hz (DBC)
             la, lo = ahead(leader_x)
             radio(rx, t_us, lat=la, lon=lo, speed=leader_v)

@@ -13,8 +13,8 @@ import pytest
 
 from firmware_py.acd import AcdBrakeRequest, AcdMode, AcdRequestParams, braking_distance_m
 from firmware_py.bcu import Bcu, BcuParams
+from firmware_py.rx import RxTable
 from hil.errors import ScenarioError
-from hil.runtime.node import RxTable
 from hil.scenario import load_scenario
 from hil.studies.anticollision.kpis import judge, run_judged
 from hil.studies.anticollision.nodes import AcdDevice, CentreModel, RadioLink, World

@@ -14,6 +14,7 @@ import pytest
 from firmware_py.becu import Becu, BecuParams
 from firmware_py.pi import PIParams
 from firmware_py.reference_speed import RefMode
+from firmware_py.rx import RxTable
 from firmware_py.wsp import Wsp, WspParams, wsp_transition
 from hil.errors import ScenarioError
 from hil.scenario import load_scenario, parse_scenario
@@ -36,22 +37,23 @@ def test_paper_wsp_transition_table(state, slip, speed, expected):
     assert wsp_transition(state, slip, speed, PAPER_WSP) == expected
 
 
-def rx(accel=0.0, pressure=0.0, target=0.0, omega=30.0 / 0.46):
-    return {"AxleSpeed": omega, "CylPressure": pressure, "AccelLong": accel, "TargetDecel": target,
-            "Mode": 1, "EmergencyActive": 0}
+def rx(t_us, accel=0.0, pressure=0.0, target=0.0, omega=30.0 / 0.46):
+    """The BECU's inputs, received at t_us: every cycle a fresh sensor frame and demand."""
+    return RxTable.received({"AxleSpeed": omega, "CylPressure": pressure, "AccelLong": accel,
+                             "TargetDecel": target, "Mode": 1, "EmergencyActive": 0}, t_us)
 
 
 def test_decel_mode_is_eq_16_through_the_shared_pi():
     pi = PIParams(kp=5e5 / G, ki=40e5 / G, out_min=0.0, out_max=450e3)
     becu = Becu(BecuParams(control="decel", decel_pi=pi, wsp=PAPER_WSP, reference=RefMode.LIFTED))
     e = 1.0                                                          # r = 1.0 m/s², measured 0
-    out = becu.step(0, rx(target=1.0))
+    out = becu.step(0, rx(0, target=1.0))
     # u = K_P e + K_I ∫e: first cycle integrates one nominal 10 ms cycle
     assert out["CylPressureSet"] == pytest.approx(pi.kp * e + pi.ki * e * 0.01, rel=1e-3)
-    out = becu.step(10_000, rx(target=1.0))
+    out = becu.step(10_000, rx(10_000, target=1.0))
     assert out["CylPressureSet"] == pytest.approx(pi.kp * e + pi.ki * e * 0.02, rel=1e-3)
     # deceleration above the request: the set-point falls
-    out2 = becu.step(20_000, rx(target=1.0, accel=-2.0))
+    out2 = becu.step(20_000, rx(20_000, target=1.0, accel=-2.0))
     assert out2["CylPressureSet"] < out["CylPressureSet"]
     assert "GovernorActive" not in out2                  # no governor stage: none of its signals
 
@@ -59,10 +61,10 @@ def test_decel_mode_is_eq_16_through_the_shared_pi():
 def test_decel_mode_vents_and_freezes_in_wsp():
     becu = Becu(BecuParams(control="decel", wsp=PAPER_WSP, reference=RefMode.LIFTED))
     for k in range(20):
-        becu.step(k * 10_000, rx(target=1.5, accel=-1.0))
+        becu.step(k * 10_000, rx(k * 10_000, target=1.5, accel=-1.0))
     i_before = becu.decel_pi.i
     # the wheel slows 0.3 m/s below the vehicle: slip above s̄
-    out = becu.step(200_000, rx(target=1.5, accel=-1.0, omega=(becu.v_ref - 0.01 - 0.3) / 0.46))
+    out = becu.step(200_000, rx(200_000, target=1.5, accel=-1.0, omega=(becu.v_ref - 0.01 - 0.3) / 0.46))
     assert out["WspValve"] == int(Wsp.VENT) and out["WspActive"] == 1
     assert out["CylPressureSet"] == 0.0 and becu.decel_pi.i == i_before and out["IntegratorSat"] == 1
 
@@ -71,10 +73,10 @@ def test_handover_restarts_from_the_vented_set_point():
     p = BecuParams(control="decel", wsp=PAPER_WSP, reference=RefMode.LIFTED, wsp_resume="handover")
     becu = Becu(p)
     for k in range(50):
-        becu.step(k * 10_000, rx(target=1.5, accel=-1.0))
-    held = becu.step(500_000, rx(target=1.5, accel=-1.0, omega=(becu.v_ref - 0.5) / 0.46))
+        becu.step(k * 10_000, rx(k * 10_000, target=1.5, accel=-1.0))
+    held = becu.step(500_000, rx(500_000, target=1.5, accel=-1.0, omega=(becu.v_ref - 0.5) / 0.46))
     assert held["CylPressureSet"] == 0.0
-    back = becu.step(510_000, rx(target=1.5, accel=-1.0, omega=becu.v_ref / 0.46))
+    back = becu.step(510_000, rx(510_000, target=1.5, accel=-1.0, omega=becu.v_ref / 0.46))
     assert back["WspValve"] == int(Wsp.FILL)
     assert 0.0 < back["CylPressureSet"] < 0.01 * 450e3      # bumpless from u = 0, not the frozen value
 

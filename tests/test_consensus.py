@@ -25,6 +25,7 @@ from firmware_py.consensus import (
     relative_displacement_cm,
     sampled_gains,
 )
+from firmware_py.rx import RxTable
 from hil.errors import ScenarioError
 from hil.scenario import load_scenario
 from plant_sim.consensus import (
@@ -197,17 +198,6 @@ def test_observer_tracks_a_sinusoid_with_quantised_speed():
 
 
 # ----------------------------------------------------------------------------------- the BECU's step
-class FakeRx(dict):
-    """Latest-value table as hil.runtime.node.RxTable gives it (value and age)."""
-
-    def __init__(self, values, ages=None):
-        super().__init__(values)
-        self.ages = ages or {}
-
-    def age_us(self, key, now_us):
-        return self.ages.get(key, 0) if key in self else None
-
-
 def test_becu_step_hand_value():
     """Car 2 of 3 at T = 1 ms, paper gains, no observer compensation, speeds and positions of one sample.
 
@@ -220,36 +210,33 @@ def test_becu_step_hand_value():
     u = 19500 × (26 − 4.343459 + 8.172222) = 19500 × 29.828763 = 581660.9 N"""
     p = ConsensusBecuParams(car=2, n_cars=3, mass_kg=19_500.0, pitch_m=10.0, compensate=False)
     becu = ConsensusBecu(p)
-    rx = FakeRx({"PLANT_CONS_CAR2.Speed": 25.2, "PLANT_CONS_CAR2.Position": 50.0, "PLANT_CONS_CAR2.Sample": 3,
-                 "BECU1_CONS.Speed": 25.0, "BECU1_CONS.Position": 60.003, "BECU1_CONS.Sample": 3,
-                 "BECU3_CONS.Speed": 25.1, "BECU3_CONS.Position": 39.998, "BECU3_CONS.Sample": 3,
-                 "CONS_REF.VRef": 25.0, "CONS_REF.ARef": 3.5 / 3.6})
+    rx = RxTable.received({"PLANT_CONS_CAR2.Speed": 25.2, "PLANT_CONS_CAR2.Position": 50.0,
+                           "PLANT_CONS_CAR2.Sample": 3,
+                           "BECU1_CONS.Speed": 25.0, "BECU1_CONS.Position": 60.003, "BECU1_CONS.Sample": 3,
+                           "BECU3_CONS.Speed": 25.1, "BECU3_CONS.Position": 39.998, "BECU3_CONS.Sample": 3,
+                           "CONS_REF.VRef": 25.0, "CONS_REF.ARef": 3.5 / 3.6}, 0)
     out = becu.step(0, rx)
     assert out["BECU2_CONS_DIAG.ConsensusAccel"] == pytest.approx(26.0, rel=1e-9)
     assert out["BECU2_CONS_DIAG.PotentialAccel"] == pytest.approx(-4.343459, rel=1e-6)
     assert out["BECU2_CONS.ForceCmd"] == pytest.approx(581660.9, rel=1e-6)
     assert out["BECU2_CONS.InputMissing"] == 0 and out["BECU2_CONS.BarrierSat"] == 0
     # car 3's frame is one sensor period older (sample 2): its position is moved on by v3 T = 25.1 mm
-    rx["BECU3_CONS.Sample"] = 2
-    rx["BECU3_CONS.Position"] = 39.998 - 0.0251
+    rx.receive({"BECU3_CONS.Sample": 2, "BECU3_CONS.Position": 39.998 - 0.0251}, 0)
     becu2 = ConsensusBecu(p)
     assert becu2.step(0, rx)["BECU2_CONS_DIAG.PotentialAccel"] == pytest.approx(-4.343459, rel=1e-5)
     key = "BECU2_CONS_DIAG.PotentialAccel"
     # car 3's frame one period newer (sample 4, own still 3, e.g. the own sensor frame is late): moved
     # back by 25.1 mm; the counter wraps (own 0, car 3 at 15 = one period older)
-    rx["BECU3_CONS.Sample"] = 4
-    rx["BECU3_CONS.Position"] = 39.998 + 0.0251
+    rx.receive({"BECU3_CONS.Sample": 4, "BECU3_CONS.Position": 39.998 + 0.0251}, 0)
     assert ConsensusBecu(p).step(0, rx)[key] == pytest.approx(-4.343459, rel=1e-5)
-    rx.update({"PLANT_CONS_CAR2.Sample": 0, "BECU1_CONS.Sample": 0, "BECU3_CONS.Sample": 15,
-               "BECU3_CONS.Position": 39.998 - 0.0251})
+    rx.receive({"PLANT_CONS_CAR2.Sample": 0, "BECU1_CONS.Sample": 0, "BECU3_CONS.Sample": 15,
+                "BECU3_CONS.Position": 39.998 - 0.0251}, 0)
     assert ConsensusBecu(p).step(0, rx)[key] == pytest.approx(-4.343459, rel=1e-5)
 
 
 def test_becu_without_own_sensor_holds_and_flags():
     becu = ConsensusBecu(ConsensusBecuParams(car=1, n_cars=2, mass_kg=20_000.0, pitch_m=10.0))
-    nan = float("nan")
-    rx = FakeRx({k: nan for k in becu.inputs})
-    out = becu.step(0, rx)
+    out = becu.step(0, RxTable(becu.inputs))                   # nothing received
     assert out["BECU1_CONS.InputMissing"] == 1 and out["BECU1_CONS.ForceCmd"] == 0.0
 
 

@@ -23,6 +23,7 @@ from firmware_py.decel_feedback import (
     feedback_transition,
 )
 from firmware_py.ekf import DecelEstimator, Ekf
+from firmware_py.rx import RxTable
 from plant_sim.padbench import (
     SET_CLASSES_KMH,
     bench_stop,
@@ -255,7 +256,7 @@ def becu_rx(phi, emergency=0.0, fb_state=FbState.ENGAGED):
 ])
 def test_becu_applies_phi_to_the_force_part(phi, emergency, factor):
     becu = phi_becu()
-    out = becu.step(0, becu_rx(phi, emergency))
+    out = becu.step(0, RxTable.received(becu_rx(phi, emergency), 0))
     pre = becu.p.brake_preload_Pa
     if factor is None:
         emergency_set = becu.pressure_for_decel(max(1.32, becu.p.emergency_decel_mps2))
@@ -270,7 +271,7 @@ def test_becu_applies_phi_to_the_force_part(phi, emergency, factor):
 def test_becu_ignores_phi_unless_the_feedback_is_engaged_or_held(fb_state, applied):
     """A φ the BCU does not report as a correction in force (OFF, MONITOR) changes nothing (issue #19)."""
     becu = phi_becu()
-    out = becu.step(0, becu_rx(0.8, fb_state=fb_state))
+    out = becu.step(0, RxTable.received(becu_rx(0.8, fb_state=fb_state), 0))
     nominal = becu.pressure_for_decel(1.32)
     assert (out["CylPressureSet"] != pytest.approx(nominal)) is applied
 
@@ -356,8 +357,6 @@ def test_feedback_without_pad_model_is_one_clear_error(tmp_path):
 def test_becu_drops_a_phi_older_than_three_correction_cycles():
     """A correction that stops arriving (the BCU_BRAKE_CORR deleted or lost) falls back to φ = 1 after
     `phi_timeout_us` (3 cycles of 100 ms): the last φ received is not applied for ever."""
-    from hil.runtime.node import RxTable
-
     becu = phi_becu()
     rx = RxTable(becu.inputs)
     values = becu_rx(0.8)

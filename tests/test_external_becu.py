@@ -25,12 +25,13 @@ import cantools
 import numpy as np
 import pytest
 
+from firmware_py.rx import RxTable
 from hil.can import e2e, secoc
 from hil.can.attributes import e2e_config, secoc_data_id
 from hil.can.codec import Codec
 from hil.can.dbc import load_dbc
 from hil.runtime.assembly import build_node, node_names
-from hil.runtime.node import DEV_SECOC_KEY, RxTable
+from hil.runtime.node import DEV_SECOC_KEY
 from hil.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -25,10 +25,10 @@ from conftest import ROOT
 from firmware_py.bcu import Bcu, BcuParams, disagreement
 from firmware_py.becu import Becu, BecuParams
 from firmware_py.reference_speed import RefMode, RefSpeed, RefSpeedParams, reference_speed
+from firmware_py.rx import RxTable
 from firmware_py.sensor_checks import SensorCheckParams
 from hil.can.codec import loaded_dbc
 from hil.report.kpis import read_run_trace
-from hil.runtime.node import RxTable
 from hil.scenario import load_scenario, parse_scenario
 
 DEFAULT = ROOT / "scenarios" / "default.toml"
@@ -211,14 +211,16 @@ def test_the_becu_reference_speed_rides_through_the_realtime_slide():
         v = 22.0 - 1.0 * t
         slip = becu.creep(p) if not 1.0 <= t < 1.6 else 1.6 + 0.8 * abs(math.sin(8.0 * t))
         reading = round(p, -1) + 10 * (k % 2)                  # a live transducer
-        out = becu.step(k * 10_000, {"AxleSpeed": (v - slip) / 0.46, "CylPressure": reading,
-                                     "AccelLong": -1.0, "TargetDecel": 1.0, "Mode": 1, "EmergencyActive": 0})
+        t_us = k * 10_000
+        out = becu.step(t_us, RxTable.received({"AxleSpeed": (v - slip) / 0.46, "CylPressure": reading,
+                                                "AccelLong": -1.0, "TargetDecel": 1.0, "Mode": 1,
+                                                "EmergencyActive": 0}, t_us))
         u, w = out["ValveCmd"], out["WspValve"]
         p = min(max(p + DT * (-2e6 if w == 2 else 0.0 if w == 1 else u * (1e6 if u > 0 else 1.5e6)), 0.0),
                 450e3)
         est.append(out["SpeedEst"] - v)
         speeds = {f"BECU{i}_STATUS.SpeedEst": out["SpeedEst"] if i == 4 else v for i in range(1, 7)}
-        status = bcu.step(k * 10_000, {"BrakeStep": 7, "EmergencyReq": 0, **speeds})
+        status = bcu.step(t_us, RxTable.received({"BrakeStep": 7, "EmergencyReq": 0, **speeds}, t_us))
         assert status["CarsImplausible"] == 0
         assert not (out["SpeedSensorFault"] or out["AccelSensorFault"] or out["CylSensorFault"])
     assert max(abs(e) for e in est) < 0.05
@@ -242,7 +244,9 @@ def vote_until_flagged(offset_mps: float, seconds: float, then_mps: float | None
     for k in range(round(seconds / DT)):
         off = offset_mps if k * DT < switch_s else then_mps
         speeds = {f"BECU{i}_STATUS.SpeedEst": 20.0 + (off if i == 3 else 0.0) for i in range(1, 7)}
-        if bcu.step(k * 10_000, {"BrakeStep": 7, "EmergencyReq": 0, **speeds})["CarsImplausible"]:
+        t_us = k * 10_000
+        rx = RxTable.received({"BrakeStep": 7, "EmergencyReq": 0, **speeds}, t_us)
+        if bcu.step(t_us, rx)["CarsImplausible"]:
             return k * DT
     return None
 

@@ -7,6 +7,7 @@ import pytest
 from firmware_py.bcu import Bcu, BcuMode, bcu_mode_transition
 from firmware_py.becu import Becu
 from firmware_py.pi import PI, PIParams
+from firmware_py.rx import RxTable
 from firmware_py.stopping import StoppingDemand, StoppingParams, StopState
 from firmware_py.wsp import Wsp, WspParams, wsp_transition
 
@@ -82,18 +83,18 @@ def test_bcu_precise_stopping_brakes_along_the_curve_and_gives_way_to_emergency(
     decelerates as demanded (an ideal brake), its position is the sum of its speeds."""
     stopping = StoppingDemand(StoppingParams(method="pi"), 2)
     bcu = Bcu(2, sources=[stopping])
-    rx = {"BrakeStep": 0, "EmergencyReq": 0, "BECU1_STATUS.SpeedEst": 20.0, "BECU2_STATUS.SpeedEst": 20.0,
-          "TargetStopValid": 1, "TargetStopPos": 300.0}
+    values = {"BrakeStep": 0, "EmergencyReq": 0, "BECU1_STATUS.SpeedEst": 20.0, "BECU2_STATUS.SpeedEst": 20.0,
+              "TargetStopValid": 1, "TargetStopPos": 300.0}
     out, v, x = {}, 20.0, 0.0
     for k in range(300):
-        rx["BECU1_STATUS.SpeedEst"] = rx["BECU2_STATUS.SpeedEst"] = v
-        out = bcu.step(k * 10_000, rx)
+        values["BECU1_STATUS.SpeedEst"] = values["BECU2_STATUS.SpeedEst"] = v
+        out = bcu.step(k * 10_000, RxTable.received(values, k * 10_000))
         v_next = v - out["TargetDecel"] * 0.01
         x, v = x + 0.005 * (v + v_next), v_next
     assert stopping.out.state == StopState.FOLLOWING and out["Mode"] == BcuMode.SERVICE
     assert out["TargetDecel"] == pytest.approx(20.0 ** 2 / (2 * 300.0), rel=0.1)
     assert stopping.controller.odometer.position(300 * 10_000) == pytest.approx(x, abs=0.3)
-    out = bcu.step(3_000_000, {**rx, "EmergencyReq": 1})
+    out = bcu.step(3_000_000, RxTable.received({**values, "EmergencyReq": 1}, 3_000_000))
     assert out["Mode"] == BcuMode.EMERGENCY and stopping.out.state == StopState.OFF
     assert out["TargetDecel"] == 1.3
 
@@ -101,70 +102,60 @@ def test_bcu_precise_stopping_brakes_along_the_curve_and_gives_way_to_emergency(
 def test_bcu_without_target_does_not_brake():
     stopping = StoppingDemand(StoppingParams(method="adaptive_diff"), 2)
     bcu = Bcu(2, sources=[stopping])
-    rx = {"BrakeStep": 0, "EmergencyReq": 0, "BECU1_STATUS.SpeedEst": 20.0, "BECU2_STATUS.SpeedEst": 20.0,
-          "TargetStopValid": 0, "TargetStopPos": 0.0}
+    values = {"BrakeStep": 0, "EmergencyReq": 0, "BECU1_STATUS.SpeedEst": 20.0, "BECU2_STATUS.SpeedEst": 20.0,
+              "TargetStopValid": 0, "TargetStopPos": 0.0}
     out = {}
     for k in range(100):
-        out = bcu.step(k * 10_000, rx)
+        out = bcu.step(k * 10_000, RxTable.received(values, k * 10_000))
     assert out["Mode"] == BcuMode.RELEASED and out["TargetDecel"] == 0.0
     assert stopping.out.state == StopState.OFF
 
 
-def rx_becu(**kw):
+def rx_becu(t_us, **kw):
+    """The BECU's inputs, received at t_us."""
     base = {"AxleSpeed": 25 / 0.46, "CylPressure": 0.0, "AccelLong": 0.0, "TargetDecel": 1.0,
             "Mode": 1, "EmergencyActive": 0}
     base.update(kw)
-    return base
+    return RxTable.received(base, t_us)
 
 
 def test_becu_fills_towards_the_setpoint_for_the_demand():
     becu = Becu()
-    out = becu.step(0, rx_becu())
+    out = becu.step(0, rx_becu(0))
     # m a r / alpha + preload = 40000*1.0*0.46/0.08 + 30e3
     assert out["CylPressureSet"] == pytest.approx(260e3)
     assert out["ValveCmd"] > 0 and out["WspValve"] == Wsp.FILL
-    out = becu.step(10_000, rx_becu(CylPressure=300e3))
+    out = becu.step(10_000, rx_becu(10_000, CylPressure=300e3))
     assert out["ValveCmd"] < 0                                  # over pressure: vent through the EP valve
 
 
 def test_becu_vents_on_slip_and_freezes_its_integrator():
     becu = Becu()
-    becu.step(0, rx_becu())
+    becu.step(0, rx_becu(0))
     i_before = becu.pressure_pi.i
-    out = becu.step(10_000, rx_becu(AxleSpeed=20 / 0.46, AccelLong=-1.0))   # 5 m/s slip
+    out = becu.step(10_000, rx_becu(10_000, AxleSpeed=20 / 0.46, AccelLong=-1.0))   # 5 m/s slip
     assert out["WspValve"] == Wsp.VENT and out["WspActive"] == 1 and out["ValveCmd"] == 0.0
     assert becu.pressure_pi.i == i_before
 
 
 def test_becu_treats_missing_inputs_safely():
     becu = Becu()
-    out = becu.step(0, rx_becu(AxleSpeed=math.nan, TargetDecel=math.inf))
+    out = becu.step(0, rx_becu(0, AxleSpeed=math.nan, TargetDecel=math.inf))
     assert out["InputMissing"] == 1
     assert all(math.isfinite(v) for v in out.values())
 
 
 def test_bcu_steps_and_emergency():
     bcu = Bcu(2)
-    rx = {"BrakeStep": 7, "EmergencyReq": 0, "BECU1_STATUS.SpeedEst": 20.0, "BECU2_STATUS.SpeedEst": math.nan}
+    values = {"BrakeStep": 7, "EmergencyReq": 0, "BECU1_STATUS.SpeedEst": 20.0,
+              "BECU2_STATUS.SpeedEst": math.nan}                  # car 2 not heard from
     out = {}
     for k in range(200):                                  # 2 s: the jerk limit lets the target reach 1.0
-        out = bcu.step(k * 10_000, rx)
+        out = bcu.step(k * 10_000, RxTable.received(values, k * 10_000))
     assert out["TargetDecel"] == pytest.approx(1.0) and out["Mode"] == BcuMode.SERVICE
     assert out["CarsSilent"] == 0b10 and out["TrainSpeedEst"] == 20.0
-    out = bcu.step(2_000_000, {**rx, "EmergencyReq": 1})
+    out = bcu.step(2_000_000, RxTable.received({**values, "EmergencyReq": 1}, 2_000_000))
     assert out["Mode"] == BcuMode.EMERGENCY and out["EmergencyActive"] == 1 and out["TargetDecel"] == 1.3
-
-
-class AgedRx(dict):
-    """An rx table with reception times, as the node runtime's RxTable gives the BCU."""
-
-    def __init__(self, *args, received_us: dict | None = None, **kw):
-        super().__init__(*args, **kw)
-        self.received_us = received_us or {}
-
-    def age_us(self, name, now_us):
-        t = self.received_us.get(name)
-        return None if t is None else now_us - t
 
 
 def test_bcu_integrates_the_driver_brake_valve_a_plc_sets():
@@ -176,7 +167,7 @@ def test_bcu_integrates_the_driver_brake_valve_a_plc_sets():
     t, out = 0, {}
     for position, seconds in ((5, 2.0), (4, 1.0), (2, 1.0)):     # V 2 s, IV 1 s, II 1 s
         for _ in range(round(seconds * 100)):
-            out = bcu.step(t, {**base, "BrakeValve": position})
+            out = bcu.step(t, RxTable.received({**base, "BrakeValve": position}, t))
             t += 10_000
         if position == 5:
             assert out["Mode"] == BcuMode.SERVICE
@@ -184,18 +175,20 @@ def test_bcu_integrates_the_driver_brake_valve_a_plc_sets():
         if position == 4:
             assert out["TargetDecel"] == pytest.approx(2.0 * rate, abs=0.01)
     assert out["TargetDecel"] == pytest.approx(1.0 * rate, abs=0.01)
-    out = bcu.step(t, {**base, "BrakeValve": 0})                  # NONE: the valve is not used
+    out = bcu.step(t, RxTable.received({**base, "BrakeValve": 0}, t))   # NONE: the valve is not used
     assert bcu.valve.demand == 0.0 and out["Mode"] == BcuMode.RELEASED
 
 
 def test_bcu_brakes_when_the_plc_setting_the_valve_falls_silent():
     bcu = Bcu(1)
     base = {"BrakeStep": 0, "EmergencyReq": 0, "BECU1_STATUS.SpeedEst": 20.0}
-    out = bcu.step(0, AgedRx(base))                               # never received: not used, no brake
+    out = bcu.step(0, RxTable.received(base, 0))                 # never received: not used, no brake
     assert out["TargetDecel"] == 0.0 and out["Mode"] == BcuMode.RELEASED
-    rx = AgedRx({**base, "BrakeValve": 4}, received_us={"BrakeValve": 0})   # IV, last heard at 0
+    rx = RxTable.received({**base, "BrakeValve": 4}, 0)            # IV, last heard at 0
     for k in range(1, 101):                                       # 1 s: silent after 0.3 s
+        rx.receive(base, k * 10_000)                              # the desk and the car still heard from
         out = bcu.step(k * 10_000, rx)
     assert out["TargetDecel"] > 0.0 and out["Mode"] == BcuMode.SERVICE
-    out = bcu.step(1_010_000, AgedRx({**base, "BrakeValve": 9}, received_us={"BrakeValve": 1_010_000}))
+    rx.receive({**base, "BrakeValve": 9}, 1_010_000)
+    out = bcu.step(1_010_000, rx)
     assert bcu.valve.demand > 0.1                                  # not a position: V

@@ -18,7 +18,7 @@ from firmware_py.preview import (
     predict_speed_remark2,
     reference,
 )
-from hil.runtime.node import RxTable
+from firmware_py.rx import RxTable
 from plant_sim.adhesion import mu_scalar
 from plant_sim.params import RAIL_CONDITIONS, AdhesionParams
 from plant_sim.reduced_train import sigma_opt_bar_scalar

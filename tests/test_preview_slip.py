@@ -170,8 +170,8 @@ def test_full_mode_slip_controller_on_the_wheelset_plant():
 
 def test_slip_controller_step_inverts_the_wheel_and_the_brake():
     from firmware_py.preview import RefParams
+    from firmware_py.rx import RxTable
     from firmware_py.slipctl import SlipBecu, SlipCtlParams
-    from hil.runtime.node import RxTable
     q = SlipCtlParams(ki_per_s2=0.0, brake_gain_Nm_per_Pa=0.2, preload_Pa=30e3, tp_s=0.0, hysteresis_Pa=20e3)
     becu = SlipBecu(RefParams(car=1, spacing_m=0.0, method="Bd"), 1, "oracle", None, q)
     rx = RxTable(becu.inputs)

@@ -11,9 +11,9 @@ import random
 import pytest
 
 from firmware_py.preview import RefParams
+from firmware_py.rx import RxTable
 from firmware_py.slipctl import SlipBecu, SlipCtlParams, brake_setpoint, play_torque
 from hil.cli.main import main
-from hil.runtime.node import RxTable
 from plant_sim.brake import cylinder_lag_scalar, hysteresis_torque_scalar, lag_factor
 from plant_sim.params import BrakeParams
 

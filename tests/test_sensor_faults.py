@@ -20,6 +20,7 @@ from conftest import ROOT
 
 from firmware_py.bcu import BcuParams, disagreeing_cars
 from firmware_py.becu import Becu
+from firmware_py.rx import RxTable
 from firmware_py.sensor_checks import (
     STEEPEST_GRADIENT_MPS2,
     AccelCheck,
@@ -153,15 +154,17 @@ def test_a_locked_wheel_that_spins_up_slowly_stays_vented_until_it_is_back():
     limit, the watchdog nor the accelerometer check takes the spinning wheel for the car's speed."""
     becu = Becu()
     dt, car_v, wheel_v, pressure = 0.01, 20.0, 20.0, 200e3
-    rx = {"CylPressure": pressure, "AccelLong": -0.5, "TargetDecel": 0.5, "Mode": 1, "EmergencyActive": 0}
+    base = {"CylPressure": pressure, "AccelLong": -0.5, "TargetDecel": 0.5, "Mode": 1, "EmergencyActive": 0}
     for k in range(200):                                       # 2 s rolling with the car
         car_v -= 0.5 * dt
-        becu.step(k * 10_000, {**rx, "AxleSpeed": (car_v - 0.02 + 1e-3 * (k % 2)) / 0.46})
+        t = k * 10_000
+        becu.step(t, RxTable.received({**base, "AxleSpeed": (car_v - 0.02 + 1e-3 * (k % 2)) / 0.46}, t))
     wheel_v, k0, back_at, min_gap = 0.0, 200, None, math.inf   # then the wheel stands (locked)
     for k in range(k0, k0 + 2000):
         car_v -= 0.5 * dt
-        out = becu.step(k * 10_000, {**rx, "AxleSpeed": (wheel_v + 1e-3 * (k % 2)) / 0.46,
-                                     "CylPressure": pressure + 10.0 * (k % 2)})
+        t = k * 10_000
+        out = becu.step(t, RxTable.received({**base, "AxleSpeed": (wheel_v + 1e-3 * (k % 2)) / 0.46,
+                                             "CylPressure": pressure + 10.0 * (k % 2)}, t))
         rate = valve_pressure_rate(out["ValveCmd"], out["WspValve"], pressure, 450e3, RATES)
         pressure = min(max(pressure + rate * dt, 0.0), 450e3)
         if k > k0 + 30 and back_at is None:                    # a lock shows after a few cycles
@@ -185,13 +188,15 @@ def test_the_becu_refills_a_cylinder_vented_longer_than_the_watchdog_allows():
     refills after max_vent_s, and the brake stays applied."""
     becu = Becu()
     limit = becu.p.wsp.max_vent_s
-    rx = {"AxleSpeed": 20 / 0.46, "CylPressure": 200e3, "AccelLong": 0.0, "TargetDecel": 1.0, "Mode": 1,
-          "EmergencyActive": 0}
-    becu.step(0, rx)
+    base = {"AxleSpeed": 20 / 0.46, "CylPressure": 200e3, "AccelLong": 0.0, "TargetDecel": 1.0, "Mode": 1,
+            "EmergencyActive": 0}
+    becu.step(0, RxTable.received(base, 0))
     venting = []
     for k in range(1, 800):
-        out = becu.step(k * 10_000, {**rx, "AxleSpeed": 15 / 0.46 + 1e-3 * (k % 2),   # alive, 5 m/s slip
-                                     "CylPressure": 200e3 + 10.0 * (k % 2)})           # alive, not vented
+        t = k * 10_000
+        values = {**base, "AxleSpeed": 15 / 0.46 + 1e-3 * (k % 2),   # alive, 5 m/s slip
+                  "CylPressure": 200e3 + 10.0 * (k % 2)}             # alive, not vented
+        out = becu.step(t, RxTable.received(values, t))
         venting.append(out["WspActive"])
     vented_s = sum(venting) * 0.01
     assert vented_s == pytest.approx(limit, abs=0.02) and venting[-1] == 0 and becu.wsp_watchdog_trips == 1
@@ -206,13 +211,14 @@ def test_a_noisy_wheel_reading_does_not_hold_off_the_watchdog(noise_mps):
     and it still refills within 5 % of max_vent_s (5.11 and 5.21 s; on the acceleration alone: 5.9 and
     7.7 s)."""
     becu, rng = Becu(), random.Random(1)
-    rx = {"AxleSpeed": 20 / 0.46, "CylPressure": 200e3, "AccelLong": 0.0, "TargetDecel": 1.0, "Mode": 1,
-          "EmergencyActive": 0}
-    becu.step(0, rx)
+    base = {"AxleSpeed": 20 / 0.46, "CylPressure": 200e3, "AccelLong": 0.0, "TargetDecel": 1.0, "Mode": 1,
+            "EmergencyActive": 0}
+    becu.step(0, RxTable.received(base, 0))
     vented_s = 0.0
     for k in range(1, 800):
-        out = becu.step(k * 10_000, {**rx, "AxleSpeed": (15 + rng.gauss(0.0, noise_mps)) / 0.46,
-                                     "CylPressure": 200e3 + 10.0 * (k % 2)})
+        t = k * 10_000
+        out = becu.step(t, RxTable.received({**base, "AxleSpeed": (15 + rng.gauss(0.0, noise_mps)) / 0.46,
+                                             "CylPressure": 200e3 + 10.0 * (k % 2)}, t))
         if becu.wsp_watchdog_trips:
             break
         vented_s += 0.01 * out["WspActive"]
@@ -226,13 +232,14 @@ def test_a_vented_wheel_that_does_not_spin_up_is_trusted_again():
     torque the reference speed takes the wheel (the accelerometer was wrong) and WSP stops venting."""
     becu = Becu()
     rp = becu.p.ref
-    rx = {"AxleSpeed": 20 / 0.46, "CylPressure": 200e3, "AccelLong": 0.0, "TargetDecel": 1.0, "Mode": 1,
-          "EmergencyActive": 0}
-    becu.step(0, rx)
+    base = {"AxleSpeed": 20 / 0.46, "CylPressure": 200e3, "AccelLong": 0.0, "TargetDecel": 1.0, "Mode": 1,
+            "EmergencyActive": 0}
+    becu.step(0, RxTable.received(base, 0))
     venting, pressure = [], 200e3
     for k in range(1, 200):
-        out = becu.step(k * 10_000, {**rx, "AxleSpeed": 15 / 0.46 + 1e-3 * (k % 2),
-                                     "CylPressure": pressure + 10.0 * (k % 2)})
+        t = k * 10_000
+        out = becu.step(t, RxTable.received({**base, "AxleSpeed": 15 / 0.46 + 1e-3 * (k % 2),
+                                             "CylPressure": pressure + 10.0 * (k % 2)}, t))
         venting.append(out["WspActive"])
         rate = valve_pressure_rate(out["ValveCmd"], out["WspValve"], pressure, 450e3, RATES)   # plant_sim's
         pressure = min(max(pressure + rate * 0.01, 0.0), 450e3)
@@ -300,11 +307,11 @@ def test_the_becu_runs_the_pressure_loop_on_its_model_once_the_transducer_failed
     once the modelled pressure reaches the set-point, by when the plant's cylinder (nominal valves) holds
     at least the set-point."""
     becu = Becu()
-    rx = {"AxleSpeed": 20 / 0.46, "CylPressure": 0.0, "AccelLong": -1.0, "TargetDecel": 1.0, "Mode": 1,
-          "EmergencyActive": 0}
+    base = {"CylPressure": 0.0, "AccelLong": -1.0, "TargetDecel": 1.0, "Mode": 1, "EmergencyActive": 0}
     p_true, failed_at = 0.0, None
     for k in range(100):
-        out = becu.step(k * 10_000, {**rx, "AxleSpeed": (20 - 0.01 * k) / 0.46})
+        t = k * 10_000
+        out = becu.step(t, RxTable.received({**base, "AxleSpeed": (20 - 0.01 * k) / 0.46}, t))
         u = out["ValveCmd"]
         p_true = min(max(p_true + 0.01 * u * (1e6 if u > 0 else 1.5e6), 0.0), 450e3)
         if out["CylSensorFault"] and failed_at is None:
@@ -330,15 +337,18 @@ def test_disagreeing_cars_table(speeds, trusted, expected):
 def test_the_bcu_excludes_a_car_after_3_status_cycles_and_latches():
     from firmware_py.bcu import Bcu
     bcu = Bcu(4)
-    rx = {"BrakeStep": 7, "EmergencyReq": 0, **{f"BECU{i}_STATUS.SpeedEst": 20.0 for i in range(1, 5)}}
-    out = bcu.step(0, rx)
+    values = {"BrakeStep": 7, "EmergencyReq": 0, **{f"BECU{i}_STATUS.SpeedEst": 20.0 for i in range(1, 5)}}
+    out = bcu.step(0, RxTable.received(values, 0))
     assert out["CarsImplausible"] == 0 and out["Degraded"] == 0 and out["TrainSpeedEst"] == 20.0
-    stuck = {**rx, "BECU3_STATUS.SpeedEst": 35.0}
-    flagged_us = next(k * 10_000 for k in range(1, 100) if bcu.step(k * 10_000, stuck)["CarsImplausible"])
+    stuck = {**values, "BECU3_STATUS.SpeedEst": 35.0}
+    flagged_us = next(t for t in range(10_000, 1_000_000, 10_000)
+                      if bcu.step(t, RxTable.received(stuck, t))["CarsImplausible"])
     assert BP.implausible_after_us < flagged_us - 10_000 <= BP.implausible_after_us + 10_000
-    out = bcu.step(flagged_us + 10_000, rx)                    # back in line: still excluded (latched)
+    t = flagged_us + 10_000
+    out = bcu.step(t, RxTable.received(values, t))             # back in line: still excluded (latched)
     assert out["CarsImplausible"] == 0b100 and out["Degraded"] == 1 and out["TrainSpeedEst"] == 20.0
-    out = bcu.step(flagged_us + 20_000, {**rx, "BECU1_DIAG.AccelSensorFault": 1})
+    t += 10_000
+    out = bcu.step(t, RxTable.received({**values, "BECU1_DIAG.AccelSensorFault": 1}, t))
     assert out["Degraded"] == 1
 
 

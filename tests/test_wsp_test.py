@@ -292,6 +292,7 @@ def test_pressure_loop_restarts_when_wsp_hands_the_cylinder_back():
     integrator that earlier refills wound up kept through the vent, the cylinder overshot (0.17 bar here)
     and the brake's hysteresis kept the torque."""
     from firmware_py.becu import Becu, BecuParams
+    from firmware_py.rx import RxTable
     from firmware_py.sensor_checks import valve_pressure_rate
     from firmware_py.wsp import Wsp
 
@@ -303,9 +304,10 @@ def test_pressure_loop_restarts_when_wsp_hands_the_cylinder_back():
         wheel = v - (3.0 if 2.0 <= t_s < 2.3 else 0.0)              # a 0.3 s slide at 2 s
         if k == 190:
             becu.pressure_pi.i = 0.4                                # what earlier refills left wound up
-        out = becu.step(k * 10_000, {"AxleSpeed": wheel / p.wheel_radius_m, "CylPressure": pressure,
-                                     "AccelLong": -1.0, "TargetDecel": 1.0, "Mode": 1,
-                                     "EmergencyActive": 0})
+        t_us = k * 10_000
+        rx = RxTable.received({"AxleSpeed": wheel / p.wheel_radius_m, "CylPressure": pressure,
+                               "AccelLong": -1.0, "TargetDecel": 1.0, "Mode": 1, "EmergencyActive": 0}, t_us)
+        out = becu.step(t_us, rx)
         pressure = max(0.0, min(p.p_max_Pa, pressure + 0.01 * valve_pressure_rate(
             valve, wsp, pressure, p.p_max_Pa, p.valve_rates_Pa_per_s)))   # last cycle's commands act
         valve, wsp = out["ValveCmd"], Wsp(out["WspValve"])

@@ -30,9 +30,10 @@ from typing import NamedTuple
 
 from cantools.database.can import Database
 
+from firmware_py.rx import RxTable
 from hil.can.codec import Codec, FrameCodec
 from hil.devices.device import Device, Entry, ReplacedNode, Route
-from hil.runtime.node import Binding, Node, NodeStats, RxTable
+from hil.runtime.node import Binding, Node, NodeStats
 
 #: a truth quantity of the plant: (TruthSnapshot field, car index) -> its value now (hil.devices.device)
 TruthReader = Callable[[str, int], float]

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
 
+from firmware_py.rx import RxTable
 from hil.fmi.ports import (
     AGE_SUFFIX,
     COMMANDS,
@@ -156,27 +157,6 @@ class PlantSlave(Fmi2Slave):
         return True
 
 
-class _RxView:
-    """What the BECU's controller reads (`rx["TargetDecel"]`, `rx.age_us(name, now)`), from the FMU's inputs:
-    the values by the binding's keys, the ages by message."""
-
-    def __init__(self, values: dict[str, float], age_of: dict[str, str], ages: dict[str, float]) -> None:
-        self.values, self.age_of, self.ages = values, age_of, ages
-
-    def __getitem__(self, key: str) -> float:
-        return self.values[key]
-
-    def get(self, key: str, default=None):
-        return self.values.get(key, default)
-
-    def __contains__(self, key: str) -> bool:
-        return key in self.values
-
-    def age_us(self, key: str, now_us: int) -> int | None:
-        age = self.ages.get(self.age_of.get(key, ""), -1.0)
-        return None if not math.isfinite(age) or age < 0 else round(age * 1e6)
-
-
 class NodeSlave(Fmi2Slave):
     """A node of the packed scenario — its controller, not its E2E or SecOC, which the bench adds — as an
     FMU (module docstring).  `NODE` names it (BECU3)."""
@@ -201,14 +181,14 @@ class NodeSlave(Fmi2Slave):
         tx_msgs = [msg for msg, _ in node.binding.tx]
         port = node_port(db, rx_msgs, tx_msgs)
         self.values: dict[str, float] = {}      # the controller's rx keys -> value
-        self.age_of: dict[str, str] = {}        # rx key -> its message
+        self.keys_of: dict[str, list[str]] = {}   # message -> its rx keys
         self.ages: dict[str, float] = {m: -1.0 for m in rx_msgs}
         for fid, pairs in node.binding.rx.items():
             msg = db.get_message_by_frame_id(fid)
             for sig, key in pairs:
                 q = port.inputs[f"{msg.name}.{sig}"]
                 self.values[key] = 0.0      # until set (the bench sets NaN for "not received yet")
-                self.age_of[key] = msg.name
+                self.keys_of.setdefault(msg.name, []).append(key)
                 # a Real even for a whole-valued signal: NaN says "not received yet", as on the bench
                 self.register_variable(Real(q.name, causality=Fmi2Causality.input, description=q.description,
                                             getter=lambda key=key: _finite(self.values[key]),
@@ -233,11 +213,22 @@ class NodeSlave(Fmi2Slave):
                     self.register_variable(Real(q.name, causality=Fmi2Causality.output,
                                                 initial=Fmi2Initial.exact, description=q.description,
                                                 getter=lambda key=key: _finite(self.outputs[key])))
-        self.rx = _RxView(self.values, self.age_of, self.ages)
+        # what the controller reads (`rx["TargetDecel"]`, `rx.age_us(name, now)`): the inputs by the binding's
+        # keys, each message received `MESSAGE.rx_age_s` before the step's end (negative: not received, NaN)
+        self.rx = RxTable(self.values)
+        self._pairs = {msg: [(key, key) for key in keys] for msg, keys in self.keys_of.items()}
+        self._unreceived = {msg: dict.fromkeys(keys, math.nan) for msg, keys in self.keys_of.items()}
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         now_us = round((current_time + step_size) * 1e6)
-        out = self.controller.step(now_us, self.rx)
+        rx = self.rx
+        for msg, pairs in self._pairs.items():
+            age_s = self.ages[msg]
+            if math.isfinite(age_s) and age_s >= 0:
+                rx.update(pairs, self.values, now_us - round(age_s * 1e6))
+            else:
+                rx.receive(self._unreceived[msg], now_us)
+        out = self.controller.step(now_us, rx)
         for key, value in out.items():
             if key in self.outputs:
                 self.outputs[key] = value

@@ -19,72 +19,21 @@ BindingError naming it and the closest DBC names.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 from cantools.database.can import Database
 
+from firmware_py.rx import RxTable
 from hil.can import e2e, secoc
 from hil.can.attributes import E2E_COUNTER, e2e_config, multiplexer_pages, secoc_data_id
 from hil.can.codec import Codec, FrameCodec, FrameError
 from hil.can.dbc import closest
 from hil.errors import BindingError
 
-NAN = float("nan")
 NEVER_US = 1 << 62               # µs: a frame that is never due on the schedule
 _E2E_OK = e2e.Status.OK
 E2E_COUNTER_MODULO = 15          # AUTOSAR E2E profile 1 alive counter runs 0..14
-
-
-class RxTable(Mapping[str, float]):
-    """Latest value of each input signal, NaN until first received, with its reception time."""
-
-    def __init__(self, names: Iterable[str]) -> None:
-        self._values: dict[str, float] = {n: NAN for n in names}
-        self._times: dict[str, int] = {}
-        self.version = 0            # bumps on every update: lets a node cache derived arrays
-        self.e2e: dict[str, e2e.Status] = {}   # E2E status of each protected message, this cycle
-
-    def __getitem__(self, name: str) -> float:
-        return self._values[name]
-
-    def get(self, name: str, default: float | None = None) -> float | None:   # Mapping.get, without a
-        return self._values.get(name, default)                               # try/except per call
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._values)
-
-    def __len__(self) -> int:
-        return len(self._values)
-
-    @property
-    def latest(self) -> dict[str, float]:
-        """The table itself as a dict, name -> latest value (read it, do not change it): a reader of many
-        names at once looks them up without a Mapping call each."""
-        return self._values
-
-    def age_us(self, name: str, now_us: int) -> int | None:
-        t = self._times.get(name)
-        return None if t is None else now_us - t
-
-    def update(self, pairs: Sequence[tuple[str, str]], values: Mapping[str, float], t_us: int) -> None:
-        store, times = self._values, self._times
-        try:
-            for signal, key in pairs:
-                store[key] = values[signal]
-                times[key] = t_us
-        except KeyError:                 # a multiplexed frame carries only its page's signals
-            for signal, key in pairs:
-                if signal in values:
-                    store[key] = values[signal]
-                    times[key] = t_us
-        self.version += 1
-
-    def take(self, store: Callable[[bytes, dict, dict, int], None], data: bytes, t_us: int) -> None:
-        """`update` from a frame's payload: `store` (FrameCodec.storer of the pairs) decodes them into the
-        table."""
-        store(data, self._values, self._times, t_us)
-        self.version += 1
 
 
 @dataclass

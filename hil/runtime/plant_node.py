@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from cantools.database.can import Database
 
+from firmware_py.rx import RxTable
 from hil.errors import BindingError
 from hil.runtime.truth import STANDSTILL_MPS
 from plant_sim.brake import WSP_FILL, WSP_HOLD
@@ -239,11 +240,11 @@ class PlantController:
         snap = self.plant.snapshot()
         return {"v_mps": np.array(snap.v), "x_m": np.array(snap.x)}
 
-    def _actuators(self, rx) -> None:
+    def _actuators(self, rx: RxTable) -> None:
         if rx.version == self._rx_version:
             return
         self._rx_version = rx.version
-        latest = getattr(rx, "latest", rx)        # an RxTable's dict, else the mapping itself
+        latest = rx.latest                        # the table's dict: many names read at once
         commands = self._commands(latest)
         total = sum(commands)
         if total - total == 0.0:                  # every command received and finite: as they are
@@ -261,7 +262,7 @@ class PlantController:
         if self.set_keys:
             self._pset[:] = [ps if isfinite(ps) else 0.0 for ps in (latest[key] for key in self.set_keys)]
 
-    def _failsafe(self, now_us: int, rx) -> None:
+    def _failsafe(self, now_us: int, rx: RxTable) -> None:
         """Cars whose command went stale hold their cylinder, then apply the brake (class docstring)."""
         dt = 0 if self._last_us is None else now_us - self._last_us
         self._last_us = now_us
@@ -289,12 +290,12 @@ class PlantController:
         self._quiet_until_us, self._quiet_rx = quiet_until_us, rx
         self._quiet_version = None if commanded == self.n else rx.version
 
-    def _quiet(self, now_us: int, rx) -> bool:
+    def _quiet(self, now_us: int, rx: RxTable) -> bool:
         """No command can be stale at `now_us` (the quick case of `_failsafe`)."""
         return now_us <= self._quiet_until_us and rx is self._quiet_rx and (
             self._quiet_version is None or rx.version == self._quiet_version)
 
-    def step(self, now_us: int, rx) -> dict[str, float]:
+    def step(self, now_us: int, rx: RxTable) -> dict[str, float]:
         out: dict[str, float] = {}
         if now_us >= self.next_sense_us:
             s = self.plant.sense()

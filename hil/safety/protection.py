@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 
 from cantools.database.can import Database
 
+from firmware_py.rx import RxTable
 from hil.can.attributes import e2e_config, secoc_data_id
 from hil.can.codec import Codec, loaded_dbc
 
@@ -59,7 +60,7 @@ class _Recorder:
         self._controller = controller
         self._recording = recording
 
-    def step(self, now_us: int, rx):
+    def step(self, now_us: int, rx: RxTable):
         out = self._controller.step(now_us, rx)
         self._recording.rx_cycles.append((now_us, _snapshot(rx)))
         self._recording.outputs.append(dict(out))
@@ -69,7 +70,7 @@ class _Recorder:
         return getattr(self._controller, name)
 
 
-def _snapshot(rx) -> object:
+def _snapshot(rx: RxTable) -> RxTable:
     """A copy of a receive table (RxTable or a study's subclass) as the controller saw it."""
     snap = object.__new__(type(rx))
     snap.__dict__.update({k: (dict(v) if isinstance(v, dict) else copy.copy(v)) for k, v in vars(rx).items()})
@@ -130,10 +131,10 @@ def _replay(build, recording: Recording, key: str | None, value: float) -> Itera
     ctrl = build()
     for now_us, snap in recording.rx_cycles:
         rx = _snapshot(snap)
-        if key is not None:
-            rx._values[key] = value
-            rx._times[key] = now_us
-        rx.version = getattr(rx, "version", 0) + 1
+        if key is None:
+            rx.version += 1
+        else:
+            rx.receive({key: value}, now_us)      # bumps the version as well
         yield dict(ctrl.step(now_us, rx))
 
 

@@ -46,6 +46,7 @@ from firmware_py.acd import (
     pair_on_sections,
 )
 from firmware_py.bcu import DemandSource, Follower
+from firmware_py.rx import RxTable
 from hil.can.codec import Codec
 from hil.links.gpsserial import GpsLinkReader, GpsLinkWriter, PtyLink, ServedPty, open_port
 from hil.links.nmea import DEFAULT_UTC0, ReceivedFix
@@ -452,33 +453,6 @@ class WorldPlant(PlantController):
 
 
 # ------------------------------------------------------------------------------------------- the ACD
-class _AcdRx(Mapping):
-    """The node's RxTable plus the device's own inputs (Acd.LOCAL_INPUTS)."""
-
-    def __init__(self, rx: Mapping[str, float], local: dict[str, float]) -> None:
-        self.rx, self.local = rx, local
-
-    def __getitem__(self, key: str) -> float:
-        return self.local[key] if key in self.local else self.rx[key]
-
-    def __iter__(self):
-        return iter(self.rx)
-
-    def __len__(self) -> int:
-        return len(self.rx)
-
-    def get(self, key, default=None):
-        if key in self.local:
-            return self.local[key]
-        return self.rx.get(key, default)
-
-    def age_us(self, name: str, now_us: int):
-        if name in self.local:                   # the device's own, current (a report's age is its own)
-            return 0
-        age = getattr(self.rx, "age_us", None)
-        return None if age is None else age(name, now_us)
-
-
 @dataclass
 class GpsInputStats:
     """What the ACD's GPS input stage did (besides hil.links.nmea's byte/sentence counters)."""
@@ -567,6 +541,9 @@ class AcdDevice:
         self.report: dict = {}       # the GPS line's figures, refreshed every epoch (run.json node_stats)
         self.radio: OwnRadio | None = None   # [acd] radio_link = "tcp": the ACD's own link to the centre
         self._now_us = 0
+        # what the firmware reads: the radio frames as the node received them, and the device's own inputs
+        # (Acd.LOCAL_INPUTS, and the leader's report from its own link), received at the cycle's time
+        self.acd_rx = RxTable(Acd.INPUTS + Acd.LOCAL_INPUTS)
 
     # the serial line -----------------------------------------------------------------------------
     def open(self) -> None:
@@ -605,11 +582,11 @@ class AcdDevice:
         if self.radio is not None:
             self.radio.close()
 
-    def _receiver(self, now_us: int, rx: Mapping[str, float]) -> None:
+    def _receiver(self, now_us: int, rx: RxTable) -> None:
         """The GPS module: a fix at every epoch due, from the true antenna position (ACD_GNSS_TRUTH),
         onto the line."""
         s_true, v_true = rx[TRUTH_OUT[0]], rx[TRUTH_OUT[1]]
-        age = getattr(rx, "age_us", lambda *_: 0)(TRUTH_OUT[0], now_us)
+        age = rx.age_us(TRUTH_OUT[0], now_us)
         truth_at = None
         if s_true == s_true and v_true == v_true and age is not None:    # no truth yet: the first frames
             def truth_at(t_fix: int) -> tuple[float, float]:            # the truth moved on since its frame
@@ -650,7 +627,7 @@ class AcdDevice:
                 elif rmc is not None:
                     self.stats.unmatched += 1
 
-    def _signal(self, rx: Mapping[str, float]) -> tuple[float, float]:
+    def _signal(self, rx: RxTable) -> tuple[float, float]:
         sid, pos = rx[self.SIGNAL[0]], rx[self.SIGNAL[1]]
         if not (sid == sid and pos == pos) or round(sid) == 0:
             return math.nan, math.nan
@@ -661,7 +638,7 @@ class AcdDevice:
             self._signal_cache = (pos, lat, lon)
         return self._signal_cache[1], self._signal_cache[2]
 
-    def step(self, now_us: int, rx: Mapping[str, float]) -> dict[str, float]:
+    def step(self, now_us: int, rx: RxTable) -> dict[str, float]:
         if self.reader is None:
             self.open()
         self._now_us = now_us
@@ -671,7 +648,8 @@ class AcdDevice:
         self._read()
         if self.stats.fixes_written != written or self.stats.accepted != accepted:
             self._refresh_report()
-        local: dict[str, float] = {"OwnFixValid": 0.0}
+        local = dict.fromkeys(Acd.LOCAL_INPUTS, math.nan)     # NaN: not received this cycle
+        local["OwnFixValid"] = 0.0
         if self.fix is not None:
             lat, lon, speed, t_us = self.fix
             local.update(OwnLatitude=lat, OwnLongitude=lon, OwnSpeed=speed, OwnFixValid=1.0,
@@ -680,7 +658,10 @@ class AcdDevice:
         local["SignalLatitude"], local["SignalLongitude"] = self._signal(rx)
         if self.radio is not None:                   # the leader from the ACD's own link, not from CAN
             self.radio.step(now_us, self.fix, self.own_s, local)
-        return self.acd.step(now_us, _AcdRx(rx, local))
+        acd_rx = self.acd_rx
+        acd_rx.copy_from(rx, Acd.INPUTS)
+        acd_rx.receive(local, now_us)
+        return self.acd.step(now_us, acd_rx)
 
 
 # --------------------------------------------------------------------------------------- the nodes
