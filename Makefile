@@ -36,9 +36,9 @@ test-slow: $(STAMP)
 	$(PY) -m pytest -q -rs -n $(TEST_JOBS) --dist worksteal -m "not realtime and not socketcan"
 	$(PY) -m pytest -q -rs -m "realtime and not socketcan"
 
-## make test-vcan: the SocketCAN tests (marked socketcan: tests/test_socketcan.py) on vcan0 and vcan1, on this
-## machine where its kernel has SocketCAN, else in a Debian kernel booted under qemu by virtme-ng with this
-## checkout and its .venv inside, read-only (software emulation; VCAN_KVM=1 for KVM); tools/vcan_suite.py.
+## make test-vcan: the SocketCAN tests (marked socketcan: tests/can/test_socketcan.py) on vcan0 and vcan1,
+## on this machine where its kernel has SocketCAN, else in a Debian kernel booted under qemu by virtme-ng with
+## this checkout and its .venv inside, read-only (software emulation; VCAN_KVM=1 for KVM); tools/vcan_suite.py.
 ## Installs what it needs where missing: Debian's qemu-system-x86, linux-image-amd64, busybox-static and
 ## can-utils (apt-get, as root or through sudo) and virtme-ng (the vcan extra). The suite's JUnit XML:
 ## runs/test-vcan/junit.xml. Under 15 minutes on a 2-core machine
@@ -48,7 +48,7 @@ test-vcan: $(STAMP)
 ## make fuzz: 10^6 fuzzed frames through decode + SecOC + E2E, twice: the protocol layers alone and the
 ## node runtime of the default train (RAILHIL_FUZZ_FRAMES=N for more, RAILHIL_FUZZ_SEED=S for another seed)
 fuzz: $(STAMP)
-	$(PY) -m pytest -q -s -m slow -k fuzzed tests/test_e2e.py tests/test_fuzz.py
+	$(PY) -m pytest -q -s -m slow -k fuzzed tests/can/test_e2e.py tests/runtime/test_fuzz.py
 
 ## make bench: speed figures, railhil next to plain python-can/cantools, measured in one run, then every
 ## figure that has a goal next to it. Not timed; the 10^6-frame bus run takes minutes: shorten it with

@@ -9,7 +9,7 @@ Run them with
 `hil_run(scenario, overrides)` runs a scenario (lockstep runs are shared by the tests of a session) and
 returns its KPIs, its decoded CAN signals ("MESSAGE.Signal", simulated seconds) and the plant's ground
 truth. `within`, `never` and `eventually` check signals over time; a failure names the first violating
-time. (tests/test_pytest_plugin.py runs this file as part of `make test`.)
+time. (tests/cli/test_pytest_plugin.py runs this file as part of `make test`.)
 """
 
 from hil.pytest_plugin import eventually, never, within

@@ -42,7 +42,7 @@ Safety argument (what is proved):
       (M r − R) / κ whatever the curve; R the running resistance, GovernorState.resistance_N). That this
       pointwise worst case is also the closed-loop worst case is NOT
       proved (the feedback through τ and F is negative, so the loop is not a monotone system and a
-      pointwise bound is not a trajectory bound); it is tested by tests/test_governor.py over sampled
+      pointwise bound is not a trajectory bound); it is tested by tests/firmware/test_governor.py over sampled
       states and adversarial sequences switching a every step (random, alternating, blocks, interior
       values), which also pass with margin 0. Likewise the tail after "settled" (|F − M r| and |u − p|
       within settle_frac) is covered by the settle tolerance on the steady state, not by a proof.

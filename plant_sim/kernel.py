@@ -7,7 +7,7 @@ register_jitable`, which leaves it a plain Python function for Python callers (t
 10 ms truth, the tests) and lets compiled code call it. So each equation keeps one implementation, its
 Python source. The arithmetic is the same, operation for operation (no fast-math: no reassociation, no
 fused multiply-add; `math.exp` and `math.sqrt` are the C library's), so the compiled step gives the
-interpreted one's floats bit for bit: tests/plant/test_plant_kernel.py runs `step_cars` compiled and
+interpreted one's floats bit for bit: tests/plant/test_kernel.py runs `step_cars` compiled and
 interpreted (`step_cars.py_func`) side by side and compares the bits.
 
 How the parameters reach compiled code: a frozen dataclass cannot, so `as_record` copies the numeric

@@ -64,7 +64,7 @@ RAIL_PEAKS: dict[str, tuple[float, float]] = {
     "wet": (0.02, 0.10),
     "extra_wet": (0.015, 0.05),
 }
-# Resulting θ (rounded) and peaks, checked by tests/plant/test_plant_adhesion.py:
+# Resulting θ (rounded) and peaks, checked by tests/plant/test_adhesion.py:
 #   extra_dry θ = (0.2976, 6.548, 7.440)   σ̄° = 0.040  μ̄° = 0.350   μ̄(θ, σ=1) = 0.070
 #   dry       θ = (0.3542, 11.03, 8.616)   σ̄° = 0.030  μ̄° = 0.250   μ̄(θ, σ=1) = 0.050
 #   wet       θ = (0.7129, 34.77, 14.51)   σ̄° = 0.020  μ̄° = 0.100   μ̄(θ, σ=1) = 0.020

@@ -18,8 +18,8 @@ Integrator (one step of dt = dt_us, 1 ms by default):
     motion; rolling backwards is not modelled); the slip speed is clipped to [0, v], i.e. 0 ≤ ω ≤ v/r,
     a locked wheel has ω = 0 and s = v. A braked car at rest stays at rest: the chord slope is huge at
     s ≈ 0, which makes the linearised adhesion the static (rolling-constraint) force.
-tests/plant/test_plant_integrator.py checks the step against a reference at dt = 0.1 ms,
-tests/plant/test_plant_regression.py pins a trajectory of the default train.
+tests/plant/test_integrator.py checks the step against a reference at dt = 0.1 ms,
+tests/plant/test_regression.py pins a trajectory of the default train.
 
 Why the step is compiled, against the style guide's "vectorise over cars with numpy": at n ≤ 8 cars a
 numpy call costs its fixed overhead (~0.45 µs) whatever the array size, and a vectorised step made ~62 of

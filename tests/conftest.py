@@ -1,12 +1,17 @@
 """Shared fixtures: one lockstep run of the default scenario per test session (it is deterministic), and
-one real-time run of it for the real-time tests; where the corpus of third-party files is (CORPUS)."""
+one real-time run of it for the real-time tests; where the corpus of third-party files is (CORPUS); and the
+helpers tests of several folders import (`from conftest import ...`: pytest puts this folder on sys.path)."""
 
 from __future__ import annotations
 
 import json
 import os
+import random
+import selectors
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -86,3 +91,38 @@ def assert_one_line_error(code: int, err: str, *needles: str) -> None:
     assert "Traceback" not in err
     for needle in needles:
         assert needle in lines[0], lines[0]
+
+
+# --- processes and buses of the real-time tests (tests/runtime, tests/report, tests/devices) -------------
+
+def kill_all(proc) -> None:
+    """The runner and every node process it started (its own session): a failed test leaves none."""
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.wait(timeout=30)
+
+
+def own_bus() -> list[str]:
+    """python-can flags of a udp_multicast bus of this test's own (parallel runs do not hear each other),
+    TTL 0: both programs are on this host, and frames sent out on a VM's network interface can stall it."""
+    rnd = random.Random(os.getpid() ^ time.monotonic_ns())
+    return ["-i", "udp_multicast", "-c", f"239.255.{rnd.randrange(1, 255)}.{rnd.randrange(1, 255)}",
+            "--bus-kwargs", f"port={rnd.randrange(20000, 60000)}", "hop_limit=0"]
+
+
+def wait_for_output(proc, text: str, timeout_s: float = 60.0) -> str:
+    """Block (on the pipe, at most `timeout_s` for each read) until `proc` printed `text` on stdout; what
+    it printed so far.  Reads the pipe itself: a text file's readline would keep a second line buffered
+    where select() cannot see it."""
+    fd = proc.stdout.fileno()
+    sel = selectors.DefaultSelector()
+    sel.register(fd, selectors.EVENT_READ)
+    seen = b""
+    while text.encode() not in seen:
+        chunk = os.read(fd, 4096) if sel.select(timeout=timeout_s) else b""
+        if not chunk:
+            raise AssertionError(f"no {text!r} within {timeout_s:g} s: {seen.decode()} (exit {proc.poll()})")
+        seen += chunk
+    return seen.decode()

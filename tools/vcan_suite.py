@@ -1,4 +1,4 @@
-"""make test-vcan: the SocketCAN tests (tests/test_socketcan.py) on virtual CAN buses vcan0 and vcan1.
+"""make test-vcan: the SocketCAN tests (tests/can/test_socketcan.py) on virtual CAN buses vcan0 and vcan1.
 
 Where this machine's kernel has SocketCAN (a Linux box with the vcan module), the tests run here, on vcan0
 and vcan1 (created, as root or through sudo, where missing). Where it has none (this development VM:
@@ -39,7 +39,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-TESTS = ["tests/test_socketcan.py"]
+TESTS = ["tests/can/test_socketcan.py"]
 OUT = ROOT / "runs" / "test-vcan"
 CHANNELS = ("vcan0", "vcan1")
 EXIT_CODE_FILE = "pytest-exit-code"

@@ -6,7 +6,7 @@ opendbc/dbc/generator/).  After editing, run
 
     .venv/bin/python dbc/generator/train_brake.py
 
-and commit both files; tests/test_dbc.py fails when they disagree.
+and commit both files; tests/can/test_dbc.py fails when they disagree.
 
 Conventions
 - Units are SI; scaled integers.  Every signal has a comment.
@@ -14,7 +14,7 @@ Conventions
   `CHECKSUM` (byte 0) and `COUNTER` (low nibble of byte 1): the AUTOSAR E2E profile 1 layout.  The
   message attributes `E2EProfile` ("P01") and `E2EDataID` (the frame id: unique on this bus, data id
   mode BOTH) tell the node runtime to protect and check them (hil/can/e2e.py).
-- Every frame whose signals reach an actuator or a target is authenticated (tests/test_protection.py
+- Every frame whose signals reach an actuator or a target is authenticated (tests/safety/test_protection.py
   derives which from the node bindings): the brake demand, the pressure commands, the emergency frame
   (whose EmergencyActive = 0 releases), the desk's command and target, the cars' status, the ACD's
   request and the BCU's pressure correction; SecOC profile 1: bytes 0-3 are the E2E-protected

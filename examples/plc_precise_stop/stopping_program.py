@@ -17,7 +17,8 @@ release, IV lap with feeding, V service brake.
   step against where the deviation was heading.
 
 Its constants are railhil's own search's (firmware_py/stopping.py, StoppingParams), so that the two stop
-the train at the same point (tests/test_plc_precise_stop.py).  Units: SI; time in integer microseconds.
+the train at the same point (tests/devices/test_plc_precise_stop.py).  Units: SI; time in integer
+microseconds.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Fast per-message CAN codec, proven equal to cantools by tests/test_codec.py.
+"""Fast per-message CAN codec, proven equal to cantools by tests/can/test_codec.py.
 
 The lockstep run encodes and decodes about 1,500 frames per simulated second and must run more
 than 10x faster than real time; cantools' ``Message.encode`` (strict) costs about 9 µs per frame and

@@ -13,7 +13,7 @@ it).  Every other interface (SocketCAN, PCAN, Vector, ...) goes through python-c
 unchanged.
 
 What goes on the wire is byte for byte what python-can sends for ``can.Message(arbitration_id=...,
-is_extended_id=..., data=..., check=False)`` (tests/test_frame_io.py compares the two, and python-can's
+is_extended_id=..., data=..., check=False)`` (tests/can/test_frame_io.py compares the two, and python-can's
 bus reads the frames sent here and the other way round).  A datagram that is not a python-can frame (a
 stray sender on the group) is counted in `undecodable` and dropped; python-can's bus raises on it.
 
@@ -198,7 +198,7 @@ _JA, _JEQ, _JGT, _JGE, _RET = 0x05, 0x15, 0x25, 0x35, 0x06
 _UDP = 8                                                 # the UDP header's bytes before the payload
 _KEEP, _DROP = (_RET, 0, 0, 0xFFFFFFFF), (_RET, 0, 0, 0)
 # python-can's msgpack of a Message up to the id's value: a map of 11, "timestamp", a float64 (any
-# value), "arbitration_id" (can.interfaces.udp_multicast.utils.pack_message; tests/test_frame_io.py)
+# value), "arbitration_id" (can.interfaces.udp_multicast.utils.pack_message; tests/can/test_frame_io.py)
 _LAYOUT = [(0, _LDW, 0x8BA97469), (4, _LDW, 0x6D657374), (8, _LDW, 0x616D70CB),      # 8b a9 "timestamp" cb
            (20, _LDW, 0xAE617262), (24, _LDW, 0x69747261), (28, _LDW, 0x74696F6E),   # ae "arbitration_id"
            (32, _LDH, 0x5F69), (34, _LDB, 0x64)]

@@ -7,7 +7,7 @@ denied, a disk full) prints the file and the system's reason (exit 2).
 
 Each subcommand's module (with its numpy, matplotlib, pydantic... imports) is imported only when that
 subcommand runs: ``COMMANDS`` holds each one's module and help line, so that ``railhil --help`` lists
-them all without importing any (tests/test_trace_cli.py checks the help lines against the modules').
+them all without importing any (tests/cli/test_trace_cli.py checks the help lines against the modules').
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ two run folders (report-vs-<other>.html).
 A run's page is built from the files of its folder only — run.json, kpis.json, truth.csv and the PNG plots
 — so `railhil report RUN_DIR` rebuilds it at any time and `hil.report.run.finish_run` writes it after
 every run.  It needs nothing else: no network, no neighbouring file (the PNGs are embedded as base64,
-plotly.js is inlined once per page).  It reads at a glance on a 1,280 px screen (tests/test_report_html.py
+plotly.js is inlined once per page).  It reads at a glance on a 1,280 px screen (tests/report/test_html.py
 draws it in headless Chromium: no element wider than the page, the verdict and the KPIs on the first
 screen, under 5,000 px), in this order:
 

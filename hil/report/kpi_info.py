@@ -14,7 +14,7 @@ an identifier (the seed).
 
 `groups(kpis)` sorts a kpis.json into the tables the report shows (the train's KPIs from the plant's truth,
 the run's and its frames, the bus, real time, each study), each KPI with its entry or None;
-`undescribed(kpis)` lists the dotted paths that have no entry (tests/test_report_html.py fails on any,
+`undescribed(kpis)` lists the dotted paths that have no entry (tests/report/test_html.py fails on any,
 so a KPI added without a description is caught).
 """
 

@@ -22,7 +22,7 @@ feed, balises), which a real train does not receive over this bus; they are repo
 `source = "plant"` and not required to be protected.
 
 `unprotected(links, db)` lists the actuating signals whose frame lacks E2E or SecOC: the protection
-test (tests/test_protection.py) requires it empty for every scenario family.
+test (tests/safety/test_protection.py) requires it empty for every scenario family.
 """
 
 from __future__ import annotations

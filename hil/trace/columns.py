@@ -13,7 +13,7 @@ reader below with the data bytes (``BlfColumnReader(..., payload=True)``), candu
 .log.gz, stdin) through ``parse_candump`` a batch of lines at a time (numpy over the whole text;
 every line it does not take goes to python-can's parser, in its place), every other format through
 python-can's reader.  The rows are the frames python-can gives, and a TraceError comes after the
-frames read before it, as iterating ``open_trace(path)`` gives them (tests/test_tracecolumns.py).
+frames read before it, as iterating ``open_trace(path)`` gives them (tests/trace/test_columns.py).
 
 The fast BLF path is python-can's ``can.io.blf.BLFReader`` (python-can 4.6) without the Message
 objects.  ``open_trace`` opens the file with python-can, which parses the file header and its start

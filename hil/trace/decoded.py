@@ -14,7 +14,7 @@ paths), and each message is decoded on demand, with the values cantools gives:
 * every other message (multiplexed, a signal wider than an 8-byte window) frame by frame through the
   codec (`hil.can.codec`, proven equal to cantools).
 
-tests/test_decoded.py checks both against the codec frame by frame on every corpus DBC.  A frame whose
+tests/trace/test_decoded.py checks both against the codec frame by frame on every corpus DBC.  A frame whose
 data does not decode (too short for its message, a multiplexer value the DBC does not have) is counted
 in `undecodable`, not raised; frames of ids the DBC does not have, and remote and error frames, are
 counted in `unknown`.  A multiplexed message's signals that a frame does not carry are NaN in that

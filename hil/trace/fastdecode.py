@@ -2,7 +2,7 @@
 its frames of the block at once with numpy, the text put together from pieces made once.
 
 The output is byte for byte what the per-frame path of ``hil.cli.trace.decode`` writes -- the same
-rows, filters, counts and text in the three formats (tests/test_fastdecode.py compares the two on the
+rows, filters, counts and text in the three formats (tests/trace/test_fastdecode.py compares the two on the
 corpus traces and DBCs, on traces of generated DBCs and on generated candump text).  How:
 
 * Frames come as ``hil.trace.columns.FrameBlock`` columns (timestamp [s], id, 11/29-bit, remote,

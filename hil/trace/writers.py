@@ -16,7 +16,7 @@ arbitration_id, is_extended_id, data, channel=0)` for plain data frames, without
 
 The file is byte for byte the one python-can writes for the same frames as ``can.Message(timestamp=
 timestamp_s, arbitration_id=..., is_extended_id=..., data=data, dlc=len(data), channel=channel,
-check=False)`` (tests/test_blf_writer.py; figures in bench/bench_trace.py).
+check=False)`` (tests/trace/test_blf_writer.py; figures in bench/bench_trace.py).
 
 MF4 (ASAM MDF 4 bus logging) goes through python-can's `MF4Writer` with two changes that a recording
 of simulated time needs:

@@ -19,7 +19,7 @@ from hil.can.busload import (
 )
 from hil.errors import DbcError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 from hil.can.codec import Codec, FrameCodec, FrameError
 from hil.can.dbc import parse_dbc_text
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TRAIN_DBC = ROOT / "dbc" / "train_brake.dbc"
 CORPUS_DBCS = sorted(CORPUS.glob("**/*.dbc")) if CORPUS.is_dir() else []
 MAX_LEN = 64  # longest CAN FD payload; one drawn payload is cut to each message's length

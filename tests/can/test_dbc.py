@@ -11,7 +11,7 @@ from hil.can.busload import declared_bitrate
 from hil.can.dbc import DEFAULT_DBC, load_dbc
 from hil.errors import DbcError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SAFETY = ("BCU_EMERGENCY", "DESK_CMD", "DESK_TARGET", "ACD_BRAKE_REQ", "BCU_DEMAND",
           "BCU_BRAKE_CORR") + tuple(f"BECU{i}_{what}" for what in ("PRESS_CMD", "STATUS")
                                     for i in range(1, 9))

@@ -87,7 +87,8 @@ def test_p05_bytes_past_the_protected_length_are_kept_but_a_longer_frame_is_an_e
 
 P11_VECTORS = [
     # (mode, length, offset [bits], frames with counter 0, 1): data id 0x123, zero payload.  At offset 0
-    # these are also the PRS's Profile 1 protocol examples (tests/test_e2e.py P01_EXAMPLES, BOTH and NIBBLE)
+    # these are also the PRS's Profile 1 protocol examples (tests/can/test_e2e.py P01_EXAMPLES, BOTH and
+    # NIBBLE)
     (BOTH, 8, 0, ["cc00000000000000", "9101000000000000"]),
     (NIBBLE, 8, 0, ["2a10000000000000", "7711000000000000"]),
     (NIBBLE, 16, 64, ["0000000000000000" "7d10000000000000", "0000000000000000" "2011000000000000"]),

@@ -20,7 +20,7 @@ from hil.can.dbc import load_dbc
 from hil.can.rta import RtaError, RtaMessage, analyse, measured_response, messages_from_dbc, priority_key
 from hil.errors import RailhilError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TRAIN_DBC = ROOT / "dbc" / "train_brake.dbc"
 
 

@@ -13,7 +13,7 @@ must still show.  Cases run in-process through ``hil.cli.main`` (conftest's ``ra
 end to end as the ``railhil`` console command in a subprocess.  A case the code does not pass yet is
 ``xfail(strict=True)`` with the reason: the owner of the named file fixes it and removes the mark.
 
-Property tests of the codec and the E2E check live in tests/test_codec.py and tests/test_e2e.py;
+Property tests of the codec and the E2E check live in tests/can/test_codec.py and tests/can/test_e2e.py;
 the scenario loader's is here.  There is no serial / NMEA input path in the code yet (issue #7).
 """
 

@@ -33,7 +33,7 @@ from hil.can.dbc import load_dbc
 from hil.errors import DbcError
 from hil.trace.fastdecode import table_word
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 NO_CORPUS = f"no trace corpus at {CORPUS} (set RAILHIL_CORPUS)"
 CANTOOLS_DBC = CORPUS / "cantools" / "tests" / "files" / "dbc"
 MOTOHAWK = CANTOOLS_DBC / "motohawk.dbc"

@@ -20,7 +20,7 @@ from conftest import CORPUS, assert_one_line_error, railhil
 from hil.report.run import run_scenario_lockstep
 from hil.scenario import load_scenario
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TRAIN_DBC = ROOT / "dbc" / "train_brake.dbc"
 MULTIPLEX_DBC = CORPUS / "cantools" / "tests" / "files" / "dbc" / "multiplex.dbc"
 NO_CORPUS = pytest.mark.skipif(not CORPUS.is_dir(),

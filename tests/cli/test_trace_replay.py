@@ -25,7 +25,7 @@ from conftest import CORPUS
 from hil.cli.main import main
 from hil.cli.trace.replay import identity, match_in_order
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ISSUE_1256 = CORPUS / "python-can" / "test" / "data" / "issue_1256.asc"
 NO_CORPUS = pytest.mark.skipif(not CORPUS.is_dir(),
                                reason=f"no trace corpus at {CORPUS} (set RAILHIL_CORPUS)")

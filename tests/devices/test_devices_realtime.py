@@ -22,9 +22,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import ROOT, realtime_held
+from conftest import ROOT, realtime_held, wait_for_output
 from test_devices import on_the_bench
-from test_exit_codes import wait_for_output
 
 from hil.can.codec import loaded_dbc
 from hil.trace.decoded import DecodedTrace

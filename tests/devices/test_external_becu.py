@@ -34,7 +34,7 @@ from hil.runtime.assembly import build_node, node_names
 from hil.runtime.node import DEV_SECOC_KEY
 from hil.scenario import load_scenario
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "external_becu"
 DOC = ROOT / "docs" / "external-ecu.md"
 DEFAULT = ROOT / "scenarios" / "default.toml"

@@ -21,7 +21,7 @@ from hil.resources import scenarios_dir
 from hil.runtime.assembly import build_foundation_node, device_gateway
 from hil.scenario import load_scenario
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 NAMESPACE = "urn:railhil:test-plc"
 PASSWORD = "brake-valve-4"
 WAIT_S = 20.0

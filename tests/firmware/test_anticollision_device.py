@@ -35,7 +35,7 @@ from firmware_py.rx import RxTable
 from hil.runtime.node import Binding
 from plant_sim import geo
 
-DBC = Path(__file__).resolve().parents[1] / "dbc" / "train_brake.dbc"
+DBC = Path(__file__).resolve().parents[2] / "dbc" / "train_brake.dbc"
 P = AcdParams()
 LAT0, LON0, AZ = 56.9496, 24.1052, 63.0       # Riga; the track runs ENE
 

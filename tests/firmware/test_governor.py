@@ -7,7 +7,7 @@ scheduling parameter ξ every 10 ms step (random bits, alternating, random inter
 blocks). The friction force F follows the inclusion F⁺ = a(ξ) F + (1 − a(ξ)) κ τ and the slip is read
 back through the inverse of the issue's curve (s = f⁻¹(F) below the peak). Accepted states never lead to
 s > s̄. The nonlinear slip ODE of eq. (3) itself, integrated at 1 ms by the plant, is checked on the
-lockstep runs of tests/test_wheel_slip.py (s ≤ s̄ at every plant step).
+lockstep runs of tests/studies/wheel_slip/test_wheel_slip.py (s ≤ s̄ at every plant step).
 """
 
 from __future__ import annotations

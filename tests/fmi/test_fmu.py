@@ -20,7 +20,7 @@ import pytest
 from hil.fmi.fmu import open_fmu, validation_problems
 from hil.fmi.mapping import fmi_unit
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "fmu_plant"
 RAILHIL = [sys.executable, "-m", "hil"]
 ENV = {**os.environ, "PYTHONHASHSEED": "0"}

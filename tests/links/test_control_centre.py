@@ -41,7 +41,7 @@ from hil.scenario import load_scenario
 from hil.studies.anticollision.nodes import World
 from plant_sim import geo
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 LAT0, LON0, AZ = 56.9496, 24.1052, 63.0
 WAIT_S = 20.0                                  # generous: a loaded 2-core machine
 

@@ -5,16 +5,12 @@ scenarios, then two short real-time runs: one whose budget no machine meets, one
 falls silent mid-run."""
 
 import json
-import os
-import selectors
 import subprocess
 import sys
 
 import numpy as np
 import pytest
-from conftest import ROOT, railhil
-from test_realtime import kill_all
-from test_realtime_external import own_bus
+from conftest import ROOT, kill_all, own_bus, railhil, wait_for_output
 
 from hil.report.gate import gates, verdict_line
 from hil.report.html import run_verdicts
@@ -150,22 +146,6 @@ def test_a_run_that_cannot_hold_real_time_exits_1_not_held(tmp_path):
     assert not rt["held"] and rt["misses_bench"] > 0, rt["nodes"]
     last = proc.stdout.strip().splitlines()[-1]
     assert last.startswith("verdict: FAIL — real time NOT HELD (") and "bench misses, allowed 0" in last, last
-
-
-def wait_for_output(proc, text: str, timeout_s: float = 60.0) -> str:
-    """Block (on the pipe, at most `timeout_s` for each read) until `proc` printed `text` on stdout; what
-    it printed so far.  Reads the pipe itself: a text file's readline would keep a second line buffered
-    where select() cannot see it."""
-    fd = proc.stdout.fileno()
-    sel = selectors.DefaultSelector()
-    sel.register(fd, selectors.EVENT_READ)
-    seen = b""
-    while text.encode() not in seen:
-        chunk = os.read(fd, 4096) if sel.select(timeout=timeout_s) else b""
-        if not chunk:
-            raise AssertionError(f"no {text!r} within {timeout_s:g} s: {seen.decode()} (exit {proc.poll()})")
-        seen += chunk
-    return seen.decode()
 
 
 @pytest.mark.realtime

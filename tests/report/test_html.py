@@ -184,7 +184,7 @@ def test_railhil_report_rebuilds_it_and_a_failed_check_shows(default_lockstep, t
 def test_late_frames_are_informational_in_real_time_and_a_stall_fails_the_real_time_check():
     """E2E NONEWDATA (a frame 1.5 of its cycles late) is timing, not a protection error: informational in
     real time (every `make run` has some), a failure in lockstep without faults; a run whose bench missed
-    deadlines beyond the budget fails its own check (tests/test_realtime_verdict.py has the rest)."""
+    deadlines beyond the budget fails its own check (tests/runtime/test_realtime_verdict.py has the rest)."""
     from hil.report.html import run_verdicts
     from hil.runtime.outcome import RunOutcome, realtime_verdict
 

@@ -15,7 +15,7 @@ import hil
 import railhil
 from hil.report.runfolder import RunFolderError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DBC = ROOT / "dbc" / "train_brake.dbc"
 
 

@@ -19,7 +19,7 @@ import can
 import can.cli
 import numpy as np
 import pytest
-from conftest import ATTEMPTS, DEFAULT, ROOT, realtime_held
+from conftest import ATTEMPTS, DEFAULT, ROOT, kill_all, realtime_held
 
 from hil.can.dbc import load_dbc
 
@@ -35,15 +35,6 @@ def ignore_sigint() -> None:
     """What a shell does to a command it starts in the background (`railhil run ... &` in a script, and
     some CI runners): SIGINT ignored, which Python would otherwise inherit and keep."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def kill_all(proc) -> None:
-    """The runner and every node process it started (its own session): a failed test leaves none."""
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-    proc.wait(timeout=30)
 
 
 def wait_for_start(proc, timeout_s=90.0) -> tuple[dict[str, int], str]:

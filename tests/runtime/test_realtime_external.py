@@ -2,35 +2,25 @@
 examples/external_becu/becu.py, a BECU written with python-can and cantools only, on the same
 udp_multicast bus.  The train stops as it does with every node simulated, BECU3's frames pass their
 timing verdicts, and when the program is killed the BCU reports car 3 silent and car 3's actuator goes
-fail-safe.  The command-line errors of --external and `railhil node` are in tests/test_external_cli.py."""
+fail-safe.  The command-line errors of --external and `railhil node` are in tests/cli/test_external_cli.py."""
 
 import json
 import os
-import random
 import selectors
 import shutil
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
-from conftest import ATTEMPTS, DEFAULT, ROOT, realtime_held
-from test_realtime import excused_unless_realtime_held, kill_all, wait_for_frames, wait_for_start
+from conftest import ATTEMPTS, DEFAULT, ROOT, kill_all, own_bus, realtime_held
+from test_realtime import excused_unless_realtime_held, wait_for_frames, wait_for_start
 
 pytestmark = pytest.mark.realtime
 
 EXAMPLE = ROOT / "examples" / "external_becu" / "becu.py"
 HOLD_S = 0.5      # [plant] failsafe_hold_s of the kill test: the actuators hold, then fill, within its 4 s
-
-
-def own_bus() -> list[str]:
-    """python-can flags of a udp_multicast bus of this test's own (parallel runs do not hear each other),
-    TTL 0: both programs are on this host, and frames sent out on a VM's network interface can stall it."""
-    rnd = random.Random(os.getpid() ^ time.monotonic_ns())
-    return ["-i", "udp_multicast", "-c", f"239.255.{rnd.randrange(1, 255)}.{rnd.randrange(1, 255)}",
-            "--bus-kwargs", f"port={rnd.randrange(20000, 60000)}", "hop_limit=0"]
 
 
 def realtime_prefix() -> list[str]:

@@ -10,8 +10,8 @@ import subprocess
 import sys
 
 import pytest
-from conftest import ATTEMPTS, DEFAULT, ROOT, realtime_held
-from test_realtime import excused_unless_realtime_held, kill_all
+from conftest import ATTEMPTS, DEFAULT, ROOT, kill_all, realtime_held
+from test_realtime import excused_unless_realtime_held
 
 pytestmark = pytest.mark.realtime
 

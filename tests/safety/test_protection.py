@@ -16,7 +16,7 @@ from hil.can.dbc import DEFAULT_DBC
 from hil.safety.protection import analyse, unprotected
 from hil.scenario import load_scenario
 
-SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
+SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
 
 # scenario family -> signals the analysis must find actuating (so that a pass is not an empty finding)
 FAMILIES = {

@@ -12,7 +12,7 @@ import pytest
 
 from hil.scenario import load_scenario, params
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PARAMS = ROOT / "hil" / "scenario" / "params.py"
 #: the modules that may read the keys below: the one place, and the scenario's own model and loader
 SCENARIO_PLACE = {ROOT / "hil" / "scenario" / name for name in ("params.py", "model.py", "load.py")}

@@ -7,7 +7,7 @@ import pytest
 from hil.errors import ScenarioError
 from hil.scenario import load_scenario
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_default_scenario_loads():

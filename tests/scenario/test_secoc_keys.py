@@ -16,7 +16,7 @@ from hil.runtime.node import DEV_SECOC_KEY
 from hil.scenario import load_scenario
 from hil.scenario.params import KEY_ENV, KEY_FILE_ENV, secoc_keys
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 STOP = ROOT / "scenarios" / "stop_30kmh.toml"
 K_ENV, K_FILE, K_MSG, K_SCEN = "11" * 16, "22" * 16, "33" * 16, "44" * 16
 

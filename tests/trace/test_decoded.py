@@ -1,5 +1,5 @@
 """hil.trace.decoded.DecodedTrace decodes a message's frames all at once with numpy where the codec takes
-the shift-and-mask path: its values equal the codec's (cantools' own, tests/test_codec.py) frame by
+the shift-and-mask path: its values equal the codec's (cantools' own, tests/can/test_codec.py) frame by
 frame, bit for bit, on every message of every corpus DBC and of dbc/train_brake.dbc — random payloads,
 frames shorter than their message, longer ones — and its undecodable count is the codec's FrameErrors.
 
@@ -20,7 +20,7 @@ from hil.errors import DbcError
 from hil.trace.columns import FrameBlock
 from hil.trace.decoded import DecodedTrace
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def dbcs() -> list:

@@ -35,7 +35,7 @@ from hil.trace.columns import BLOCK_FRAMES, FrameBlock
 from hil.trace.fastdecode import BlockDecoder
 from hil.trace.readers import TraceError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 NO_CORPUS = f"no trace corpus at {CORPUS} (set RAILHIL_CORPUS)"
 CANTOOLS_DBC = CORPUS / "cantools" / "tests" / "files" / "dbc"
 CANDUMP = CORPUS / "SavvyCAN" / "examples" / "candump.log"

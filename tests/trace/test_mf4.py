@@ -22,7 +22,7 @@ from hil.trace.writers import Mf4Writer
 
 asammdf = pytest.importorskip("asammdf", reason="asammdf is not installed: no MF4 here")
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DBC = ROOT / "dbc" / "train_brake.dbc"
 FIELDS = ("t", "arbitration_id", "extended", "dlc", "kind", "fd")
 

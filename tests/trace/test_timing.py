@@ -26,7 +26,7 @@ from hil.trace.timing import (
     period_histogram,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ISSUE_1256 = CORPUS / "python-can" / "test" / "data" / "issue_1256.asc"
 
 # FAST 0x100 10 ms (11-bit), SLOW 0x18FF0001 100 ms (29-bit), MID 0x200 50 ms, EVENT 0x300 no cycle

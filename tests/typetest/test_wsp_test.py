@@ -135,7 +135,7 @@ def test_shipped_programme_expands_to_valid_runs():
 
 
 def _write(tmp_path: Path, text: str) -> Path:
-    base = Path(__file__).resolve().parents[1] / "scenarios" / "default.toml"
+    base = Path(__file__).resolve().parents[2] / "scenarios" / "default.toml"
     p = tmp_path / "prog.toml"
     p.write_text(f'name = "t"\nbase = "{base}"\nspeeds_kmh = [40.0]\n' + text)
     return p

@@ -4,14 +4,14 @@ Two paths write the same bytes: the per-frame path (``decoded_rows`` and ``row_t
 python-can Message), the reference; and the fast path that ``run`` takes, a block of frames at a time
 (``hil.trace.columns.BlockReader`` reads them, ``hil.trace.fastdecode.BlockDecoder`` decodes and writes
 them, and hands the frames it does not take -- remote, error, multiplexed, too short -- to the
-per-frame path, in their place).  tests/test_fastdecode.py holds the two to the same output.
+per-frame path, in their place).  tests/trace/test_fastdecode.py holds the two to the same output.
 
 Values are shown as cantools shows them (``cantools decode``): a signal whose raw value is in its value
 table by the table's name (``Enable=Enabled``), every other one by its number and the DBC unit
 (``AverageRadius=1.8 m``); ``--raw`` shows every signal by its number (``Enable=1 -``), as
 ``cantools decode --no-decode-choices``.  csv and jsonl carry the number, the unit and the name.  The
 names are cantools' own (``decode_choices=True``, ``hil.trace.fastdecode.choice_names``), the numbers
-``hil.can.codec``'s, which equal cantools' (tests/test_decode_choices.py).
+``hil.can.codec``'s, which equal cantools' (tests/cli/test_decode_choices.py).
 """
 
 from __future__ import annotations
@@ -245,7 +245,7 @@ def decode(trace: str | Path, codec: Codec, sel: Selection, fmt: str, start: flo
     `fast` (the default): a block of up to `block_frames` frames at a time (hil.trace.columns reads
     them, hil.trace.fastdecode decodes and writes them, the per-frame path below takes the frames it does
     not); `fast` False: the per-frame path for every frame -- the reference that
-    tests/test_fastdecode.py holds the fast path to, byte for byte.
+    tests/trace/test_fastdecode.py holds the fast path to, byte for byte.
     """
     timebase = timebase or TimeBase(start, end, absolute=True)
     counts = {"decoded": 0, "unknown": 0, "remote": 0, "error": 0, "failed": 0}

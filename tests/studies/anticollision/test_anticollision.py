@@ -30,7 +30,7 @@ from plant_sim.errors import PlantConfigError
 from plant_sim.gps import GpsModel, GpsParams
 from plant_sim.leader import LeaderMotion, SpeedChange
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 SCEN = ROOT / "scenarios"
 
 

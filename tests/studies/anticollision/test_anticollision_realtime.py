@@ -22,7 +22,7 @@ from hil.studies.anticollision.kpis import judge_run_dir
 
 pytestmark = [pytest.mark.realtime, pytest.mark.slow]
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 WAIT_S = 120.0
 
 

@@ -32,7 +32,7 @@ from plant_sim.padbench import (
 )
 from plant_sim.params import PadParams
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 G = 9.81
 
 

@@ -44,7 +44,7 @@ from hil.studies.precise_stop.reproduce import (
     verdicts,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 SCENARIO = ROOT / "scenarios" / "precise_stop.toml"
 
 S = StopState

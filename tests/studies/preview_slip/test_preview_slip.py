@@ -15,7 +15,7 @@ from hil.studies.preview_slip.reproduce import Case, run_case, run_direct
 from plant_sim.reduced_train import Rail, ReducedTrain, ReducedTrainParams, simulate
 from plant_sim.track import Track
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", ".."))   # the repository
 
 
 @functools.cache

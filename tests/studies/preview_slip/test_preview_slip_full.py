@@ -17,7 +17,7 @@ from hil.cli.main import main
 from plant_sim.brake import cylinder_lag_scalar, hysteresis_torque_scalar, lag_factor
 from plant_sim.params import BrakeParams
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", ".."))   # the repository
 
 # the brake of scenarios/preview_slip_full.toml (gain 0.2 N m/Pa, preload 30 kPa, release line 20 kPa above)
 G = 0.2

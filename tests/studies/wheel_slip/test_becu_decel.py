@@ -1,7 +1,7 @@
 """BECU deceleration control (seed 001 eq. 16), its WSP (§II-C) and the governor in the loop.
 
 Step tests with injected time and signals, the WSP transition table and the scenario keys. The lockstep
-runs of scenarios/rg_*.toml against issue #4's acceptance are in tests/test_wheel_slip.py.
+runs of scenarios/rg_*.toml against issue #4's acceptance are in tests/studies/wheel_slip/test_wheel_slip.py.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from hil.scenario import load_scenario, parse_scenario
 from hil.scenario.params import run_params
 from hil.studies.wheel_slip.scenario import reference_governor_params
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 G = 9.81
 PAPER_WSP = WspParams(vent_slip_mps=0.1, vent_slip_per_speed=0.0, hold_fraction=1.0, refill_fraction=1.0)
 

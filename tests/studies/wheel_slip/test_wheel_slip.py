@@ -30,7 +30,7 @@ from hil.studies.wheel_slip.kpis import (
 )
 from plant_sim.adhesion import mu_slip_speed_scalar
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 OFF = ["wheel_slip.governor=false"]
 
 
