@@ -115,6 +115,7 @@ class Train(NamedTuple):
 
     speed_mps: float            # the train speed: the highest plausible estimate heard from; NaN: none
     known_mps: list[float]      # the plausible estimates heard from
+    status_rx_us: int | None    # when the newest BECUn_STATUS arrived; None: none yet
     standstill: bool
     desk_emergency: bool        # the desk asks for the emergency brake
     brake_step: int             # the desk's brake step (0..7) and its deceleration [m/s²]
@@ -185,9 +186,11 @@ class Bcu:
         emergency_req, _ = finite_or(rx["EmergencyReq"], 0.0)
         brake_step = int(min(max(step_raw, 0), 7))
         speeds = [finite_or(rx[name], float("nan"))[0] for name in self.speed_keys]
+        ages = [rx.age_us(name, now_us) for name in self.speed_keys]
         # a car heard from, but not lately, is silent too
-        speeds = [float("nan") if (a := rx.age_us(name, now_us)) is not None and a > p.status_timeout_us
-                  else v for name, v in zip(self.speed_keys, speeds, strict=True)]
+        speeds = [float("nan") if a is not None and a > p.status_timeout_us else v
+                  for a, v in zip(ages, speeds, strict=True)]
+        heard = [a for a in ages if a is not None]
         self._vote(now_us, speeds)
         known = [v for v, bad in zip(speeds, self.implausible, strict=True) if v == v and not bad]
         train_speed = max(known) if known else float("nan")
@@ -199,7 +202,8 @@ class Bcu:
         step_decel = p.step_decel_mps2[brake_step]
 
         out: dict[str, float] = {}
-        train = Train(train_speed, known, standstill, desk_emergency, brake_step, step_decel, self.mode,
+        train = Train(train_speed, known, now_us - min(heard) if heard else None, standstill, desk_emergency,
+                      brake_step, step_decel, self.mode,
                       self.target, dt_s)
         demands = [source.demand(now_us, rx, train, out) for source in self.sources]
         valve_cmd = self._valve_step(now_us, rx, dt_s)

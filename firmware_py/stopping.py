@@ -452,11 +452,10 @@ class StoppingDemand:
 
     OUTPUTS = STOP_OUTPUTS
 
-    def __init__(self, p: StoppingParams, n_cars: int) -> None:
+    def __init__(self, p: StoppingParams) -> None:
         self.p = p
         self.controller = StoppingController(p)
         self.INPUTS = ("TargetStopValid", "TargetStopPos") + (BTM_INPUTS if p.balises else ())
-        self.speed_keys = tuple(f"BECU{i}_STATUS.SpeedEst" for i in range(1, n_cars + 1))
         self.out: StopOutput | None = None     # last StopOutput (diagnostic)
         self.balises_seen = 0                  # balise passages the odometer re-anchored on
         self._balise_count: float | None = None
@@ -467,8 +466,7 @@ class StoppingDemand:
         the balise, then the controller.  The odometer integrates the median of the cars' estimates: the
         maximum (the train speed, safe against sliding wheels) is biased upwards by the estimates' noise,
         and that bias integrates."""
-        ages = [a for a in (rx.age_us(k, now_us) for k in self.speed_keys) if a is not None]
-        t_rx = now_us - min(ages) if ages else None
+        t_rx = train.status_rx_us
         odo_speed = statistics.median(train.known_mps) if train.known_mps else math.nan
         if t_rx is not None and t_rx != self._odo_rx_us and odo_speed == odo_speed:
             self.controller.odometer.sample(t_rx, odo_speed)

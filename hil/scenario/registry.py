@@ -4,8 +4,8 @@ A study (preview slip control, the wheel-slip governor, precise stopping, anti-c
 braking, deceleration feedback) is a folder `hil/studies/<name>/` with the same files in each:
 
     __init__.py  STUDY, its descriptor (this module's `Study`)
-    scenario.py  its scenario section, cross-checks, and what the section sets in the parameters
-    nodes.py     its node bindings: the nodes it adds or replaces, what it adds to the BCU and BECUs
+    scenario.py  its scenario section, cross-checks, and the parameters of its nodes and stages
+    nodes.py     its node bindings: the nodes it adds or replaces, the stages it fits into the BCU and BECUs
     frames.py    its DBC part
     kpis.py      its KPIs (kpis.json under the study's name) and summary lines
     plots.py     its plots

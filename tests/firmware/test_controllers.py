@@ -81,7 +81,7 @@ def test_bcu_precise_stopping_brakes_along_the_curve_and_gives_way_to_emergency(
     it coasts (ARMED) until the curve at 0.6 m/s² begins (333 m before the point: at once here, with the
     steeper a_c = 20²/(2·300)), then sends a service demand near a_c; emergency takes over.  The train
     decelerates as demanded (an ideal brake), its position is the sum of its speeds."""
-    stopping = StoppingDemand(StoppingParams(method="pi"), 2)
+    stopping = StoppingDemand(StoppingParams(method="pi"))
     bcu = Bcu(2, sources=[stopping])
     values = {"BrakeStep": 0, "EmergencyReq": 0, "BECU1_STATUS.SpeedEst": 20.0, "BECU2_STATUS.SpeedEst": 20.0,
               "TargetStopValid": 1, "TargetStopPos": 300.0}
@@ -100,7 +100,7 @@ def test_bcu_precise_stopping_brakes_along_the_curve_and_gives_way_to_emergency(
 
 
 def test_bcu_without_target_does_not_brake():
-    stopping = StoppingDemand(StoppingParams(method="adaptive_diff"), 2)
+    stopping = StoppingDemand(StoppingParams(method="adaptive_diff"))
     bcu = Bcu(2, sources=[stopping])
     values = {"BrakeStep": 0, "EmergencyReq": 0, "BECU1_STATUS.SpeedEst": 20.0, "BECU2_STATUS.SpeedEst": 20.0,
               "TargetStopValid": 0, "TargetStopPos": 0.0}

@@ -35,4 +35,4 @@ def bcu_stages(scenario, run: RunParams, sources: list[DemandSource], followers:
     """The stopping function as a demand source of the BCU (none with a PLC in the DESK's place)."""
     params = stopping_params(scenario, run)
     if params is not None:
-        sources.append(StoppingDemand(params, scenario.train.cars))
+        sources.append(StoppingDemand(params))
