@@ -20,6 +20,7 @@ lazy_mf4.install()        # python-can's MF4 support loads asammdf when first us
 
 def __getattr__(name: str):
     if name in __all__:
+        # lazy: every module of railhil imports this package first: 9 ms, not 370 ms (-X importtime)
         from hil.report import runfolder
 
         return getattr(runfolder, name)

@@ -47,6 +47,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hil.errors import BindingError
+from hil.runtime.clock import RunClock
+
 __all__ = ["Condition", "HilRun", "Signal", "TemporalAssertionError", "eventually", "never", "run_hil",
            "within"]
 
@@ -313,11 +316,10 @@ class HilRun:
 
     def signals(self, *names: str) -> dict[str, Signal]:
         """Several "MESSAGE.Signal" names decoded in one pass over the trace (time: simulated s)."""
+        # lazy: pytest loads this plugin in every session; the run machinery would add 460 ms there
         from hil.can.codec import Codec
         from hil.can.dbc import load_dbc
-        from hil.errors import BindingError
         from hil.report.kpis import read_signals
-        from hil.runtime.clock import RunClock
         from hil.runtime.run import dbc_path_of
 
         todo = [n for n in names if n not in self._signals]
@@ -348,6 +350,7 @@ class HilRun:
     def truth(self, column: str) -> Signal:
         """A column of the plant's ground truth (truth.csv), e.g. v_mps_1, x_m_1, p_Pa_3, slip_speed_mps_2."""
         if self._truth is None:
+            # lazy: pytest loads this plugin in every session; the run machinery would add 460 ms there
             from hil.runtime.truth import read_truth_csv
 
             self._truth = read_truth_csv(self.out_dir / "truth.csv")
@@ -363,6 +366,7 @@ class HilRun:
 def resolve_scenario(scenario, overrides: dict | None = None, search: tuple[Path, ...] = ()):
     """A Scenario from a path (tried as given, then under each folder of `search`) or a Scenario, with
     dotted-key overrides applied like `railhil run --set` (each key and value checked)."""
+    # lazy: pytest loads this plugin in every session; the run machinery would add 460 ms there
     from hil.scenario import Scenario, apply_set, load_scenario, parse_scenario
 
     if isinstance(scenario, Scenario):
@@ -387,10 +391,12 @@ def run_hil(scenario, out_dir: Path, overrides: dict | None = None, mode: str = 
         raise ValueError(f"mode = {mode!r}: expected one of {', '.join(MODES)}")
     sc = resolve_scenario(scenario, overrides, search)
     if mode == "lockstep":
+        # lazy: pytest loads this plugin in every session; the run machinery would add 460 ms there
         from hil.report.run import run_scenario_lockstep
 
         report = run_scenario_lockstep(sc, Path(out_dir))
     else:
+        # lazy: pytest loads this plugin in every session; the run machinery would add 460 ms there
         from hil.report.run import run_scenario_realtime
 
         report = run_scenario_realtime(sc, Path(out_dir), dict(bus or {}))
@@ -418,6 +424,7 @@ class _Runs:
         self.count = 0
 
     def run(self, scenario, overrides, mode, bus, search) -> HilRun:
+        # lazy: pytest loads this plugin in every session; the run machinery would add 460 ms there
         from hil.scenario import Scenario
 
         key = None

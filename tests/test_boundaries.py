@@ -11,6 +11,9 @@
   (hil.runtime.lockstep.FaultHook): no arrow from the runtime up to report or safety.
 
 - No import circles between modules.
+- railhil's own modules are imported at module level.  An import inside a function is kept only where a
+  measured start-up cost needs it, and says so on the line above it (or above its group of imports):
+  ``# lazy: <reason>, N ms ...`` -- e.g. the pytest plugin, which every pytest session loads.
 
 Imports are read from the source (AST), at module level and inside functions alike, and a string
 constant that names a hil module (`"hil.cli.run"` in a table that importlib loads) counts as an import
@@ -205,3 +208,80 @@ def test_pure_packages_import_neither_hil_nor_each_other_nor_io(package, forbidd
     bad = sorted((f, m) for f, m in imported_top_levels(package) if m in forbidden)
     assert not bad, f"{package} imports {bad}"
     assert (ROOT / package / "__init__.py").exists()
+
+
+OWN = ("hil", "firmware_py", "plant_sim")
+LAZY = "# lazy:"
+
+
+def unexplained_function_imports(source: str, name: str) -> list[str]:
+    """Imports of railhil's own modules inside a function without a ``# lazy: ... ms`` line above them or
+    above the run of import statements they close."""
+    lines = source.splitlines()
+    tree = ast.parse(source, filename=name)
+    bad = []
+    for fn in ast.walk(tree):
+        if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        for holder in ast.walk(fn):
+            body = getattr(holder, "body", None)
+            if not isinstance(body, list):
+                continue
+            explained = False
+            for i, st in enumerate(body):
+                if not isinstance(st, (ast.Import, ast.ImportFrom)):
+                    explained = False
+                    continue
+                above = lines[st.lineno - 2].strip() if st.lineno > 1 else ""
+                starts_run = i == 0 or not isinstance(body[i - 1], (ast.Import, ast.ImportFrom))
+                if above.startswith(LAZY):
+                    explained = " ms" in above
+                elif starts_run:
+                    explained = False
+                modules = ([a.name for a in st.names] if isinstance(st, ast.Import)
+                           else [st.module or ""] if st.level == 0 else ["." * st.level])
+                if not explained and any(m.split(".")[0] in OWN or m.startswith(".") for m in modules):
+                    bad.append(f"{name}:{st.lineno}: {ast.unparse(st)} inside {fn.name}() with no "
+                               f"'{LAZY} <reason>, N ms' line above it")
+    return bad
+
+
+def test_own_modules_are_imported_at_module_level_unless_a_measured_cost_says_why():
+    bad = []
+    for package in OWN:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            bad += unexplained_function_imports(path.read_text(), str(path.relative_to(ROOT)))
+    assert not bad, "imports inside functions (move them to the top, or give the measured reason):\n" + \
+        "\n".join(bad)
+
+
+def test_the_function_import_check_fails_on_an_unexplained_import():
+    source = """
+def plain():
+    from hil.can.codec import Codec
+    return Codec
+
+
+def explained():
+    # lazy: keeps `railhil x --help` at 40 ms, not 400 ms
+    from hil.report.html import write_report
+    from hil.report.run import finish_run
+    return write_report, finish_run
+
+
+def no_figure():
+    # lazy: because
+    from hil.report.html import write_report
+    return write_report
+
+
+def second_run():
+    # lazy: keeps it light, 400 ms
+    from hil.report.html import write_report
+    x = 1
+    from hil.report.run import finish_run
+    import json
+    return x, write_report, finish_run, json
+"""
+    bad = unexplained_function_imports(source, "m.py")
+    assert [b.split(":")[1] for b in bad] == ["3", "16", "24"], bad

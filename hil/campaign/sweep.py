@@ -72,8 +72,14 @@ from pathlib import Path
 
 import numpy as np
 
+import firmware_py
+import plant_sim
 from hil.errors import ScenarioError
+from hil.report.html import write_campaign_report
+from hil.report.plots import pyplot
+from hil.report.run import has_figures, run_scenario_lockstep, write_figures
 from hil.resources import campaigns_dir, read_toml
+from hil.runtime.run import check_out_dir, dbc_path_of, prepare_worker
 from hil.scenario import Scenario, apply_set, load_scenario, parse_scenario
 
 __all__ = ["Campaign", "CampaignError", "CampaignResult", "Point", "PointResult", "check_positive", "draw",
@@ -224,8 +230,6 @@ def draw(kind: str, args: list, seed: int, key: str, n: int) -> list:
 
 
 def _dbc_digest(scenario: Scenario) -> str:
-    from hil.runtime.run import dbc_path_of
-
     path = dbc_path_of(scenario)
     try:
         return hashlib.sha256(path.read_bytes()).hexdigest()
@@ -247,8 +251,6 @@ def code_digest() -> str:
     """SHA-256 (hex) of the Python source that makes a run (firmware_py, plant_sim, hil: every .py file's
     path and bytes), so that a changed controller or plant invalidates a stored result even where the
     package version stayed the same (a working copy between releases)."""
-    import firmware_py
-    import plant_sim
 
     h = hashlib.sha256()
     for pkg in (firmware_py, plant_sim, sys.modules["hil"]):
@@ -325,8 +327,6 @@ def run_point(scenario_json: str, run_dir: str, plots: bool = False) -> dict:
     process, not per point; those seconds are `startup_s`) to its KPIs; `sim_wall_s` the lockstep
     simulation's part of it (RunOutcome.wall_s).  The run folder keeps the trace, truth.csv, kpis.json and
     run.json; `plots` adds plot.png, the studies' figures and report.html."""
-    from hil.report.run import run_scenario_lockstep
-    from hil.runtime.run import prepare_worker
 
     startup_s = 0.0
     try:
@@ -355,7 +355,6 @@ def draw_point(scenario_json: str, run_dir: str, cached: dict) -> dict:
     """The figures and report.html of a point cached without them (`--plots` now), drawn from its run
     folder: `cached` (its point.json) with "drawn": True; a folder they cannot be drawn from is run
     again with plots (run_point).  Never raises."""
-    from hil.report.run import write_figures
 
     try:
         write_figures(Path(run_dir))
@@ -447,13 +446,10 @@ def run_campaign(campaign: Campaign, out_dir: Path, executor: Executor | None = 
     and report.html too, and a cached point without them gets them drawn from its folder (draw_point).
     Ctrl-C stops the campaign, keeps every finished point cached and returns the result so far with
     `interrupted` set."""
-    from hil.runtime.run import check_out_dir
 
     t0 = time.perf_counter()
     out_dir = check_out_dir(out_dir)
     points = expand(campaign) if points is None else points
-    if plots:
-        from hil.report.run import has_figures
     done: dict[int, PointResult] = {}
     todo: dict[str, list[Point]] = {}               # key -> points with that scenario (duplicates run once)
     undrawn: dict[str, dict] = {}                   # key -> point.json of a cached point to draw (plots)
@@ -577,7 +573,6 @@ def write_plots(result: CampaignResult) -> list[Path]:
     """plot_<key>.png per numeric swept key: each of the campaign's plot KPIs (those the runs have)
     against that key, one dot per finished point, and the mean per value for a grid key; then the
     campaign's report.html (hil.report.html: the results table and these plots, one self-contained page)."""
-    from hil.report.html import write_campaign_report
 
     files = _summary_plots(result)
     return files + [write_campaign_report(result.out_dir, rows(result), result.campaign.name,
@@ -589,7 +584,6 @@ def _summary_plots(result: CampaignResult) -> list[Path]:
     metrics = [m for m in result.campaign.plot if any(_is_number(_flatten(r.kpis).get(m)) for r in ok)]
     if not ok or not metrics:
         return []
-    from hil.report.plots import pyplot
 
     plt = pyplot()
     files = []

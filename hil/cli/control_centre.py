@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import argparse
 
+from hil.links.control_centre import add_arguments, serve
+
 HELP = ("the anti-collision control centre: pairs follower and leader trains over TCP, reports kept in "
         "SQLite")
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from hil.links.control_centre import add_arguments
-
     p = sub.add_parser(
         "control-centre",
         help=HELP,
@@ -36,6 +36,4 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hil.links.control_centre import serve
-
     return serve(args)

@@ -6,6 +6,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hil.errors import FmuError
+from hil.fmi.fmu import open_fmu, validation_problems
+
 HELP = "write railhil's plant or a BECU of a scenario as an FMI 2.0 co-simulation FMU"
 DESCRIPTION = ("Write railhil's plant (WHAT = plant) or a BECU (WHAT = BECU3) of SCENARIO, with the "
                "scenario's parameters, as an FMI 2.0 co-simulation FMU built by PythonFMU, for Simulink, "
@@ -26,9 +29,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hil.errors import FmuError
+    # lazy: keeps `railhil export-fmu --help` at 35 ms, not 430 ms (the FMU builder: -X importtime)
     from hil.fmi.export import export_node, export_plant
-    from hil.fmi.fmu import open_fmu, validation_problems
     from hil.scenario.load import load_scenario
 
     scenario = load_scenario(args.scenario, sets=args.sets)

@@ -19,7 +19,16 @@ import os
 import time
 from pathlib import Path
 
+from hil.campaign.jobs import add_executor_options, check_executor_options
+from hil.campaign.sweep import executor_for
+from hil.can.codec import loaded_dbc
 from hil.errors import RailhilError
+from hil.progress import progress_bar
+from hil.resources import resolve_scenario
+from hil.runtime.run import check_out_dir
+from hil.safety import matrix_report
+from hil.safety.threat_matrix import THREATS, WINDOW_S, WINDOW_START_S, plan, run_matrices, safety_messages
+from hil.scenario import load_scenario
 
 #: the scenario families of `--all` (shipped scenarios, by name)
 ALL_SCENARIOS = ("default", "stop_30kmh", "precise_stop", "decel_feedback", "rg_low_adhesion",
@@ -33,9 +42,6 @@ class FaultsArgError(RailhilError, ValueError):
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    from hil.campaign.jobs import add_executor_options
-    from hil.safety.threat_matrix import THREATS, WINDOW_S, WINDOW_START_S
-
     p = sub.add_parser(
         "faults",
         help="fault injection campaigns: the EN 50159 threat matrix",
@@ -82,9 +88,6 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def _scenarios(args: argparse.Namespace) -> list[tuple[str, object]]:
-    from hil.resources import resolve_scenario
-    from hil.scenario import load_scenario
-
     if args.all and args.scenario is not None:
         raise FaultsArgError(f"--all and a SCENARIO ({args.scenario}): expected one of them")
     if not args.all and args.scenario is None:
@@ -96,14 +99,6 @@ def _scenarios(args: argparse.Namespace) -> list[tuple[str, object]]:
 
 
 def matrix(args: argparse.Namespace) -> int:
-    from hil.campaign.jobs import check_executor_options
-    from hil.campaign.sweep import executor_for
-    from hil.can.codec import loaded_dbc
-    from hil.progress import progress_bar
-    from hil.runtime.run import check_out_dir
-    from hil.safety import matrix_report
-    from hil.safety.threat_matrix import THREATS, plan, run_matrices, safety_messages
-
     check_executor_options(args, FaultsArgError)
     bad = [t for t in args.threat if t not in THREATS]
     if bad:

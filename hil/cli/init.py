@@ -12,6 +12,7 @@ import argparse
 from pathlib import Path
 
 from hil.errors import RailhilError
+from hil.resources import DEFAULT_DBC_NAME, default_dbc, scenarios_dir, shipped_scenarios, unknown_scenario
 
 HELP = "write an editable copy of a shipped scenario and the DBC into a folder"
 DBC_KEY = 'dbc = "{name}"          # the editable copy of the CAN schema beside this file (railhil init)\n'
@@ -49,13 +50,6 @@ def with_local_dbc(text: str, dbc_name: str) -> str:
 def run(args: argparse.Namespace) -> int:
     import tomllib
 
-    from hil.resources import (
-        DEFAULT_DBC_NAME,
-        default_dbc,
-        scenarios_dir,
-        shipped_scenarios,
-        unknown_scenario,
-    )
 
     shipped = {s.name: s for s in shipped_scenarios()}
     names = args.scenarios or ["default"]

@@ -22,6 +22,23 @@ import can.cli
 
 from hil.cli.run import bus_config_from_args
 from hil.errors import RailhilError
+from hil.runtime.clock import RunClock
+from hil.runtime.host import Host, PlantEnd
+from hil.runtime.probe import late_threshold_us
+from hil.runtime.realtime import (
+    bus_flags,
+    check_node_names,
+    describe_bus,
+    enlarge_receive_buffer,
+    held_can_logs,
+    hosted_nodes,
+    idle_hold,
+    os_setup,
+    pass_on,
+    resolve_bus_config,
+)
+from hil.runtime.rtos import NODE_PRIORITY, sleep_lateness
+from hil.runtime.run import dbc_path_of
 from hil.scenario import load_scenario
 
 WAIT_REPORT_S = 10.0          # while waiting for the bus, say so this often [s]
@@ -62,8 +79,6 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def _names(text: str, scenario) -> list[str]:
-    from hil.runtime.realtime import check_node_names
-
     names = check_node_names(scenario, [n.strip() for n in text.split(",") if n.strip()], "node")
     if not names:
         raise NodeArgError("no node named: give NAME, e.g. BECU3 or BCU,BECU1")
@@ -85,23 +100,6 @@ def _wait_for_bus(bus, own_ids: set[int], stop: threading.Event) -> can.Message 
 
 
 def run(args: argparse.Namespace) -> int:
-    from hil.runtime.clock import RunClock
-    from hil.runtime.host import Host, PlantEnd
-    from hil.runtime.probe import late_threshold_us
-    from hil.runtime.realtime import (
-        bus_flags,
-        describe_bus,
-        enlarge_receive_buffer,
-        held_can_logs,
-        hosted_nodes,
-        idle_hold,
-        os_setup,
-        pass_on,
-        resolve_bus_config,
-    )
-    from hil.runtime.rtos import NODE_PRIORITY, sleep_lateness
-    from hil.runtime.run import dbc_path_of
-
     scenario = load_scenario(args.scenario, None, args.sets)
     names = _names(args.names, scenario)
     for value, flag in ((args.duration, "--duration"), (args.until_idle, "--until-idle")):

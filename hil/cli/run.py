@@ -13,10 +13,15 @@ from pathlib import Path
 
 import can.cli
 
-from hil.errors import BusError
+from hil.devices.description import read_device_file
+from hil.errors import BusError, DeviceError, ScenarioError
+from hil.fmi.fmu import open_fmu, scenario_fmus
 from hil.progress import progress_bar
 from hil.report.gate import gates
+from hil.report.run import run_scenario_lockstep, run_scenario_realtime
+from hil.runtime.assembly import check_devices
 from hil.scenario import load_scenario
+from hil.scenario.model import DeviceRef
 from hil.scenario.params import kmh
 
 BUS_KEYS = ("channel", "interface", "bitrate", "fd", "data_bitrate", "can_filters", "timing", "bus_kwargs")
@@ -110,10 +115,6 @@ def with_devices(scenario, given: list[str]):
     """The scenario with the devices of `--device [NODE=]FILE` in their nodes' places (a path from the
     current directory; NODE: the file's `replaces`); a DeviceError naming the option for a file that
     does not read, names another node, or a node given a device twice."""
-    from hil.devices.description import read_device_file
-    from hil.errors import DeviceError
-    from hil.runtime.assembly import check_devices
-    from hil.scenario.model import DeviceRef
 
     devices = dict(scenario.devices)
     from_cli: set[str] = set()
@@ -138,7 +139,6 @@ def with_devices(scenario, given: list[str]):
 
 def fmu_lines(scenario) -> list[str]:
     """The summary's line per FMU the run stepped in a node's place (run.json `fmus` has its SHA-256)."""
-    from hil.fmi.fmu import open_fmu, scenario_fmus
 
     lines = []
     for node, path in scenario_fmus(scenario).items():
@@ -155,14 +155,11 @@ def run(args: argparse.Namespace) -> int:
     scenario = with_devices(load_scenario(args.scenario, overrides, sets), args.device)
     mode = args.mode
     if args.external and mode != "realtime":
-        from hil.errors import ScenarioError
         raise ScenarioError(f"--external {args.external[0]}: an external node takes part in a real-time run "
                             "only; add --realtime")
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = args.out or Path("runs") / f"{scenario.name}-{mode}-{stamp}"
     if mode == "realtime":
-        from hil.report.run import run_scenario_realtime
-
         try:
             progress = Progress(not args.quiet, "realtime", scenario.max_duration_s)
             try:
@@ -178,8 +175,6 @@ def run(args: argparse.Namespace) -> int:
             mode = "lockstep"
             out = args.out or Path("runs") / f"{scenario.name}-{mode}-{stamp}"
     if mode == "lockstep":
-        from hil.report.run import run_scenario_lockstep
-
         marked = sorted(n for n, spec in scenario.nodes.items() if spec.external)
         if marked:                               # not silently dropped: say where it applies
             print(f"notice: [nodes.{marked[0]}] external applies to real-time runs only; in lockstep "

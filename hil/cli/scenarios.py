@@ -11,6 +11,8 @@ import argparse
 import shutil
 import textwrap
 
+from hil.resources import scenarios_dir, shipped_scenarios
+
 HELP = "list the shipped scenarios with their descriptions (run one by name: railhil run NAME)"
 
 
@@ -24,8 +26,6 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hil.resources import scenarios_dir, shipped_scenarios
-
     shipped = shipped_scenarios()
     width = max(60, min(shutil.get_terminal_size((110, 20)).columns, 140))
     name_w = max(len(s.name) for s in shipped) + 2

@@ -22,11 +22,13 @@ from typing import Literal
 from cantools.database.can import Database, Message, Signal
 
 from hil.can.attributes import bench_filled_signals
+from hil.can.busload import declared_bitrate
 from hil.can.codec import Codec, loaded_dbc
 from hil.can.dbc import closest
 from hil.devices.description import DeviceSpec, MapEntry, read_device_file
 from hil.devices.protection import filled_signals, message_protection
 from hil.devices.units import affine, magnitude_in
+from hil.devices.variables import DEVICE_NODE, variable_database
 from hil.errors import DbcError, DeviceError
 
 #: the plant's truth quantities a map may take as a source: name -> (TruthSnapshot field, unit)
@@ -118,7 +120,6 @@ class Device:
         bus = self.spec.bus
         if isinstance(bus, dict) and isinstance(bus.get("bitrate"), int):
             return int(bus["bitrate"])
-        from hil.can.busload import declared_bitrate
 
         return declared_bitrate(self.db)
 
@@ -150,7 +151,6 @@ def load_device(path: str | Path, bench_db: Database, replaced: ReplacedNode,
         raise DeviceError(f"{where}: key 'replaces' = {spec.replaces!r}, but it was given for node "
                           f"{replaced.name} (e.g. --device {replaced.name}=FILE)")
     if spec.transport == "opcua":           # its variables, as a schema (hil.devices.variables)
-        from hil.devices.variables import DEVICE_NODE, variable_database
 
         dbc_path, codec, node = path.resolve(), None, spec.node or DEVICE_NODE
         db = variable_database(spec, node)

@@ -33,6 +33,7 @@ from cantools.database.can import Database
 from firmware_py.rx import RxTable
 from hil.can.codec import Codec, FrameCodec
 from hil.devices.device import Device, Entry, ReplacedNode, Route
+from hil.devices.protection import describe
 from hil.runtime.node import Binding, Node, NodeStats
 
 #: a truth quantity of the plant: (TruthSnapshot field, car index) -> its value now (hil.devices.device)
@@ -310,7 +311,6 @@ class Gateway:
         """The device and the gateway's routes, for the run's records (hil.report.devices): its file, DBC and
         node, the node it replaces, each target message with what sends it (its trigger, or None: its own
         cycle; and its first source message), each device message's protection."""
-        from hil.devices.protection import describe
 
         d = self.device
 

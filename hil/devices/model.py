@@ -18,6 +18,7 @@ import sys
 from functools import reduce
 
 from hil.devices.device import Device
+from hil.devices.gateway import ObjectRef
 from hil.errors import BindingError, DeviceError
 from hil.runtime.node import Binding, Node, NodeStats
 
@@ -143,7 +144,6 @@ class VariableModel:
     def cycle(self, now_us: int, nominal_us: int | None = None) -> list:
         """One scan: every object the model writes, [(ObjectRef, values)]; a step() that raises, or an
         output that is not a finite number, is counted and the last values are written."""
-        from hil.devices.gateway import ObjectRef
 
         self.stats.cycles += 1
         try:

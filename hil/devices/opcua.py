@@ -45,6 +45,7 @@ from urllib.parse import urlparse
 
 from hil.devices.description import OpcUaSpec
 from hil.devices.device import Device
+from hil.devices.units import affine
 from hil.errors import BusError, DeviceError
 
 APP_URI = "urn:railhil:bench"
@@ -517,7 +518,6 @@ class OpcUaLink:
         same unit, or a DeviceError naming both (a PLC in km/h mapped as m/s would be off by 3.6)."""
         from asyncua.ua import UaStatusCodeError
 
-        from hil.devices.units import affine
 
         try:
             eu = await (await node.get_child("0:EngineeringUnits")).read_value()

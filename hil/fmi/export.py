@@ -16,9 +16,12 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree
 
+from hil.can.dbc import DEFAULT_DBC, load_dbc
+from hil.devices.units import registry, unit_of
 from hil.errors import FmuError
 from hil.fmi.exported import DBC_FILE, SCENARIO_FILE
 from hil.fmi.ports import SCENARIO_VALUES, node_port, plant_port
+from hil.runtime.assembly import becu_messages, node_names
 
 SCRIPT = '''"""{doc}"""
 from hil.fmi.exported import {base}, hold_module_dict
@@ -38,7 +41,6 @@ def fmi_unit_text(unit: str) -> str:
 
 def _base_unit(unit: str) -> dict[str, str]:
     """The BaseUnit attributes of an FMI 2.0 unit definition (SI exponents and factor), from pint."""
-    from hil.devices.units import registry, unit_of
 
     q = registry().Quantity(1.0, unit_of(unit, "export")).to_base_units()
     exponents = {"kilogram": "kg", "meter": "m", "second": "s", "ampere": "A", "kelvin": "K", "mole": "mol",
@@ -92,7 +94,6 @@ def _build(scenario, out: Path, cls: str, base: str, doc: str, extra: str,
            meta: dict[str, tuple[str | None, str]]) -> Path:
     from pythonfmu import FmuBuilder
 
-    from hil.can.dbc import DEFAULT_DBC
 
     out = Path(out)
     if out.suffix != ".fmu":
@@ -120,7 +121,6 @@ def _class_name(text: str) -> str:
 
 def export_plant(scenario, out: Path) -> Path:
     """railhil's plant of `scenario` as an FMU at `out`."""
-    from hil.can.dbc import DEFAULT_DBC, load_dbc
 
     db = load_dbc(scenario.dbc or DEFAULT_DBC)
     port = plant_port(db, scenario.train.cars)
@@ -133,8 +133,6 @@ def export_plant(scenario, out: Path) -> Path:
 def export_node(scenario, node: str, out: Path) -> Path:
     """Node `node` (a BECU) of `scenario` as an FMU at `out`: its controller; the bench adds E2E and
     SecOC."""
-    from hil.can.dbc import DEFAULT_DBC, load_dbc
-    from hil.runtime.assembly import becu_messages, node_names
 
     names = node_names(scenario)
     if not (node.startswith("BECU") and node in names):

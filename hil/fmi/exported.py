@@ -23,6 +23,8 @@ import numpy as np
 from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
 
 from firmware_py.rx import RxTable
+from hil.can.codec import Codec
+from hil.can.dbc import load_dbc
 from hil.fmi.ports import (
     AGE_SUFFIX,
     COMMANDS,
@@ -33,6 +35,9 @@ from hil.fmi.ports import (
     node_port,
     truth_name,
 )
+from hil.runtime.assembly import build_node, build_plant
+from hil.scenario import params
+from hil.scenario.load import parse_scenario
 
 SCENARIO_FILE = "scenario.json"     # the resolved scenario, in the FMU's resources
 DBC_FILE = "bench.dbc"              # its DBC
@@ -52,8 +57,6 @@ def hold_module_dict(namespace: dict) -> None:
 
 def load_exported_scenario(resources: str | Path):
     """The scenario and DBC an exported FMU carries (its DBC is the copy in its resources)."""
-    from hil.can.dbc import load_dbc
-    from hil.scenario.load import parse_scenario
 
     res = Path(resources)
     data = json.loads((res / SCENARIO_FILE).read_text(encoding="utf-8"))
@@ -118,13 +121,9 @@ class PlantSlave(Fmi2Slave):
                                             getter=lambda column=column, k=k: self._truth_value(column, k)))
 
     def _dt_us(self) -> int:
-        from hil.scenario import params
-
         return params.run_params(self.scenario).plant.dt_us
 
     def exit_initialization_mode(self) -> None:
-        from hil.runtime.assembly import build_plant
-
         self.plant = build_plant(_scenario_with(self.scenario, self.values))
         self.dt_us = self.plant.params.dt_us
         self.sensor_period_us = int(self.db.get_message_by_name("PLANT_CAR1_SENSORS").cycle_time) * 1000
@@ -166,8 +165,6 @@ class NodeSlave(Fmi2Slave):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        from hil.can.codec import Codec
-        from hil.runtime.assembly import build_node
 
         self.scenario, db = load_exported_scenario(self.resources)
         node = build_node(self.NODE, self.scenario, db, Codec(db))

@@ -35,6 +35,7 @@ from typing import Annotated
 
 from pydantic import Field, StrictFloat, StrictInt, StrictStr, ValidationError, model_validator
 
+from hil.devices.units import affine, magnitude_in
 from hil.errors import DeviceError, FmuError
 from hil.fmi.fmu import INTEGER_TYPES, REAL_TYPES, FmuInfo, Variable, closest
 from hil.fmi.ports import SCENARIO_VALUES, Port, Quantity
@@ -118,8 +119,6 @@ class Wiring:
 
 
 def _affine(src_unit, dst_unit, entry: FmuEntry | None, where: str, source: str, target: str):
-    from hil.devices.units import affine
-
     scale = entry.scale if entry is not None else 1.0
     offset = entry.offset if entry is not None else 0.0
     try:
@@ -160,8 +159,6 @@ def _scenario_value(key: str, scenario, where: str) -> tuple[float, str | None]:
 
 
 def _constant(entry: FmuEntry, unit: str | None, where: str) -> float:
-    from hil.devices.units import magnitude_in
-
     try:
         return magnitude_in(entry.value, unit, where)
     except DeviceError as exc:

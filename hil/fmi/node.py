@@ -17,9 +17,10 @@ from __future__ import annotations
 import math
 
 from hil.errors import FmuError
-from hil.fmi.fmu import CoSimulation, FmuInfo, checking_only, refs
-from hil.fmi.mapping import Wiring
-from hil.fmi.ports import AGE_SUFFIX
+from hil.fmi.fmu import CoSimulation, FmuInfo, checking_only, open_fmu, refs
+from hil.fmi.mapping import Wiring, read_map, wire
+from hil.fmi.ports import AGE_SUFFIX, node_port
+from hil.runtime.node import Binding, Node
 
 
 class FmuController:
@@ -79,10 +80,6 @@ class FmuController:
 def fmu_node(node, fmu: str, fmu_map: str | None, scenario, db, codec, dbc_name: str = "DBC"):
     """Node `node` (as the scenario builds it) with the FMU at `fmu` in its controller's place: the same
     messages, cycle and phase; the FMU's variables connected to its signals by name or by `fmu_map`."""
-    from hil.fmi.fmu import open_fmu
-    from hil.fmi.mapping import read_map, wire
-    from hil.fmi.ports import node_port
-    from hil.runtime.node import Binding, Node
 
     info = open_fmu(fmu)
     rx_msgs = [db.get_message_by_frame_id(fid).name for fid in node.binding.rx]

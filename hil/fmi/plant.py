@@ -21,9 +21,17 @@ from typing import NamedTuple
 import numpy as np
 
 from hil.errors import FmuError
-from hil.fmi.fmu import CoSimulation, FmuInfo, checking_only, refs
-from hil.fmi.mapping import Wiring
-from hil.fmi.ports import COMMANDS, COUPLER_COLUMNS, REQUIRED_TRUTH, SENSORS, TRUTH_COLUMNS, truth_name
+from hil.fmi.fmu import CoSimulation, FmuInfo, checking_only, open_fmu, refs
+from hil.fmi.mapping import Wiring, read_map, wire
+from hil.fmi.ports import (
+    COMMANDS,
+    COUPLER_COLUMNS,
+    REQUIRED_TRUTH,
+    SENSORS,
+    TRUTH_COLUMNS,
+    plant_port,
+    truth_name,
+)
 from hil.runtime.plant_node import TRUTH_PERIOD_US
 from plant_sim.adhesion import slip_ratio
 from plant_sim.dynamics import car_constants, coupler_extension
@@ -202,9 +210,6 @@ class FmuPlant:
 
 def fmu_plant(scenario, db, params: PlantParams) -> FmuPlant:
     """The plant FMU of `scenario` ([plant] fmu, fmu_map), connected to the plant's port of its train."""
-    from hil.fmi.fmu import open_fmu
-    from hil.fmi.mapping import read_map, wire
-    from hil.fmi.ports import plant_port
 
     spec = scenario.plant
     info = open_fmu(spec.fmu)

@@ -27,6 +27,7 @@ import numpy as np
 from cantools.database.can import Database
 
 from hil.can.busload import declared_bitrate, frame_bits
+from hil.can.bustiming import FrameBits
 from hil.trace.decoded import DecodedTrace
 
 ROUND = 5          # digits of the loads in kpis.json, as the lockstep bus's
@@ -42,7 +43,6 @@ def run_frames(decoded: DecodedTrace, from_s: float, to_s: float) -> np.ndarray:
 def wire_bits(decoded: DecodedTrace, rows: np.ndarray) -> tuple[int, int]:
     """(bits with each frame's real stuffing, bits at worst-case stuffing) of the frames at `rows`;
     CAN FD frames counted as classic frames of at most 8 bytes."""
-    from hil.can.bustiming import FrameBits
 
     f = decoded.frames
     exact = worst = 0

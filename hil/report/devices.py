@@ -28,6 +28,7 @@ import numpy as np
 
 from hil.can.codec import loaded_dbc
 from hil.report.conduct import node_conduct, silence_reported
+from hil.report.kpis import read_run_trace
 from hil.runtime.clock import LOCKSTEP_CLOCK, RunClock
 from hil.trace.decoded import DecodedTrace
 
@@ -138,7 +139,6 @@ def device_kpis(record: dict, bench: DecodedTrace, db, node_stats: dict, device_
     if record.get("opcua") is not None:
         return opcua_device_kpis(record, bench, db, node_stats, clock, end_s)
     ddb, dcodec = loaded_dbc(record["dbc"])
-    from hil.report.kpis import read_run_trace
 
     dtrace = read_run_trace(device_trace, ddb, dcodec)
     gw = record["gateway"]

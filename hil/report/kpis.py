@@ -24,10 +24,11 @@ import numpy as np
 from cantools.database.can import Database
 
 from hil.can.codec import Codec
+from hil.can.dbc import DEFAULT_DBC, load_dbc
 from hil.errors import RailhilError
 from hil.runtime.clock import LOCKSTEP_CLOCK, RunClock
 from hil.runtime.truth import STANDSTILL_MPS, read_truth_csv
-from hil.scenario import registry
+from hil.scenario import registry, scenario_model
 from hil.scenario.params import run_params
 from hil.trace.columns import BlockReader, FrameBlock
 from hil.trace.decoded import DecodedTrace
@@ -185,8 +186,6 @@ class RunView:
     @classmethod
     def from_folder(cls, folder: Path) -> RunView:
         """The view of a run folder of `railhil run` (run.json, truth.csv, the trace), read back."""
-        from hil.can.dbc import DEFAULT_DBC, load_dbc
-        from hil.scenario import scenario_model
 
         folder = Path(folder)
         try:

@@ -30,6 +30,7 @@ from hil.errors import RailhilError
 from hil.report.kpis import run_trace
 from hil.runtime.clock import LOCKSTEP_CLOCK, RunClock
 from hil.runtime.truth import read_truth_csv
+from hil.scenario import scenario_model
 from hil.trace.decoded import DecodedTrace
 
 
@@ -146,7 +147,6 @@ class RunFolder(TraceView):
         except (OSError, ValueError) as exc:
             raise RunFolderError(f"{folder}: cannot read the run folder: "
                                  f"{' '.join(str(exc).split())}") from None
-        from hil.scenario import scenario_model
 
         self.folder, self.meta, self.kpis = folder, meta, kpis
         self.scenario = scenario_model().model_validate(meta["scenario"])

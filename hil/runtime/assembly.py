@@ -27,10 +27,12 @@ from cantools.database.can import Database
 
 from firmware_py.bcu import Bcu, BcuMode
 from firmware_py.becu import Becu
-from hil.can.codec import Codec
+from hil.can.codec import Codec, loaded_dbc
 from hil.devices.device import ReplacedNode, load_device
 from hil.devices.gateway import Gateway
 from hil.errors import BindingError, ScenarioError
+from hil.fmi.node import fmu_node
+from hil.fmi.plant import fmu_plant
 from hil.runtime.desk import DeskScript
 from hil.runtime.node import Binding, Node
 from hil.runtime.plant_node import PlantController
@@ -73,9 +75,6 @@ def build_plant(scenario: Scenario, db: Database | None = None) -> Plant:
     node steps the same way; `db`: the run's DBC, for the FMU's port)."""
     run = params.run_params(scenario)
     if scenario.plant.fmu is not None:
-        from hil.can.codec import loaded_dbc
-        from hil.fmi.plant import fmu_plant
-
         return fmu_plant(scenario, db if db is not None else loaded_dbc(scenario.dbc)[0], run.plant)
     return Plant(run.plant, run.track, v0_mps=run.initial_speed_mps, x0_m=run.start_position_m, seed=run.seed)
 
@@ -116,8 +115,6 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec, dbc_na
                             "plant node; an FMU plant takes the foundation's plant node's place only")
     timing = scenario.nodes.get(name)
     if timing is not None and timing.fmu is not None:
-        from hil.fmi.node import fmu_node
-
         if name == "PLANT":
             raise ScenarioError("[nodes.PLANT] fmu: the plant's FMU is [plant] fmu = \"FILE\"")
         node = fmu_node(node, timing.fmu, timing.fmu_map, scenario, db, codec, dbc_name)

@@ -42,6 +42,7 @@ from hil.can.busload import declared_bitrate
 from hil.can.bustiming import BitTimedBus, Pending
 from hil.can.codec import Codec, FrameCodec
 from hil.devices.model import VariableModel, build_model_node
+from hil.devices.opcua import LinkMeter
 from hil.errors import DeviceError, ScenarioError
 from hil.runtime.assembly import build_node, check_devices, node_names
 from hil.runtime.gctune import loop_gc
@@ -242,8 +243,6 @@ class DeviceLink:
     bus_mode = "opcua"
 
     def __init__(self, bench_index: int, gateway, model, scenario: Scenario) -> None:
-        from hil.devices.opcua import LinkMeter
-
         self.bench_index, self.gateway, self.model = bench_index, gateway, model
         self.name = gateway.bench.name
         self.nodes = [gateway.device_side, model]

@@ -29,6 +29,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hil.runtime.host import orphaned as _orphaned
+from hil.runtime.rtos import make_realtime, sleep_lateness
+
 PROBE_PERIOD_US = 10_000      # the probe's period [µs] (issue #17: a bare loop at 10 ms deadlines)
 PROBE_STALL_US = 500          # the probe more than this late: the machine stalled [µs] (the miss bound
 #                               of a 10 ms cycle, late_threshold_us)
@@ -256,8 +259,6 @@ def probe_process(name: str, cpu: int | None, phase_us: int, t0_ns, go, stop, re
     """One probe's process, on `cpu` (None: not pinned): real-time setup, with `calibrate_s` > 0 the sleep
     calibration (put as ("calibrated", name, ...)), else ("ready", name, ...); then the bare loop at
     deadlines t0 + phase + k·period until `stop`; puts ("result", name, {...})."""
-    from hil.runtime.host import orphaned as _orphaned
-    from hil.runtime.rtos import make_realtime, sleep_lateness
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:

@@ -53,17 +53,27 @@ from pathlib import Path
 
 import can
 
+from hil.can.codec import loaded_dbc
 from hil.can.frame_io import FrameIO
-from hil.errors import BusError, NodeDied, RailhilError, ScenarioError
+from hil.devices.description import read_device_file
+from hil.devices.device import TRUTH_FIELDS
+from hil.devices.opcua import OpcUaLink
+from hil.errors import BusError, DeviceError, NodeDied, RailhilError, ScenarioError
+from hil.fmi.fmu import check_only
+from hil.links.control_centre import make_keys
+from hil.runtime.assembly import build_node, check_devices, for_realtime, node_names
 from hil.runtime.clock import RunClock
+from hil.runtime.gateway_host import GatewayHost, SharedTruth
 from hil.runtime.gctune import LOOP_THRESHOLDS
-from hil.runtime.host import orphaned
+from hil.runtime.host import Host, PlantEnd, orphaned
 from hil.runtime.outcome import RunOutcome
 from hil.runtime.plant_node import TruthLog
-from hil.runtime.probe import HOST_SEEN
+from hil.runtime.probe import HOST_SEEN, PROBE_PERIOD_US, probe_cpus, probe_process
+from hil.runtime.release import node_release, node_releases
 from hil.runtime.rtos import (
     GATEWAY_PRIORITY,
     NODE_PRIORITY,
+    PROBE_PRIORITY,
     RECORDER_PRIORITY,
     CpuLatencyHold,
     RtSetup,
@@ -81,6 +91,8 @@ from hil.runtime.run import (
     write_run_folder,
 )
 from hil.scenario import Scenario
+from hil.scenario.model import NodeTiming
+from hil.scenario.params import secoc_keys
 from hil.trace.writers import open_writer
 
 __all__ = ["describe_bus", "hosts", "open_bus", "resolve_bus_config", "run_realtime",
@@ -242,10 +254,6 @@ def hosts(scenario: Scenario, names: list[str]) -> dict[str, tuple[str, ...]]:
 def hosted_nodes(names, scenario: Scenario, dbc_path: str) -> tuple:
     """(codec, nodes, their releases) of the nodes a host runs, keyed for SecOC (a runner's host process,
     `railhil node`)."""
-    from hil.can.codec import loaded_dbc
-    from hil.runtime.assembly import build_node, for_realtime
-    from hil.runtime.release import node_release
-    from hil.scenario.params import secoc_keys
 
     db, codec = loaded_dbc(Path(dbc_path))
     codec.compile()                               # its frames' encode and decode: before the first cycle
@@ -319,7 +327,6 @@ def _report_failure(results, name: str, exc: BaseException) -> None:
 def _host_process(host: str, names: tuple[str, ...], scenario_json: str, dbc_path: str, cfg: dict,
                   shared: Shared, results, progress, cpus, truth=None) -> None:
     """One host: the nodes `names` on one bus connection (hil.runtime.host.Host)."""
-    from hil.runtime.host import Host, PlantEnd
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)         # the parent coordinates shutdown
     bus = None
@@ -340,7 +347,6 @@ def _host_process(host: str, names: tuple[str, ...], scenario_json: str, dbc_pat
                            shared.end_at_us, progress)
         publish = None
         if truth is not None and "PLANT" in names:         # a device's map reads the plant's truth
-            from hil.runtime.gateway_host import SharedTruth
 
             publish = SharedTruth(truth, scenario.train.cars).write
         clock = RunClock.starting(shared.t0_ns.value, scenario.realtime.speed)
@@ -368,8 +374,6 @@ def _host_process(host: str, names: tuple[str, ...], scenario_json: str, dbc_pat
 def device_bus_config(scenario: Scenario, node: str, bench_cfg: dict) -> dict | None:
     """The python-can bus of the device in `node`'s place: the scenario's [devices.NODE] bus, else its device
     file's [bus]; None: the bench's own (bus = "bench"); a DeviceError naming both when neither gives one."""
-    from hil.devices.description import read_device_file
-    from hil.errors import DeviceError
 
     ref = scenario.devices[node]
     spec = read_device_file(ref.file)
@@ -392,7 +396,6 @@ def _check_link(device) -> None:
     """An OPC UA device's link opened once and closed, in the parent: an endpoint that cannot be reached
     or served, a refused login, a variable the PLC's server does not have or of another type, a certificate
     that is not one — each one line (DeviceError, BusError) before any process starts."""
-    from hil.devices.opcua import OpcUaLink
 
     link = OpcUaLink(device)
     link.start()
@@ -403,7 +406,6 @@ def _gateway_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, de
                      shared: Shared, results, cpus, truth=None) -> None:
     """The gateway of the device in node `name`'s place, between the bench's bus and the device's
     (hil.runtime.gateway_host)."""
-    from hil.runtime.gateway_host import GatewayHost, SharedTruth
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     buses = []
@@ -414,8 +416,6 @@ def _gateway_process(name: str, scenario_json: str, dbc_path: str, cfg: dict, de
             node.gateway.to_device.truth = SharedTruth(truth, scenario.train.cars).read
         link = None
         if device_cfg is not None and device_cfg.get("interface") == OPCUA:
-            from hil.devices.opcua import OpcUaLink
-
             link = OpcUaLink(node.gateway.device)
             link.start()                          # the server up, or the PLC's server connected
             buses = [open_bus(cfg)]
@@ -526,7 +526,6 @@ def truth_end_us(truth) -> int:
 def check_node_names(scenario: Scenario, names, what: str) -> list[str]:
     """`names` as given (`what`: how the user named them, "--external", "node"), checked: each a node of the
     scenario, none twice; a ScenarioError naming the first that is not."""
-    from hil.runtime.assembly import node_names
 
     every = node_names(scenario)
     seen: set[str] = set()
@@ -543,7 +542,6 @@ def check_node_names(scenario: Scenario, names, what: str) -> list[str]:
 def external_nodes(scenario: Scenario, cli: list[str] | tuple[str, ...] = ()) -> list[str]:
     """The nodes that are not simulated ([nodes.NAME] external = true and `--external NAME`), checked: each
     a node of the scenario, none given twice on the command line, not every node."""
-    from hil.runtime.assembly import node_names
 
     names = node_names(scenario)
     seen = set(check_node_names(scenario, cli, "--external"))
@@ -557,9 +555,6 @@ def external_nodes(scenario: Scenario, cli: list[str] | tuple[str, ...] = ()) ->
 
 @functools.cache
 def _device_cached(path: str, mtime_ns: int, dbc_path: str, scenario_json: str, node: str):
-    from hil.can.codec import loaded_dbc
-    from hil.runtime.assembly import build_node
-
     scenario = Scenario.model_validate_json(scenario_json)
     db, codec = loaded_dbc(Path(dbc_path))
     return build_node(node, scenario, db, codec, dbc_path).gateway.device
@@ -575,7 +570,6 @@ def _device_of(scenario: Scenario, node: str):
 def marked_external(scenario: Scenario, external) -> Scenario:
     """The scenario as the run's processes get it: each external node marked `[nodes.NAME] external`, so
     that a node built there knows which device is outside (the plant serves an external ACD's GPS line)."""
-    from hil.scenario.model import NodeTiming
 
     if not external:
         return scenario
@@ -596,7 +590,6 @@ class ServedCentre:
     def __init__(self, folder: Path, scenario: Scenario) -> None:
         import subprocess
 
-        from hil.links.control_centre import make_keys
 
         spec = scenario.acd
         trains = [f"U{spec.train_id}"] + ([] if spec.leader is None else [f"U{spec.leader.train_id}"])
@@ -657,10 +650,6 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
     place ([devices.NODE]) its gateway and a recorder of its own bus (into `device_traces[NODE]`); returns
     the outcome, the run's clock (its t0 on the trace's clock: 0 when it never started) and the failure
     (None: none)."""
-    from hil.can.codec import loaded_dbc
-    from hil.runtime.assembly import node_names
-    from hil.runtime.probe import PROBE_PERIOD_US, probe_cpus, probe_process
-    from hil.runtime.rtos import PROBE_PRIORITY
 
     watch = open_bus(cfg)                       # fail early, in the parent, with one clear line
     names = node_names(scenario)
@@ -716,8 +705,6 @@ def run_realtime(scenario: Scenario, dbc_path: str, trace_path: Path, cfg: dict,
                                     args=(str(trace_path), cfg, shared.go, shared.stop, results), daemon=True)
     truth = None                                # the plant's truth, where a device's map reads it
     if any(_device_of(scenario, n).uses_truth for n in devices):
-        from hil.devices.device import TRUTH_FIELDS
-
         truth = ctx.Array("d", [math.nan] * (len(TRUTH_FIELDS) * scenario.train.cars), lock=False)
     for name in devices:                        # each device: its gateway, and a recorder of its own bus
         if device_cfgs[name] is not None and name not in linked:   # (on the bench's bus: the run's
@@ -1054,7 +1041,6 @@ def run_realtime_folder(scenario: Scenario, out_dir: Path, cli_bus_config: dict,
     node died; None: it did not).  The bus: `cli_bus_config`, then python-can's configuration, then the
     scenario's [realtime] (resolve_bus_config); `external`: nodes another process or host runs.  Bad input
     is one line before any process starts, and leaves no folder."""
-    from hil.can.codec import loaded_dbc
 
     if scenario.faults:                           # not silently dropped: say where they work
         kinds = ", ".join(sorted({f.kind for f in scenario.faults}))
@@ -1068,9 +1054,6 @@ def run_realtime_folder(scenario: Scenario, out_dir: Path, cli_bus_config: dict,
         raise ScenarioError("the PLANT cannot be external in `railhil run`: the run's KPIs come from its "
                             "ground truth; run the ECUs elsewhere instead (--external BCU ... here, railhil "
                             "node there)")
-    from hil.fmi.fmu import check_only
-    from hil.runtime.assembly import build_node, check_devices, node_names
-    from hil.runtime.release import node_releases
 
     check_devices(scenario)
     # a program joins the bench's bus at python-can's default group: a node run elsewhere, or a device on it

@@ -28,6 +28,7 @@ from hil.can.dbc import DEFAULT_DBC
 from hil.errors import RailhilError
 from hil.fmi.fmu import describe as describe_fmu
 from hil.fmi.fmu import scenario_fmus
+from hil.runtime.assembly import build_plant
 from hil.runtime.clock import LOCKSTEP_CLOCK, RunClock
 from hil.runtime.lockstep import FaultHook, prepare_lockstep, run_lockstep
 from hil.runtime.outcome import RunOutcome
@@ -158,7 +159,6 @@ def prepare_worker(scenario: Scenario) -> float:
     as the plant is built). The seconds it took: ~0.35 s the first time in a process, ~1 ms after.  A
     campaign worker calls it before timing a point, as it imports the runtime: a one-time cost, reported
     apart (run_point's `startup_s`).  Never raises: a scenario that cannot be built fails in its run."""
-    from hil.runtime.assembly import build_plant
 
     t0 = time.perf_counter()
     try:

@@ -37,6 +37,9 @@ from cantools.database.can import Database
 from firmware_py.rx import RxTable
 from hil.can.attributes import e2e_config, secoc_data_id
 from hil.can.codec import Codec, loaded_dbc
+from hil.runtime.assembly import build_node
+from hil.runtime.lockstep import prepare_lockstep, run_lockstep
+from hil.safety.injection import build_injector
 
 __all__ = ["Link", "actuating_links", "influence", "record_run", "unprotected"]
 
@@ -98,8 +101,6 @@ class Link:
 def record_run(scenario, db: Database | None = None) -> tuple[dict[str, Recording], dict]:
     """Run `scenario` in lockstep (no trace) with every node recorded; returns the recordings and the
     nodes' bindings: name -> (rx {frame id: [(signal, key)]}, tx [(message, [(signal, key)])])."""
-    from hil.runtime.lockstep import prepare_lockstep, run_lockstep
-    from hil.safety.injection import build_injector
 
     db, codec = (loaded_dbc(scenario.dbc) if db is None else (db, Codec(db)))
     setup = prepare_lockstep(scenario, db, codec, injector=build_injector(scenario, db, codec))
@@ -151,7 +152,6 @@ def influence(scenario, db: Database, recordings: dict[str, Recording], bindings
               nodes: Iterable[str] | None = None) -> dict[str, dict[str, set[str]]]:
     """Per node, per input key fed from a frame: the output keys it sends on the bus that perturbing the
     input changes."""
-    from hil.runtime.assembly import build_node
 
     codec = Codec(db)
     result: dict[str, dict[str, set[str]]] = {}

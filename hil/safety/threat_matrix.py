@@ -91,10 +91,14 @@ import numpy as np
 from cantools.database.can import Database
 
 from firmware_py.decel_feedback import PhiParams
+from hil.campaign.jobs import executor_map
 from hil.can.attributes import authentic_length, e2e_config
 from hil.can.codec import Codec, loaded_dbc
 from hil.report.kpis import RunView
+from hil.runtime.assembly import build_node, node_names
 from hil.runtime.desk import DeskScript
+from hil.runtime.lockstep import prepare_lockstep, run_lockstep
+from hil.safety.injection import build_injector
 from hil.scenario import Scenario, parse_scenario, registry
 from hil.scenario.faults import MESSAGE_THREATS, NODE_FAULTS
 from hil.scenario.params import run_params
@@ -245,7 +249,6 @@ def _codec(scenario: Scenario, db: Database) -> Codec:
 def protected_frames(scenario: Scenario, db: Database) -> dict[str, Frame]:
     """E2E-protected messages that a node of the scenario sends cyclically and another receives, in DBC
     order, from the DBC and the node bindings."""
-    from hil.runtime.assembly import build_node, node_names
 
     codec = _codec(scenario, db)
     nodes = [build_node(n, scenario, db, codec) for n in node_names(scenario)]
@@ -267,7 +270,6 @@ def safety_messages(scenario: Scenario, db: Database) -> list[str]:
 
 def no_cells_reason(scenario: Scenario, db: Database) -> str:
     """Why a scenario has no protected frame: the frames its nodes exchange carry no E2E protection."""
-    from hil.runtime.assembly import build_node, node_names
 
     codec = _codec(scenario, db)
     nodes = [build_node(n, scenario, db, codec) for n in node_names(scenario)]
@@ -351,8 +353,6 @@ def run_baseline(scenario: Scenario, window_s: float = WINDOW_S) -> Baseline:
     """The fault-free run: its measures, t_brake, the window (`window_s` long) and the pressures in it; a
     scenario whose family needs a stop and that does not stop runs again with its horizon HORIZON_FACTOR
     times longer."""
-    from hil.runtime.lockstep import run_lockstep
-    from hil.safety.injection import build_injector
 
     t0 = time.perf_counter()
     db, codec = loaded_dbc(scenario.dbc)
@@ -520,8 +520,6 @@ def _detection(outcome, frames: dict[str, Frame], hit: Sequence[str], first_ns: 
 def run_cell(scenario: Scenario, spec: CellSpec, baseline: Baseline,
              frames: dict[str, Frame] | None = None) -> Cell:
     """One cell of the matrix (module docstring) against the fault-free `baseline`."""
-    from hil.runtime.lockstep import prepare_lockstep, run_lockstep
-    from hil.safety.injection import build_injector
 
     db, codec = loaded_dbc(scenario.dbc)
     frames = protected_frames(scenario, db) if frames is None else frames
@@ -619,7 +617,6 @@ def run_matrices(scenarios: Sequence[tuple[str, Scenario]], executor: Executor |
                  planned: list[ScenarioMatrix] | None = None) -> list[ScenarioMatrix]:
     """The fault-free runs, then every cell, through `executor` (None: in this process).  `progress(phase,
     done, total)` after each job, phase "fault-free" or "cells"."""
-    from hil.campaign.jobs import executor_map
 
     matrices = planned if planned is not None else plan(scenarios, threats, messages)
     by_name = {s.name: s for _, s in scenarios}

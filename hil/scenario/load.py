@@ -22,6 +22,7 @@ from hil.errors import RailhilError, ScenarioError
 from hil.resources import read_toml, resolve_scenario
 from hil.scenario import registry
 from hil.scenario.model import ScenarioBase, scenario_model
+from hil.scenario.params import secoc_keys
 
 LEGACY_UNTIL = "0.3"       # the release that stops reading the keys of 0.1
 
@@ -305,7 +306,6 @@ def load_scenario(path: str | Path, overrides: dict | None = None,
         resolve = getattr(study.part("scenario"), "resolve_paths", None)
         if resolve is not None:
             scenario = resolve(scenario, path.parent)
-    from hil.scenario.params import secoc_keys
     try:
         secoc_keys(scenario)            # a missing or malformed key: one line now, not in a node process
     except RailhilError as exc:

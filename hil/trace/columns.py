@@ -64,6 +64,7 @@ from can.io import blf
 from can.util import dlc2len
 
 from hil.trace.readers import STDIN, Salvage, Trace, TraceError, mf4_can_frames, open_trace
+from hil.trace.timing import KIND_DATA, KIND_ERROR, KIND_REMOTE, FrameArrays, frame_arrays
 
 if TYPE_CHECKING:
     from hil.trace.timing import FrameArrays
@@ -185,7 +186,6 @@ DTYPES = {"t": np.float64, "arbitration_id": np.int64, "extended": bool, "dlc": 
 
 def _columns(layout: _Layout, raw, start_timestamp: float) -> dict[str, np.ndarray]:
     """The FrameArrays columns of objects of one layout, from their raw fields (mapping name -> array)."""
-    from hil.trace.timing import KIND_DATA, KIND_ERROR, KIND_REMOTE
     ident = raw["id"].astype(np.int64)
     n = len(ident)
     ts = raw["ts"]
@@ -291,8 +291,6 @@ class BlfColumnReader:
         self.steps = 0  # python-level steps of the object chain (see _chain)
 
     def read(self) -> FrameArrays:
-        from hil.trace.timing import FrameArrays
-
         chunks = self.read_chunks()
         return FrameArrays(**{c: np.concatenate([ch[c] for ch in chunks]).astype(DTYPES[c], copy=False)
                               for c in COLUMNS})
@@ -454,8 +452,6 @@ class BlfColumnReader:
             self.gathered += len(at)
         columns = _columns(layout, raw, self.start_timestamp)
         if self.payload:
-            from hil.trace.timing import KIND_REMOTE
-
             columns["length"], columns["payload"] = _payload(layout, u8, at, columns["kind"] == KIND_REMOTE)
         return columns
 
@@ -487,7 +483,6 @@ def read_mf4_chunks(path: str | pathlib.Path, payload: bool = False, mdf=None) -
     from asammdf import MDF
     from asammdf.blocks.v4_constants import SOURCE_BUS
 
-    from hil.trace.timing import KIND_DATA, KIND_ERROR, KIND_REMOTE
 
     own = mdf is None                     # `mdf`: the file already open (python-can's reader's)
     mdf = MDF(str(path)) if own else mdf
@@ -556,7 +551,6 @@ def read_mf4_chunks(path: str | pathlib.Path, payload: bool = False, mdf=None) -
 
 def read_mf4_columns(path: str | pathlib.Path, mdf=None) -> FrameArrays:
     """``frame_arrays(open_trace(path))`` of an MF4 file, column by column (read_mf4_chunks)."""
-    from hil.trace.timing import FrameArrays
 
     chunks = read_mf4_chunks(path, mdf=mdf)
     if not chunks:
@@ -583,7 +577,6 @@ def read_trace_columns(path: str | pathlib.Path, salvage: bool = False) -> tuple
     TraceError that reading the frames raises (a corrupt line, a cut file) is not raised but kept in
     the Trace's ``error``, and the columns are those of the frames read before it: for a tool that
     reports what was read, then the error.  An error of opening the file is raised either way."""
-    from hil.trace.timing import frame_arrays
 
     trace = open_trace(path)
     arrays = None
@@ -990,7 +983,6 @@ class BlockReader:
             return None
         finally:
             self.trace.close()
-        from hil.trace.timing import KIND_ERROR, KIND_REMOTE
 
         blocks: list[FrameBlock] = []
         group: list[FrameBlock] = []  # consecutive pieces of chunks, up to max_frames rows together
@@ -1016,7 +1008,6 @@ class BlockReader:
     def _mf4(self) -> list[FrameBlock] | None:
         """The frames of an MF4 file read by read_mf4_chunks (payload included), in blocks of up to
         max_frames rows; None where it gives up (python-can's reader then reads the file)."""
-        from hil.trace.timing import KIND_ERROR, KIND_REMOTE
 
         try:
             chunks = read_mf4_chunks(self.path, payload=True, mdf=getattr(self.trace.reader, "_mdf", None))

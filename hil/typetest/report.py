@@ -11,6 +11,7 @@ import csv
 import json
 from pathlib import Path
 
+from hil.report.html import Section, render_sections_report
 from hil.scenario.params import kmh
 from hil.typetest.programme import REFERENCE, Programme
 from hil.typetest.wsp import RunResult
@@ -178,7 +179,6 @@ def _paths_figure(results: list[RunResult], condition: str, path: Path) -> Path:
 def write(prog: Programme, results: list[RunResult], out_dir: Path, wall_s: float,
           plots: bool = True) -> list[Path]:
     """results.json, table.md, table.csv, the figures and report.html in `out_dir`."""
-    from hil.report.html import Section, render_sections_report
 
     out_dir.mkdir(parents=True, exist_ok=True)
     conditions, speeds, strategies = _order(results)

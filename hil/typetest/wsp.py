@@ -23,9 +23,16 @@ from pathlib import Path
 
 import numpy as np
 
+from hil.campaign.jobs import executor_map
+from hil.campaign.sweep import point_key
+from hil.report.run import run_scenario_lockstep
+from hil.runtime.run import prepare_worker
 from hil.scenario import Scenario
+from hil.scenario.params import run_params
 from hil.typetest.metrics import Demand, MetricParams, demand_from_dry, run_metrics, train_speed
 from hil.typetest.programme import REFERENCE, Programme, RunSpec
+from plant_sim.adhesion import mu_opt
+from plant_sim.dynamics import car_constants, davis_resistance_scalar
 
 PATH_STEP_S = 0.1          # the speed-over-distance path kept per run for the figures [s]
 RESULT_FILE = "wsp.json"   # a run's result in its folder, for resuming
@@ -47,9 +54,6 @@ def available_for(scenario: Scenario) -> Callable[[float, float], float]:
     """available(x_lead, v) [m/s²]: the peak adhesion μ°(θ(x), v) × g under each car (the plant's rail and
     curve, seed 000 eq. (2)) averaged over the cars, plus the train's running resistance (Davis, eq. (4)
     seed 003) ÷ its mass; the cars at their rest pitch behind the leading one."""
-    from hil.scenario.params import run_params
-    from plant_sim.adhesion import mu_opt
-    from plant_sim.dynamics import car_constants, davis_resistance_scalar
 
     run = run_params(scenario)
     pp, track = run.plant, run.track
@@ -71,8 +75,6 @@ def available_for(scenario: Scenario) -> Callable[[float, float], float]:
 def run_job(spec: RunSpec, run_dir: str, params: MetricParams, demand: Demand | None) -> RunResult:
     """One run in lockstep into `run_dir` and its metrics (the worker's job; never raises).  A reference run
     without a demand derives its strategy's demand from itself."""
-    from hil.report.run import run_scenario_lockstep
-    from hil.runtime.run import prepare_worker
 
     prepare_worker(spec.scenario)
     t0 = time.perf_counter()
@@ -122,7 +124,6 @@ def _demand_of(data: dict | None) -> Demand | None:
 def run_key(spec: RunSpec, params: MetricParams, demand: Demand | None) -> str:
     """What a run's result depends on: its scenario with the DBC and railhil's version (the campaign's
     point key), the metric thresholds and the demand it is judged against."""
-    from hil.campaign.sweep import point_key
 
     extra = json.dumps({"metrics": dataclasses.asdict(params), "demand": _demand_json(demand)},
                        sort_keys=True)
@@ -153,7 +154,6 @@ def _store(r: RunResult, run_dir: Path, key: str) -> None:
 def _run_all(specs: list[RunSpec], demands: list[Demand | None], out_dir: Path, params: MetricParams,
              executor: Executor | None, progress, resume: bool) -> list[RunResult]:
     """`specs` with their demands: the cached ones read, the others run (and stored), in order."""
-    from hil.campaign.jobs import executor_map
 
     keys = [run_key(s, params, d) for s, d in zip(specs, demands, strict=True)]
     results: list[RunResult | None] = [None] * len(specs)

@@ -51,6 +51,7 @@ import can
 import can.cli
 import numpy as np
 
+from hil.cli.run import bus_config_from_args
 from hil.cli.trace.common import Output, TraceArgError, notice_skipped, parse_id
 from hil.cli.trace.timebase import TimeBase, add_time_arguments
 from hil.errors import BusError
@@ -122,7 +123,6 @@ def add_parser(tsub: argparse._SubParsersAction) -> None:
 
 def bus_config(args: argparse.Namespace) -> dict:
     """python-can's precedence: flags, then python-can's configuration, else udp_multicast."""
-    from hil.cli.run import bus_config_from_args  # the flags as `railhil run` reads them
 
     cfg = bus_config_from_args(args)
     interface = cfg.get("interface")

@@ -28,8 +28,12 @@ from typing import TYPE_CHECKING
 import can
 import numpy as np
 
+from hil.can.codec import loaded_dbc
+from hil.can.dbc import DEFAULT_DBC
 from hil.cli.trace.common import TraceArgError, check_window
+from hil.runtime.assembly import build_node, node_names
 from hil.runtime.clock import RunClock
+from hil.scenario import scenario_model
 from hil.trace.columns import FrameBlock
 from hil.trace.readers import STDIN
 
@@ -95,11 +99,6 @@ class RunOfTrace:
     def _built(self) -> set[str] | None:
         """The messages the nodes of run.json's resolved scenario send, built as the run built them."""
         try:
-            from hil.can.codec import loaded_dbc
-            from hil.can.dbc import DEFAULT_DBC
-            from hil.runtime.assembly import build_node, node_names
-            from hil.scenario import scenario_model
-
             scenario = scenario_model().model_validate(self.scenario)
             db, codec = loaded_dbc(Path(scenario.dbc) if scenario.dbc else DEFAULT_DBC)
             return {msg for name in node_names(scenario)

@@ -18,8 +18,12 @@ import can
 import numpy as np
 
 from firmware_py.acd import Aspect, braking_distance_m
-from hil.can.codec import Codec
-from hil.report.kpis import RunView
+from hil.can.codec import Codec, loaded_dbc
+from hil.can.dbc import load_dbc
+from hil.report.kpis import RunView, read_signal, run_trace
+from hil.runtime.lockstep import run_lockstep
+from hil.runtime.run import TRACE_NAME, dbc_path_of
+from hil.safety.injection import build_injector
 from hil.scenario import Scenario
 from hil.scenario.params import run_params
 from hil.studies.anticollision.scenario import AcdStudyError, acd_params, aspect_at, leader_motion, spec_of
@@ -101,10 +105,6 @@ class RequestLog(can.Listener):
 
 def run_judged(scenario_json: str) -> dict:
     """One lockstep run in this process, no trace file, judged (a campaign worker's job)."""
-    from hil.can.codec import loaded_dbc
-    from hil.runtime.lockstep import run_lockstep
-    from hil.runtime.run import dbc_path_of
-    from hil.safety.injection import build_injector
 
     scenario = Scenario.model_validate_json(scenario_json)
     t0 = time.perf_counter()
@@ -121,9 +121,6 @@ def judge_run_dir(run_dir: Path) -> dict:
     (truth.csv) and the ACD's requests in its trace."""
     import json
 
-    from hil.can.dbc import load_dbc
-    from hil.report.kpis import read_signal, run_trace
-    from hil.runtime.run import TRACE_NAME, dbc_path_of
 
     run_dir = Path(run_dir)
     try:

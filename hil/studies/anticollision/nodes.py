@@ -48,8 +48,11 @@ from firmware_py.acd import (
 from firmware_py.bcu import DemandSource, Follower
 from firmware_py.rx import RxTable
 from hil.can.codec import Codec
+from hil.links.control_centre import TrainClient
 from hil.links.gpsserial import GpsLinkReader, GpsLinkWriter, PtyLink, ServedPty, open_port
 from hil.links.nmea import DEFAULT_UTC0, ReceivedFix
+from hil.runtime import assembly
+from hil.runtime.assembly import building_for_realtime
 from hil.runtime.node import Binding, Node
 from hil.runtime.plant_node import PlantController
 from hil.scenario import Scenario
@@ -164,7 +167,6 @@ class TcpCentre:
         import asyncio
         import threading
 
-        from hil.links.control_centre import TrainClient
 
         host, _, port = address.rpartition(":")
         self.loop = asyncio.new_event_loop()
@@ -674,15 +676,12 @@ def _serial_kind(spec: AcdSpec) -> str:
     or `railhil node ACD`), pyserial's loop:// in lockstep."""
     if spec.gps.serial != "auto":
         return spec.gps.serial
-    from hil.runtime.assembly import building_for_realtime
 
     return "pty" if building_for_realtime() else "loop"
 
 
 def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
                dbc_name: str = "DBC") -> Node | None:
-    from hil.runtime import assembly
-
     spec = spec_of(scenario)
     n = scenario.train.cars
     if name == "PLANT":

@@ -16,15 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
+from hil.campaign.sweep import CampaignError, expand, load_campaign
 from hil.progress import progress_bar
-from hil.scenario import Scenario
+from hil.scenario import Scenario, load_scenario
 from hil.studies.anticollision.kpis import judge_run_dir, run_judged
 from hil.studies.anticollision.scenario import AcdStudyError, spec_of
 
 
 def campaign_scenarios(path: str | Path) -> list[Scenario]:
     """The points of a campaign file (hil.campaign.sweep: base, [set], [grid], seeded [random])."""
-    from hil.campaign.sweep import CampaignError, expand, load_campaign
 
     try:
         points = expand(load_campaign(path))
@@ -78,8 +78,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hil.scenario import load_scenario
-
     if args.command == "judge":
         if args.scenario.is_dir():
             r = judge_run_dir(args.scenario)

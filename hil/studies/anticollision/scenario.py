@@ -20,6 +20,7 @@ from pydantic import Field, field_validator, model_validator
 
 from firmware_py.acd import AcdParams, Aspect
 from hil.errors import RailhilError, ScenarioError
+from hil.links.control_centre import read_keys
 from hil.scenario.base import Strict
 from hil.scenario.params import mps
 from plant_sim.geo import TrackGeometry, polyline_from_legs
@@ -275,7 +276,6 @@ def centre_keys(spec: AcdSpec) -> dict[str, bytes] | None:
     file and the train."""
     if spec.control_centre_keys is None:
         return None
-    from hil.links.control_centre import read_keys
 
     keys = read_keys(spec.control_centre_keys, "[acd] control_centre_keys")
     trains = [f"U{spec.train_id}"] + ([] if spec.leader is None else [f"U{spec.leader.train_id}"])

@@ -33,8 +33,13 @@ import can
 import numpy as np
 
 from hil.campaign.jobs import map_jobs
+from hil.can.busload import declared_bitrate, static_load
+from hil.can.codec import Codec
+from hil.can.dbc import load_dbc
 from hil.errors import RailhilError, ScenarioError
 from hil.resources import scenarios_dir
+from hil.runtime.lockstep import run_lockstep
+from hil.scenario import MessageTiming, load_scenario
 from hil.studies.consensus.kpis import consensus_figures
 from hil.studies.consensus.plots import case_series, case_title, plot_case, plot_sweeps
 
@@ -65,7 +70,6 @@ class Job:
 
 
 def _scenario(job: Job):
-    from hil.scenario import MessageTiming, load_scenario
     sc = load_scenario(SCENARIOS / f"consensus_case{job.case}.toml")
     cons = sc.consensus.model_copy(update={"observer": job.observer})
     upd: dict = {}
@@ -86,7 +90,6 @@ def _scenario(job: Job):
 
 def _database(cycle_ms: int | None):
     """The project DBC, with the consensus loop's frames at `cycle_ms` when given (in a copy)."""
-    from hil.can.dbc import load_dbc
     db = load_dbc()
     if cycle_ms is not None:
         db = copy.deepcopy(db)
@@ -112,9 +115,6 @@ class DiagListener(can.Listener):
 
 def run_job(job: Job) -> dict:
     """Run one job in lockstep and reduce it to the study's figures (and decimated series)."""
-    from hil.can.busload import declared_bitrate, static_load
-    from hil.can.codec import Codec
-    from hil.runtime.lockstep import run_lockstep
     sc = _scenario(job)
     cycle = job.cycle_ms if job.cycle_ms is not None else (1 if job.setting == "paper" else None)
     db = _database(cycle)

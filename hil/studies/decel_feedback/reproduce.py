@@ -19,7 +19,9 @@ from pathlib import Path
 
 from hil.campaign.jobs import add_run_options, checked_out, map_jobs
 from hil.errors import RailhilError
+from hil.report.run import run_scenario_lockstep
 from hil.resources import scenarios_dir
+from hil.scenario import load_scenario
 from hil.studies.decel_feedback.plots import compare_runs
 
 SCENARIO = "decel_feedback"
@@ -31,9 +33,6 @@ class DecelFeedbackError(RailhilError):
 
 
 def run_one(job: tuple[bool, str]) -> dict:
-    from hil.report.run import run_scenario_lockstep
-    from hil.scenario import load_scenario
-
     closed, out = job
     scenario = load_scenario(scenarios_dir() / f"{SCENARIO}.toml",
                              sets=[f"decel_feedback.closed_loop={'true' if closed else 'false'}"])

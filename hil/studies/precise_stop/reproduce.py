@@ -26,7 +26,9 @@ import numpy as np
 
 from hil.campaign.jobs import add_run_options, checked_out, map_jobs
 from hil.errors import RailhilError
+from hil.report.run import run_scenario_lockstep
 from hil.resources import scenarios_dir
+from hil.scenario import load_scenario
 from hil.studies.precise_stop.kpis import PAPER_FLUCTUATION, PAPER_STOP_ERROR_M
 from plant_sim.params import BrakeParams
 
@@ -67,8 +69,6 @@ def randomized_sets(method: str, k: int, distance_m: float | None, balises: bool
 
 def run_one(args: tuple[str, int, float | None, str]) -> dict:
     """One lockstep run (in a worker process): its precise-stop KPIs, labelled with the method."""
-    from hil.report.run import run_scenario_lockstep
-    from hil.scenario import load_scenario
 
     label, k, distance_m, out = args
     method, balises = ("pi", False) if label == NO_BALISES else (label, True)

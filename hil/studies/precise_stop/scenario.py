@@ -21,6 +21,7 @@ from pydantic import Field
 from firmware_py.stopping import StoppingParams
 from hil.errors import ScenarioError
 from hil.scenario.base import Strict
+from hil.scenario.load import DROP
 from hil.scenario.params import RunParams, bcu_params
 
 if TYPE_CHECKING:
@@ -56,7 +57,6 @@ def check(scenario: Scenario) -> None:
 
 def _method(value):
     """railhil 0.1's "none" meant the function was not fitted: no section."""
-    from hil.scenario.load import DROP
 
     return DROP if value == "none" else value
 

@@ -28,12 +28,15 @@ import numpy as np
 
 from firmware_py.preview import RefParams, delta_star, reference
 from hil.campaign.jobs import map_jobs
+from hil.can.codec import loaded_dbc
 from hil.errors import RailhilError
 from hil.resources import scenarios_dir
+from hil.runtime.lockstep import run_lockstep
+from hil.scenario import load_scenario
 from hil.scenario.params import kmh, run_params
 from hil.studies.preview_slip.kpis import achieved_alpha, tracking_norm
 from hil.studies.preview_slip.plots import plot_figures
-from hil.studies.preview_slip.scenario import DEFAULT_PROFILE
+from hil.studies.preview_slip.scenario import DEFAULT_PROFILE, load_theta_table, profile_path
 from plant_sim.reduced_train import Rail, ReducedTrainParams, simulate
 
 BASE_SCENARIO = scenarios_dir() / "preview_slip_dp.toml"
@@ -78,8 +81,6 @@ def case_sets(c: Case) -> list[str]:
 def run_case(c: Case, with_truth: bool = False) -> dict:
     """The lockstep run of a case over CAN (no trace file): stopping distance S [m], time [s], and the
     normalised tracking-error norm n_e of §3.2 (with the truth columns when asked)."""
-    from hil.runtime.lockstep import run_lockstep
-    from hil.scenario import load_scenario
 
     scenario = load_scenario(BASE_SCENARIO, sets=case_sets(c))
     db, codec = _db_codec()
@@ -98,7 +99,6 @@ def run_case(c: Case, with_truth: bool = False) -> dict:
 
 def _db_codec():
     """The project DBC and its codec, built once per process (hil.can.codec.loaded_dbc)."""
-    from hil.can.codec import loaded_dbc
     return loaded_dbc()
 
 
@@ -111,8 +111,6 @@ def run_full(method: str = "Bd", sets: tuple[str, ...] = ()) -> dict:
     per car, and the α the slip loops achieve (`achieved_alpha`), from the truth and the BECUs' frames."""
     import can
 
-    from hil.runtime.lockstep import run_lockstep
-    from hil.scenario import load_scenario
 
     scenario = load_scenario(FULL_SCENARIO, sets=[f"preview.method={method}", *sets])
     db, codec = _db_codec()
@@ -144,7 +142,6 @@ def _run_full_one(args: tuple[str, tuple[str, ...]]) -> dict:
 def reproduce_full(jobs: int, sets: tuple[str, ...] = (), progress: bool = True) -> dict:
     """Full mode: Lf, Bd and Dp on the wheelset plant (FULL_SCENARIO with `sets`), on `jobs` processes, and
     paper mode for the same cars at the α the slip loops achieved (their mean over cars and methods)."""
-    from hil.scenario import load_scenario
     scenario = load_scenario(FULL_SCENARIO, sets=list(sets))
     todo = [(m, tuple(sets)) for m in FULL_METHODS]
     runs = map_jobs(_run_full_one, todo, jobs, "preview-slip full-mode runs", progress)
@@ -196,7 +193,6 @@ def direct_law(rail: Rail, p: ReducedTrainParams, method: str, beta: float = 1.0
 
 def run_direct(c: Case, dt_s: float = 0.002) -> float:
     """Stopping distance [m] of a case by direct integration of eqs. (1)-(4), references exact, no CAN."""
-    from hil.studies.preview_slip.scenario import load_theta_table, profile_path
     rail = Rail(load_theta_table(profile_path(c.profile)))
     p = ReducedTrainParams(spacing_m=(0.0, *c.spacing_m), alpha_per_s=c.alpha, ideal=c.method == "ideal")
     return simulate(rail, p, c.v0, direct_law(rail, p, c.method, c.beta), dt_s=dt_s).stopping_m

@@ -9,6 +9,7 @@ import numpy as np
 
 from hil.report.kpis import MOVING_MPS, RunView, per_car, rounded
 from hil.scenario.params import run_params
+from hil.studies.wheel_slip.scenario import design_slip_mps
 from plant_sim.adhesion import mu_slip_speed_scalar
 from plant_sim.params import G_MPS2
 
@@ -129,7 +130,6 @@ def governor_kpis(scenario: Scenario, cols: dict[str, np.ndarray], target: tuple
 
 def scheduled_limit(scenario: Scenario, v: np.ndarray) -> np.ndarray:
     """s̄(v) [m/s] of the governor on seed 000's rail curves, per sample and car."""
-    from hil.studies.wheel_slip.scenario import design_slip_mps
 
     ws, ap = scenario.wheel_slip, run_params(scenario).plant.adhesion
     return design_slip_mps(ws.design_condition, ws.slip_fraction, np.asarray(v, dtype=float), ap)

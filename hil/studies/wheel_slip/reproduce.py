@@ -21,7 +21,9 @@ from pathlib import Path
 
 from hil.campaign.jobs import add_run_options, checked_out, map_jobs
 from hil.errors import RailhilError
+from hil.report.run import run_scenario_lockstep
 from hil.resources import scenarios_dir
+from hil.scenario import load_scenario
 from hil.studies.wheel_slip.kpis import (
     PAPER_FIG8_MEAN_ERROR_G,
     PAPER_FIG8_SS_ERROR_G,
@@ -37,8 +39,6 @@ class WheelSlipError(RailhilError):
 
 def run_one(job: tuple[str, bool, str]) -> dict:
     """One lockstep run: figure, governor on/off, run folder -> its kpis.json entries."""
-    from hil.report.run import run_scenario_lockstep
-    from hil.scenario import load_scenario
 
     figure, governor, out = job
     scenario = load_scenario(scenarios_dir() / f"{FIGURES[figure]}.toml",
