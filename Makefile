@@ -4,35 +4,53 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test test-slow test-vcan fuzz bench profile soak lint docs docs-figures lock vcan clean
+.PHONY: build run test test-slow test-vcan fuzz bench profile soak lint docs docs-figures lock vcan clean
 
 # the versions CI tested come from constraints.txt (make lock writes it)
 $(STAMP): pyproject.toml constraints.txt
 	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'"; exit 2; }
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet --upgrade pip 'setuptools>=77' wheel
 	$(PY) -m pip install --quiet -c constraints.txt -e '.[test,docs]'
 	touch $(STAMP)
 
+# the modules mypyc compiles (hil/build.py COMPILED) and the build's record of them: when one of them changed
+# since, `make build` (and every target that needs the install) compiles them again, in place. The install
+# itself compiles (setup.py); RAILHIL_PURE=1 make ... installs and runs pure Python
+COMPILED_SRC := $(shell sed -n '/^COMPILED/,/^)/p' hil/build.py | grep -o '"[^"]*\.py"' | tr -d '"')
+BUILT := hil/_build.json
+$(BUILT): $(STAMP) $(COMPILED_SRC) hil/build.py setup.py
+	$(PY) -m pip install --quiet --no-deps --no-build-isolation -c constraints.txt -e .
+	touch $(BUILT)
+
+## make build: compile the hot modules again with mypyc (after an edit of one of them; `make test` and `make
+## run` do it too); the build that runs: `railhil --version`
+build: $(BUILT)
+	@$(VENV)/bin/railhil --version
+
 ## make run: the default scenario as a real-time HIL (the ECUs in one process, the plant in another, on
 ## udp_multicast; the verdict against the real-time budget and the machine's own floor in the summary)
-run: $(STAMP)
+run: $(BUILT)
 	$(VENV)/bin/railhil run scenarios/default.toml --realtime --fallback-lockstep
 
-## make test: ruff (as make lint: a lint error fails the build), then the test suite (excludes tests marked
-## slow): the lockstep and unit tests on TEST_JOBS pytest-xdist workers (default: one per core), then the
-## real-time tests alone, one at a time, so that their node processes do not compete with other tests for
-## the CPUs. Under 15 minutes on a 2-core machine: what takes longer is marked slow
+## make test: ruff (as make lint: a lint error fails the build), mypy --strict on the compiled modules, then
+## the test suite on the compiled build (excludes tests marked slow): the lockstep and unit tests on TEST_JOBS
+## pytest-xdist workers (default: one per core), the golden traces again on the pure build (RAILHIL_PURE=1:
+## byte-identical to the compiled one), then the real-time tests alone, one at a time, so that their node
+## processes do not compete with other tests for the CPUs. Under 15 minutes on a 2-core machine: what takes
+## longer is marked slow
 ## (worksteal: an idle worker takes queued tests from the busy one, so that no long test ends the run alone)
 TEST_JOBS ?= auto
 LINT_PATHS = firmware_py plant_sim hil tests bench dbc examples tools
-test: $(STAMP)
+test: $(BUILT)
 	$(VENV)/bin/ruff check $(LINT_PATHS)
+	$(VENV)/bin/mypy
 	$(PY) -m pytest -q -rs -n $(TEST_JOBS) --dist worksteal -m "not slow and not realtime and not socketcan"
+	RAILHIL_PURE=1 $(PY) -m pytest -q -rs -n $(TEST_JOBS) tests/test_golden.py
 	$(PY) -m pytest -q -rs -m "realtime and not slow and not socketcan"
 
 ## make test-slow: the long suites too
-test-slow: $(STAMP)
+test-slow: $(BUILT)
 	$(PY) -m pytest -q -rs -n $(TEST_JOBS) --dist worksteal -m "not realtime and not socketcan"
 	$(PY) -m pytest -q -rs -m "realtime and not socketcan"
 

@@ -11,7 +11,11 @@ In a notebook: `hil.open_run(RUN_FOLDER)` and `hil.open_trace(TRACE, dbc=DBC)` (
 imported on first use, so `import hil` stays light).
 """
 
-from hil.can import lazy_mf4
+from hil import build
+
+build.choose()     # the compiled modules, or pure Python: decided before any of them is imported
+
+from hil.can import lazy_mf4  # noqa: E402
 
 __all__ = ["open_run", "open_trace"]
 

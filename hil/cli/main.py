@@ -17,6 +17,7 @@ import importlib
 import os
 import sys
 
+from hil import build
 from hil.errors import RailhilError
 
 INTERNAL_ERROR = 1  # exit code of an unexpected exception (bad input exits 2: hil.errors)
@@ -52,7 +53,8 @@ COMMANDS = {
 
 def version_line() -> str:
     """`railhil --version`: railhil's version and those of the libraries that read and write its frames,
-    from the installed distributions' metadata (nothing imported)."""
+    from the installed distributions' metadata (nothing imported), and the build that runs (hil.build):
+    compiled by mypyc or pure Python, and why."""
     import platform
     from importlib.metadata import PackageNotFoundError, version
 
@@ -63,7 +65,7 @@ def version_line() -> str:
             return "not installed"
 
     return (f"railhil {of('railhil')} (python-can {of('python-can')}, cantools {of('cantools')}, "
-            f"Python {platform.python_version()})")
+            f"Python {platform.python_version()}); {build.state().line()}")
 
 
 class VersionAction(argparse.Action):

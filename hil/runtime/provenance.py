@@ -14,6 +14,8 @@ from functools import cache
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
+from hil import build
+
 #: distributions whose versions go into run.json (and the report): what a reproduction needs to match
 VERSIONED = ("railhil", "python-can", "cantools", "numpy", "pydantic", "matplotlib")
 
@@ -77,6 +79,8 @@ def sha256_of(path: Path) -> str | None:
 
 def run_metadata(dbc_path: Path, seed: int) -> dict:
     """What reproduces a run, for run.json: versions, seed, the DBC and its SHA-256, the git commit of
-    railhil's source, the command line that started the process."""
-    return {"versions": dict(_versions()), "seed": seed, "dbc_sha256": sha256_of(dbc_path),
+    railhil's source, the command line that started the process, and the build that ran it (compiled by
+    mypyc or pure Python: hil.build)."""
+    return {"versions": dict(_versions()), "build": build.state().as_dict(), "seed": seed,
+            "dbc_sha256": sha256_of(dbc_path),
             "git_commit": git_commit(), "command": " ".join(sys.argv), "platform": platform.platform()}

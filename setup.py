@@ -1,0 +1,73 @@
+"""railhil's build: the hot modules (hil/build.py COMPILED) compiled with mypyc, or all pure Python.
+
+Compiled when mypyc (pinned in pyproject.toml [build-system]) and a C compiler are there and RAILHIL_PURE is
+not set; otherwise pure, and the install still works. Either way hil/_build.json records what was built and
+the SHA-256 of each compiled source, so that `import hil` notices a source edited since (hil.build).
+"""
+
+import json
+import os
+import runpy
+import shutil
+import sys
+import sysconfig
+from pathlib import Path
+
+from setuptools import setup
+from setuptools.command.build_ext import build_ext
+
+HERE = Path(__file__).resolve().parent
+build = runpy.run_path(str(HERE / "hil" / "build.py"))     # stdlib only: hil itself is not importable here
+COMPILED = list(build["COMPILED"])
+MANIFEST = HERE / "hil" / build["MANIFEST"]
+
+
+def pure_reason() -> str | None:
+    """Why this build stays pure Python, or None to compile."""
+    asked = os.environ.get(build["PURE_ENV"], "")
+    if asked not in ("", "0"):
+        return f"built with {build['PURE_ENV']}={asked}"
+    compiler = (os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc").split()[0]
+    if shutil.which(compiler) is None:
+        return f"built without a C compiler ({compiler} not found)"
+    try:
+        import mypyc  # noqa: F401
+    except ImportError:
+        return "built without mypyc"
+    return None
+
+
+def write_manifest(**fields) -> None:
+    from importlib.metadata import version
+    try:
+        mypyc_version = version("mypy")
+    except Exception:
+        mypyc_version = None
+    data = {"mypyc": mypyc_version, "python": sys.version.split()[0],
+            "sources": {p: build["source_digest"](HERE / p) for p in COMPILED}, **fields}
+    MANIFEST.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+
+
+class BuildExtOrPure(build_ext):
+    """A failed compile leaves a pure build that says why, not a failed install."""
+
+    def run(self) -> None:
+        try:
+            super().run()
+        except Exception as exc:                         # the compiler's error, e.g. a missing Python.h
+            print(f"warning: railhil's mypyc compile failed, installing pure Python: {exc}", file=sys.stderr)
+            write_manifest(pure_reason=f"the compile failed: {exc}")
+
+
+reason = pure_reason()
+if reason is None:
+    from mypyc.build import mypycify
+
+    ext_modules = mypycify(COMPILED, opt_level="3", debug_level="0")
+    write_manifest()
+else:
+    print(f"railhil: {reason}: installing pure Python", file=sys.stderr)
+    ext_modules = []
+    write_manifest(pure_reason=reason)
+
+setup(ext_modules=ext_modules, cmdclass={"build_ext": BuildExtOrPure})
