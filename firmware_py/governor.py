@@ -67,11 +67,9 @@ import bisect
 import math
 from dataclasses import dataclass
 
-import numba
-from numba.extending import register_jitable
-
+from firmware_py.governor_kernel import play_scalar, predict_loop, warm_up
 from firmware_py.limits import clip
-from firmware_py.pi import PIParams, pi_step_scalar
+from firmware_py.pi import PIParams
 from firmware_py.rx import RxTable
 
 
@@ -184,19 +182,9 @@ class GovernorDecision:
 
 def play(tau_prev: float, p: float, gp: GovernorParams) -> float:
     """Brake torque after the pressure moved to p: eq. (10a) as a play operator (cf. plant_sim.brake,
-    which the firmware cannot import: the ECU carries its own model of the brake), clipped at 0."""
+    which the firmware cannot import: the ECU carries its own model of the brake), clipped at 0
+    (firmware_py.governor_kernel.play_scalar, which the compiled prediction runs)."""
     return play_scalar(tau_prev, p, gp.alpha_squeeze, gp.beta_squeeze, gp.alpha_release, gp.beta_release)
-
-
-@register_jitable
-def play_scalar(tau_prev: float, p: float, alpha_sq: float, beta_sq: float, alpha_rel: float,
-                beta_rel: float) -> float:
-    """`play` on plain numbers (squeeze line ᾱ p + β̄, release line α̲ p + β̲) [N m]."""
-    sq = alpha_sq * p + beta_sq
-    rel = alpha_rel * p + beta_rel
-    tau = sq if sq > tau_prev else tau_prev
-    tau = rel if rel < tau else tau
-    return 0.0 if tau < 0.0 else tau
 
 
 #: predict_peak_torque's friction schedules, as the compiled loop takes them
@@ -210,7 +198,8 @@ def predict_peak_torque(x: GovernorState, r: float, gp: GovernorParams, vertex: 
     vertex: "adversary" (a_k chosen each step to minimise F, step (4) of the module docstring), "slow"
     (a = ā throughout) or "fast" (a = a̲ throughout). The simulation stops early once the torque exceeds
     `stop_above` (the candidate is rejected anyway) or once the loop has settled.  The loop runs compiled
-    (`predict_loop`, numba; NUMBA_DISABLE_JIT=1 runs it as Python, to the same bits).
+    (firmware_py.governor_kernel.predict_loop, numba; NUMBA_DISABLE_JIT=1 runs it as Python, to the same
+    bits).
     """
     pi = gp.pi
     return predict_loop(x.integrator_Pa, x.pressure_Pa, x.torque_Nm, x.friction_N, x.resistance_N, r,
@@ -218,38 +207,6 @@ def predict_peak_torque(x: GovernorState, r: float, gp: GovernorParams, vertex: 
                         gp.mass_kg, gp.kappa, gp.phi, gp.a_lo, gp.a_hi, gp.alpha_squeeze, gp.beta_squeeze,
                         gp.alpha_release, gp.beta_release, gp.settle_frac * gp.friction_max_N,
                         gp.settle_frac * pi.out_max, gp.horizon_steps)
-
-
-def warm_up() -> None:
-    """Compile `predict_loop` (or load its cached machine code) now, not in a node's first cycle."""
-    predict_loop(0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0, math.inf, 1.0, 1.0, 0.0, 1.0, 0.01, 1.0, 1.0, 0.5, 0.5, 0.9,
-                 1.0, 0.0, 1.0, 0.0, 1.0, 1.0, 10)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def predict_loop(i, p, tau, f, res, r, vertex, stop_above, kp, ki, out_min, out_max, dt, m, kappa, phi, a_lo,
-                 a_hi, alpha_sq, beta_sq, alpha_rel, beta_rel, tol_f, tol_p, horizon):
-    """The loop of `predict_peak_torque` on plain numbers (vertex: VERTEX_CODES)."""
-    peak = tau
-    f_target = max(m * r - res, 0.0)        # r below R/M: the brake released, the resistance alone
-    for k in range(horizon):
-        e = r - (f + res) / m                                          # error of eq. (16), v̇ = (F + R)/M
-        u, i, _ = pi_step_scalar(kp, ki, out_min, out_max, i, e, dt, 0.0, False)  # eq. (16), (5b)
-        p = u + (p - u) * phi                                          # eq. (4), exact ZOH step
-        tau = play_scalar(tau, p, alpha_sq, beta_sq, alpha_rel, beta_rel)   # eq. (10a)
-        ft = kappa * tau
-        if vertex == 0:
-            a = a_hi if f < ft else a_lo                               # decel-minimising friction lag
-        else:
-            a = a_hi if vertex == 1 else a_lo
-        f = a * f + (1.0 - a) * ft                                     # slip inclusion, in F
-        if tau > peak:
-            peak = tau
-            if peak > stop_above:
-                return peak, False
-        if k % 10 == 9 and abs(f - f_target) < tol_f and abs(u - p) < tol_p:
-            return peak, True
-    return peak, False
 
 
 def admissible(x: GovernorState, r: float, gp: GovernorParams) -> tuple[bool, float]:
