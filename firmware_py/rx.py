@@ -10,6 +10,7 @@ run on the bus exercise the same freshness and time-out logic.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from enum import Enum
 
@@ -37,9 +38,6 @@ class RxTable(Mapping[str, float]):
     def __getitem__(self, name: str) -> float:
         return self._values[name]
 
-    def get(self, name: str, default: float | None = None) -> float | None:   # Mapping.get, without a
-        return self._values.get(name, default)                               # try/except per call
-
     def __iter__(self) -> Iterator[str]:
         return iter(self._values)
 
@@ -64,7 +62,7 @@ class RxTable(Mapping[str, float]):
         store, times = self._values, self._times
         for name, value in values.items():
             store[name] = value
-            if value != value:
+            if math.isnan(value):
                 times.pop(name, None)
             else:
                 times[name] = t_us

@@ -49,6 +49,7 @@ import math
 import statistics
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import NamedTuple
 
 from firmware_py.bcu import BcuMode, Demand, Train
 from firmware_py.brake_valve import BrakeValve, BrakeValveParams, ValvePosition
@@ -225,6 +226,14 @@ class Odometer:
         return shift
 
 
+class CurvePoint(NamedTuple):
+    """The theoretical braking curve at one time (§VI)."""
+
+    s_m: float            # S_th: path from the curve's start [m]
+    v_mps: float          # V_th: speed [m/s]
+    a_mps2: float         # a_th: deceleration [m/s²]
+
+
 @dataclass(frozen=True)
 class Curve:
     """The theoretical braking curve (S, V, a) of §VI, started at t0_us from x0_m at v0_mps."""
@@ -240,15 +249,16 @@ class Curve:
         """The curve's end (V_th = 0) [µs]."""
         return self.t0_us + (self.v0_mps / self.a_mps2 * 1e6 if self.a_mps2 > 0.0 else math.inf)
 
-    def state(self, now_us: float) -> tuple[float, float, float]:
+    def state(self, now_us: float) -> CurvePoint:
         """(S_th, V_th, a_th): path [m] from the curve's start, speed [m/s] and deceleration [m/s²] at now_us;
         before the start the train coasts at v0, after the end it stands at d0."""
         tau = (now_us - self.t0_us) * 1e-6
         if tau < 0.0:
-            return self.v0_mps * tau, self.v0_mps, 0.0
+            return CurvePoint(self.v0_mps * tau, self.v0_mps, 0.0)
         if now_us >= self.end_us:
-            return self.d0_m, 0.0, 0.0
-        return self.v0_mps * tau - 0.5 * self.a_mps2 * tau * tau, self.v0_mps - self.a_mps2 * tau, self.a_mps2
+            return CurvePoint(self.d0_m, 0.0, 0.0)
+        return CurvePoint(self.v0_mps * tau - 0.5 * self.a_mps2 * tau * tau, self.v0_mps - self.a_mps2 * tau,
+                          self.a_mps2)
 
     def at(self, now_us: float) -> tuple[float, float]:
         """(S_th, V_th) at now_us (not before the curve's start)."""
@@ -301,9 +311,9 @@ class AdaptiveSearch:
         the train's path extrapolated with V and a (to its standstill when that comes first) minus the
         curve's path at t + T_d, = e + T_d·ė + T_d²/2·ë while neither stops."""
         if not self.diff:
-            return s_m - self.curve.state(now_us)[0]
+            return s_m - self.curve.state(now_us).s_m
         h = self.p.diff_horizon_s
-        return s_m + braked_path(v_mps, a_mps2, h) - self.curve.state(now_us + h * 1e6)[0]
+        return s_m + braked_path(v_mps, a_mps2, h) - self.curve.state(now_us + h * 1e6).s_m
 
     def expected_quality(self, now_us: int, s_m: float, v_mps: float, a_mps2: float, q: float) -> float:
         """What Q will be at the next evaluation if the work step has no effect: the plain search expects
@@ -435,7 +445,7 @@ class StoppingController:
             self.quality = self.search.quality
             self._next_scan_us += p.scan_us * max(1, (now_us - self._next_scan_us) // p.scan_us + 1)
         self.command = self.valve.step(dt_s, self.valve_position)
-        return curve.state(now_us)[1]
+        return curve.state(now_us).v_mps
 
 
 # the BCU_STOP frame's signals and StopState in BCU_STATUS
@@ -468,7 +478,7 @@ class StoppingDemand:
         and that bias integrates."""
         t_rx = train.status_rx_us
         odo_speed = statistics.median(train.known_mps) if train.known_mps else math.nan
-        if t_rx is not None and t_rx != self._odo_rx_us and odo_speed == odo_speed:
+        if t_rx is not None and t_rx != self._odo_rx_us and not math.isnan(odo_speed):
             self.controller.odometer.sample(t_rx, odo_speed)
             self._odo_rx_us = t_rx
         if self.p.balises:
@@ -479,12 +489,12 @@ class StoppingDemand:
         so = self.out = self.controller.step(
             now_us, train.dt_s, target_valid=valid >= 0.5 and ok, target_m=target_m,
             emergency=train.desk_emergency or train.mode == BcuMode.EMERGENCY, standstill=train.standstill,
-            train_speed_mps=speed if speed == speed else 0.0)
+            train_speed_mps=0.0 if math.isnan(speed) else speed)
         out.update(StopState=int(so.state),
-                   DistanceToGo=so.distance_to_go_m if so.distance_to_go_m == so.distance_to_go_m else 0.0,
-                   RefSpeed=so.ref_speed_mps if so.ref_speed_mps == so.ref_speed_mps else 0.0,
+                   DistanceToGo=0.0 if math.isnan(so.distance_to_go_m) else so.distance_to_go_m,
+                   RefSpeed=0.0 if math.isnan(so.ref_speed_mps) else so.ref_speed_mps,
                    StopCommand=so.command_mps2, BalisesSeen=self.balises_seen % 16,
-                   SearchQ=min(so.quality, 127.5) if so.quality == so.quality else 0.0)
+                   SearchQ=0.0 if math.isnan(so.quality) else min(so.quality, 127.5))
         braking = so.state in (StopState.FOLLOWING, StopState.STOPPED)    # or holding the train at the stop
         return Demand(so.command_mps2 if braking else 0.0, braking)
 
