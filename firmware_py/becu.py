@@ -308,9 +308,8 @@ class Becu:
 
         overridden = self.wsp != Wsp.FILL
         out: dict[str, float] = {}
-        stages = self.reference_stages or self.setpoint_stages
         loop = Loop(decel, -accel_used, pressure, self.v_ref, self.decel_pi.i, self.u_sent, emergency >= 0.5,
-                    lost) if stages else None
+                    lost)
         r = decel
         for stage in self.reference_stages:
             r = stage.reference(now_us, rx, r, loop, out)

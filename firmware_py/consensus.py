@@ -305,8 +305,7 @@ class ConsensusBecu:
         self.last_us = now_us
         v_i = self._fresh(rx, self.k_own_speed, now_us)
         x_i = self._fresh(rx, self.k_own_pos, now_us)
-        missing = v_i is None or x_i is None
-        if missing:                     # no own sensor: keep braking at the last command (fail-safe)
+        if v_i is None or x_i is None:  # no own sensor: keep braking at the last command (fail-safe)
             return {self.k_force: self.u, self.k_speed: 0.0, self.k_pos: 0.0, self.k_sample: 0, self.k_obs: 0,
                     self.k_sat: 0, self.k_missing: 1, self.k_phi: self.observer.phi_hat,
                     self.k_u1: 0.0, self.k_u2: 0.0, self.k_verr: 0.0}

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 
 from firmware_py.bcu import BcuMode, Train
+from firmware_py.becu import Loop
 from firmware_py.ekf import DecelEstimator, DecelEstimatorParams
 from firmware_py.limits import clip, finite_or
 from firmware_py.pi import PI, PIParams
@@ -292,7 +293,7 @@ class PhiCorrection:
     def __init__(self, params: PhiParams, preload_Pa: float, p_max_Pa: float) -> None:
         self.p, self.preload_Pa, self.p_max_Pa = params, preload_Pa, p_max_Pa
 
-    def setpoint(self, now_us: int, rx: RxTable, p_set_Pa: float, loop, out: dict[str, float]) -> float:
+    def setpoint(self, now_us: int, rx: RxTable, p_set_Pa: float, loop: Loop, out: dict[str, float]) -> float:
         phi, phi_ok = finite_or(rx.get("FrictionPhi", 1.0), 1.0)
         engaged = finite_or(rx.get("FbState", 0.0), 0.0)[0] in PHI_STATES and not self.stale(now_us, rx)
         if phi_ok and engaged and not (loop.emergency or loop.lost):

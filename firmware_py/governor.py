@@ -66,7 +66,9 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass
+from typing import Any
 
+from firmware_py.becu import Loop
 from firmware_py.governor_kernel import play_scalar, predict_loop, warm_up
 from firmware_py.limits import clip
 from firmware_py.pi import PIParams
@@ -246,13 +248,14 @@ def govern(x: GovernorState, r0: float, gp: GovernorParams, r_prev: float | None
     if ok:
         return GovernorDecision(r0, False, head + back, evals)
     top = min(r0, x.reference_top_mps2(gp))
-    base = r_prev if (r_prev is not None and 0.0 <= r_prev < top) else None
-    ok_b = False
-    if base is not None:
+    if r_prev is not None and 0.0 <= r_prev < top:    # the previous reference, admissible again?
+        base = r_prev
         ok_b, head_b = admissible(x, base, gp)
         evals += 1
-    if not ok_b:
-        lo, hi = 0.0, (base if base is not None else top)
+    else:
+        base, ok_b = top, False
+    if not ok_b:                                     # a base by bisection on [0, r_prev] (or [0, top])
+        lo, hi = 0.0, base
         ok_b, head_b = admissible(x, lo, gp)
         evals += 1
         if not ok_b:
@@ -285,7 +288,7 @@ def govern(x: GovernorState, r0: float, gp: GovernorParams, r_prev: float | None
 def governor_params(*, dt_s: float, mass_kg: float, wheel_radius_m: float, inertia_kgm2: float,
                     friction_max_N: float, slope_lo_N_per_mps: float, slope_hi_N_per_mps: float, tp_s: float,
                     alpha_squeeze: float, beta_squeeze: float, alpha_release: float, beta_release: float,
-                    pi: PIParams, **options) -> GovernorParams:
+                    pi: PIParams, **options: Any) -> GovernorParams:
     """GovernorParams from the physical data: k = 1/M + r_w²/J and κ = r_w/(J k) (eq. 3), γ = k f'(s)
     with f' ∈ [slope_lo, slope_hi] over [0, s̄] (the friction-force slope of the curve family [N/(m/s)]),
     a = exp(−γΔ), φ = exp(−Δ/Tp) (eq. 4). `options` are the remaining GovernorParams fields."""
@@ -335,7 +338,7 @@ class ReferenceGovernor:
         self.decision: GovernorDecision | None = None   # last decision (diagnostic)
         warm_up()                     # the compiled prediction ready before the first cycle
 
-    def reference(self, now_us: int, rx: RxTable, r_mps2: float, loop, out: dict[str, float]) -> float:
+    def reference(self, now_us: int, rx: RxTable, r_mps2: float, loop: Loop, out: dict[str, float]) -> float:
         """The largest admissible reference towards `r_mps2`, the request r⁰ of eq. (9a)."""
         p = self.p
         gp = p.model.at(loop.v_ref_mps) if isinstance(p.model, GovernorSchedule) else p.model
@@ -364,7 +367,7 @@ class Ungoverned:
     INPUTS: tuple[str, ...] = ()
     OUTPUTS = GOVERNOR_OUTPUTS
 
-    def reference(self, now_us: int, rx: RxTable, r_mps2: float, loop, out: dict[str, float]) -> float:
+    def reference(self, now_us: int, rx: RxTable, r_mps2: float, loop: Loop, out: dict[str, float]) -> float:
         out["GovernorActive"] = 0
         out["GovernedDecel"] = r_mps2
         out["GovernorMargin"] = 0.0

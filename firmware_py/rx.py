@@ -93,7 +93,8 @@ class RxTable(Mapping[str, float]):
                     times[key] = t_us
         self.version += 1
 
-    def take(self, store: Callable[[bytes, dict, dict, int], None], data: bytes, t_us: int) -> None:
+    def take(self, store: Callable[[bytes, dict[str, float], dict[str, int], int], None], data: bytes,
+             t_us: int) -> None:
         """`update` from a frame's payload: `store` (FrameCodec.storer of the pairs) decodes them into the
         table."""
         store(data, self._values, self._times, t_us)
