@@ -52,6 +52,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import ClassVar
 
 from firmware_py.bcu import Demand, Train
 from firmware_py.limits import clip, finite_or
@@ -346,15 +347,16 @@ class Acd:
     control centre knows nobody ahead).
     """
 
-    OUTPUTS = ("Request", "RequestedDecel", "DistanceToObstacle")
+    OUTPUTS: ClassVar[tuple[str, ...]] = ("Request", "RequestedDecel", "DistanceToObstacle")
     # the leader's report (RADIO_LEADER_POS, RADIO_LEADER_INFO), in the order `inputs_from` reads it
-    LEADER_INPUTS = (
+    LEADER_INPUTS: ClassVar[tuple[str, ...]] = (
         "RADIO_LEADER_POS.Latitude", "RADIO_LEADER_POS.Longitude", "RADIO_LEADER_INFO.LeaderId",
         "RADIO_LEADER_INFO.RouteSection", "RADIO_LEADER_INFO.Speed", "RADIO_LEADER_INFO.TrainLength",
         "RADIO_LEADER_INFO.AgeOfReport")
-    INPUTS = LEADER_INPUTS + ("RADIO_SIGNAL.Aspect", "RADIO_SIGNAL.AgeOfAspect")
-    LOCAL_INPUTS = ("OwnLatitude", "OwnLongitude", "OwnSpeed", "OwnFixValid", "OwnFixAge", "OwnRouteSection",
-                    "SignalLatitude", "SignalLongitude")
+    INPUTS: ClassVar[tuple[str, ...]] = LEADER_INPUTS + ("RADIO_SIGNAL.Aspect", "RADIO_SIGNAL.AgeOfAspect")
+    LOCAL_INPUTS: ClassVar[tuple[str, ...]] = ("OwnLatitude", "OwnLongitude", "OwnSpeed", "OwnFixValid",
+                                               "OwnFixAge", "OwnRouteSection", "SignalLatitude",
+                                               "SignalLongitude")
 
     def __init__(self, params: AcdParams | None = None) -> None:
         self.p = params or AcdParams()
@@ -478,9 +480,9 @@ class AcdBrakeRequest:
     request stays in force until the train stands (a lost or deleted request never releases a brake the
     ACD asked for, issue #19), and an ACD silent while asking for nothing requests nothing."""
 
-    INPUTS = (REQUEST, REQUESTED_DECEL)
-    OUTPUTS: tuple[str, ...] = ()
-    SOURCE = 2                       # BCU_EMERGENCY.Source of an emergency the ACD asked for
+    INPUTS: ClassVar[tuple[str, ...]] = (REQUEST, REQUESTED_DECEL)
+    OUTPUTS: ClassVar[tuple[str, ...]] = ()
+    SOURCE: ClassVar[int] = 2        # BCU_EMERGENCY.Source of an emergency the ACD asked for
 
     def __init__(self, params: AcdRequestParams) -> None:
         self.p = params

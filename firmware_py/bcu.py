@@ -29,7 +29,7 @@ import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import NamedTuple, Protocol
+from typing import ClassVar, NamedTuple, Protocol
 
 from firmware_py.brake_valve import BrakeValve, BrakeValveParams, ValvePosition
 from firmware_py.cycle import CycleTimer
@@ -138,8 +138,12 @@ class Demand(NamedTuple):
 class DemandSource(Protocol):
     """A function that asks for braking."""
 
-    INPUTS: tuple[str, ...]     # its input signals (rx keys), bound beside the BCU's own
-    OUTPUTS: tuple[str, ...]    # the output signals it writes into `out` every cycle
+    # read-only: a stage has them as class constants or sets them per instance
+    @property
+    def INPUTS(self) -> tuple[str, ...]: ...      # its input signals (rx keys), bound beside the BCU's own
+
+    @property
+    def OUTPUTS(self) -> tuple[str, ...]: ...     # the output signals it writes into `out` every cycle
 
     def demand(self, now_us: int, rx: RxTable, train: Train, out: dict[str, float]) -> Demand: ...
 
@@ -147,8 +151,11 @@ class DemandSource(Protocol):
 class Follower(Protocol):
     """A function that follows the demand the BCU decided and sends its own signals."""
 
-    INPUTS: tuple[str, ...]
-    OUTPUTS: tuple[str, ...]
+    @property
+    def INPUTS(self) -> tuple[str, ...]: ...
+
+    @property
+    def OUTPUTS(self) -> tuple[str, ...]: ...
 
     def follow(self, now_us: int, rx: RxTable, train: Train, out: dict[str, float]) -> None: ...
 
@@ -156,8 +163,8 @@ class Follower(Protocol):
 class Bcu:
     """step(now_us, rx) -> BCU_DEMAND / BCU_EMERGENCY / BCU_STATUS signals and the stages'."""
 
-    OUTPUTS = ("Mode", "BrakeStep", "TargetDecel", "EmergencyActive", "Source", "CarsSilent", "Degraded",
-               "TrainSpeedEst", "CarsImplausible")
+    OUTPUTS: ClassVar[tuple[str, ...]] = ("Mode", "BrakeStep", "TargetDecel", "EmergencyActive", "Source",
+                                          "CarsSilent", "Degraded", "TrainSpeedEst", "CarsImplausible")
 
     def __init__(self, n_cars: int, params: BcuParams | None = None, sources: Sequence[DemandSource] = (),
                  followers: Sequence[Follower] = ()) -> None:
@@ -220,7 +227,7 @@ class Bcu:
                 self.source = asked or 1
         else:
             self.source = 0
-            wanted = max(step_decel, valve_cmd, *(d.decel_mps2 for d in demands))
+            wanted = max(step_decel, valve_cmd, *[d.decel_mps2 for d in demands])
             jerk = p.jerk_limit_mps3 * dt_s
             self.target = rate_limit(wanted, self.target, jerk, jerk)
         if self.followers:

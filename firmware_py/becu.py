@@ -26,7 +26,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import NamedTuple, Protocol
+from typing import ClassVar, NamedTuple, Protocol
 
 from firmware_py.constants import G_MPS2
 from firmware_py.cycle import CycleTimer
@@ -130,8 +130,12 @@ class ReferenceStage(Protocol):
     """A limiter before the loop: the reference so far (the demand, through the stages before it) -> the
     deceleration reference the loop tracks [m/s²]."""
 
-    INPUTS: tuple[str, ...]     # its input signals (rx keys), bound beside the BECU's own
-    OUTPUTS: tuple[str, ...]    # the output signals it writes into `out` every cycle
+    # read-only: a stage has them as class constants or sets them per instance
+    @property
+    def INPUTS(self) -> tuple[str, ...]: ...      # its input signals (rx keys), bound beside the BECU's own
+
+    @property
+    def OUTPUTS(self) -> tuple[str, ...]: ...     # the output signals it writes into `out` every cycle
 
     def reference(self, now_us: int, rx: RxTable, r_mps2: float, loop: Loop,
                   out: dict[str, float]) -> float: ...
@@ -140,8 +144,11 @@ class ReferenceStage(Protocol):
 class SetpointStage(Protocol):
     """A corrector after the loop: the cylinder pressure set-point -> the one the pressure PI tracks."""
 
-    INPUTS: tuple[str, ...]
-    OUTPUTS: tuple[str, ...]
+    @property
+    def INPUTS(self) -> tuple[str, ...]: ...
+
+    @property
+    def OUTPUTS(self) -> tuple[str, ...]: ...
 
     def setpoint(self, now_us: int, rx: RxTable, p_set_Pa: float, loop: Loop,
                  out: dict[str, float]) -> float: ...
@@ -150,10 +157,12 @@ class SetpointStage(Protocol):
 class Becu:
     """One car's brake ECU: step(now_us, rx) -> dict of output signals."""
 
-    INPUTS = ("AxleSpeed", "CylPressure", "AccelLong", "TargetDecel", "BCU_DEMAND.Mode", "EmergencyActive")
-    OUTPUTS = ("CylPressureSet", "ValveCmd", "WspValve", "SpeedEst", "SlipSpeedEst", "WspActive",
-               "IntegratorSat", "InputMissing", "SpeedSensorFault", "AccelSensorFault", "CylSensorFault",
-               "AccelBiasEst")
+    INPUTS: ClassVar[tuple[str, ...]] = ("AxleSpeed", "CylPressure", "AccelLong", "TargetDecel",
+                                         "BCU_DEMAND.Mode", "EmergencyActive")
+    OUTPUTS: ClassVar[tuple[str, ...]] = ("CylPressureSet", "ValveCmd", "WspValve", "SpeedEst",
+                                          "SlipSpeedEst", "WspActive", "IntegratorSat", "InputMissing",
+                                          "SpeedSensorFault", "AccelSensorFault", "CylSensorFault",
+                                          "AccelBiasEst")
 
     def __init__(self, params: BecuParams | None = None, reference_stages: Sequence[ReferenceStage] = (),
                  setpoint_stages: Sequence[SetpointStage] = ()) -> None:

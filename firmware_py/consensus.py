@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import ClassVar
 
 from firmware_py.rx import RxTable
 
@@ -359,8 +360,8 @@ class VirtualLeaderParams:
 class VirtualLeader:
     """The BCU as virtual leader: sends v*(t) and a* (eq. (9))."""
 
-    outputs = ("CONS_REF.VRef", "CONS_REF.ARef", "CONS_REF.Active")
-    inputs: tuple[str, ...] = ()
+    outputs: ClassVar[tuple[str, ...]] = ("CONS_REF.VRef", "CONS_REF.ARef", "CONS_REF.Active")
+    inputs: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, p: VirtualLeaderParams) -> None:
         self.p = p

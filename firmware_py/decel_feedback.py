@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import ClassVar
 
 from firmware_py.bcu import BcuMode, Train
 from firmware_py.becu import Loop
@@ -226,7 +227,7 @@ class TrainFeedback:
     with its state in the authenticated BCU_BRAKE_CORR (FbState, FrictionPhi); the BECUs apply φ while
     FbState is ENGAGED or HELD (`PhiCorrection`)."""
 
-    OUTPUTS = ("FbState", "FrictionPhi", "SlopeEst")
+    OUTPUTS: ClassVar[tuple[str, ...]] = ("FbState", "FrictionPhi", "SlopeEst")
 
     def __init__(self, params: FeedbackParams, n_cars: int) -> None:
         self.feedback = DecelFeedback(params)
@@ -287,8 +288,8 @@ class PhiCorrection:
     correction, §5), and when φ is not received, older than `timeout_us`, not finite, in emergency or on
     loss of command (§5: not for emergency braking).  `preload_Pa`, `p_max_Pa`: the BECU's brake data."""
 
-    INPUTS = ("FrictionPhi", "FbState")        # BCU_BRAKE_CORR
-    OUTPUTS: tuple[str, ...] = ()
+    INPUTS: ClassVar[tuple[str, ...]] = ("FrictionPhi", "FbState")        # BCU_BRAKE_CORR
+    OUTPUTS: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, params: PhiParams, preload_Pa: float, p_max_Pa: float) -> None:
         self.p, self.preload_Pa, self.p_max_Pa = params, preload_Pa, p_max_Pa

@@ -66,7 +66,7 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from firmware_py.becu import Loop
 from firmware_py.governor_kernel import play_scalar, predict_loop, warm_up
@@ -327,8 +327,8 @@ class ReferenceGovernor:
     play model (10a) on the observed pressure (on the raw measurement, sensor noise would ratchet the
     estimated torque up)."""
 
-    INPUTS: tuple[str, ...] = ()
-    OUTPUTS = GOVERNOR_OUTPUTS
+    INPUTS: ClassVar[tuple[str, ...]] = ()
+    OUTPUTS: ClassVar[tuple[str, ...]] = GOVERNOR_OUTPUTS
 
     def __init__(self, params: ReferenceGovernorParams) -> None:
         self.p = params
@@ -364,8 +364,8 @@ class Ungoverned:
     the BECU's frames say what the DBC gives them for that case (GovernedDecel = the demand it passed,
     GovernorActive 0, GovernorMargin 0, GovernorFeasible 1)."""
 
-    INPUTS: tuple[str, ...] = ()
-    OUTPUTS = GOVERNOR_OUTPUTS
+    INPUTS: ClassVar[tuple[str, ...]] = ()
+    OUTPUTS: ClassVar[tuple[str, ...]] = GOVERNOR_OUTPUTS
 
     def reference(self, now_us: int, rx: RxTable, r_mps2: float, loop: Loop, out: dict[str, float]) -> float:
         out["GovernorActive"] = 0

@@ -277,8 +277,8 @@ class PreviewBecu:
                 self.buffer.add(j, pos, val)
                 if j == 1:
                     lead = val
-        v, a, x1 = (rx[k] for k in self._train)
-        sigma, mu, true_bar = (rx[k] for k in self._adh)
+        v, a, x1 = [rx[k] for k in self._train]
+        sigma, mu, true_bar = [rx[k] for k in self._adh]
         if not (math.isfinite(v) and math.isfinite(a) and math.isfinite(x1) and math.isfinite(true_bar)):
             return self._out
         p = self.p

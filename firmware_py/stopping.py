@@ -49,7 +49,7 @@ import math
 import statistics
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
 from firmware_py.bcu import BcuMode, Demand, Train
 from firmware_py.brake_valve import BrakeValve, BrakeValveParams, ValvePosition
@@ -129,8 +129,8 @@ class StoppingParams:
     scan_us: int = 100_000                   # the PLC's scan cycle [µs] (chosen: a SIMATIC S7-200, §VI,
     #                                          scans a program of this size in a few ms; 100 ms is its
     #                                          usual cyclic-interrupt period for a slow loop)
-    valve_service_rate_mps3: float = BrakeValveParams.service_rate_mps3   # V: the valve's application
-    valve_release_rate_mps3: float = BrakeValveParams.release_rate_mps3   # ... and II: its release rate
+    valve_service_rate_mps3: float = BrakeValveParams().service_rate_mps3   # V: the valve's application
+    valve_release_rate_mps3: float = BrakeValveParams().release_rate_mps3   # ... and II: its release rate
     #                                          [m/s³] (firmware_py/brake_valve.py: 0.3, chosen)
     # --- adaptive search (Fig. 2), the same for both variants: work period, work step, δ, insensitivity
     # (the paper gives none of these numbers; chosen together from its text and the bench's brake, and
@@ -478,7 +478,7 @@ class StoppingDemand:
     theoretical braking curve; it sends where it believes the train is against its target and curve
     (BCU_STOP) and its state (BCU_STATUS.StopState)."""
 
-    OUTPUTS = STOP_OUTPUTS
+    OUTPUTS: ClassVar[tuple[str, ...]] = STOP_OUTPUTS
 
     def __init__(self, p: StoppingParams) -> None:
         self.p = p
