@@ -61,6 +61,9 @@ class WspResume(StrEnum):
 
 @dataclass(frozen=True)
 class BecuParams:
+    """The modes (reference, control, wsp_resume) are the enum or its value, as a scenario file or a caller
+    spells it ("decel"); `__post_init__` checks them."""
+
     cycle_us: int = 10_000                   # BECU cycle, DESIGN.md node table
     car_mass_kg: float = 40_000.0            # nominal car mass (load-weighed in service), chosen
     wheel_radius_m: float = 0.46             # nominal wheel radius
@@ -71,7 +74,7 @@ class BecuParams:
     pressure_pi: PIParams = field(default_factory=lambda: PIParams(
         kp=2.0e-5, ki=4.0e-5, out_min=-1.0, out_max=1.0))
     wsp: WspParams = field(default_factory=WspParams)
-    reference: RefMode = RefMode.FILTERED    # which reference speed (`reference_speed`)
+    reference: RefMode | str = RefMode.FILTERED    # which reference speed (`reference_speed`)
     # RefMode.FILTERED: the wheel slides when it reads more than this below the estimate [m/s].  Above the
     # most an accelerometer error within its fault limit moves the estimate off the axle (RefSpeedParams:
     # 0.7 m/s² × 0.17 s = 0.12 m/s) and below WSP's lowest vent threshold (0.3 m/s); a slip growing faster
@@ -95,12 +98,12 @@ class BecuParams:
     failsafe_cycles: int = 3
     # Control.DECEL still drives the EP valve with the pressure PI, for plants without an integrated
     # pressure controller
-    control: Control = Control.PRESSURE
+    control: Control | str = Control.PRESSURE
     # eq. (16) gains, issue #4's set: K_P = 5 bar/g, K_I = 40 bar/(g s), in Pa per m/s² (1 bar = 1e5 Pa,
     # g = 9.81 m/s²); output bounded to 0 ≤ u ≤ p̄, eq. (5b)
     decel_pi: PIParams = field(default_factory=lambda: PIParams(
         kp=5e5 / G_MPS2, ki=40e5 / G_MPS2, out_min=0.0, out_max=450e3))
-    wsp_resume: WspResume = WspResume.FREEZE
+    wsp_resume: WspResume | str = WspResume.FREEZE
     sensors: SensorCheckParams = field(default_factory=SensorCheckParams)   # plausibility, issue #9
 
     def __post_init__(self) -> None:

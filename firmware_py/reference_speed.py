@@ -112,7 +112,7 @@ class RefSpeed(NamedTuple):
 def reference_speed(s: RefSpeed, wheel_mps: float, accel_mps2: float, dt_s: float, fresh: bool,
                     wsp_fill: bool, torque_free: bool, gate_mps: float, p: RefSpeedParams,
                     creep: float = 0.0, wheel_suspect: bool = False, spinning_up: bool = False,
-                    mode: RefMode = RefMode.FILTERED) -> RefSpeed:
+                    mode: RefMode | str = RefMode.FILTERED) -> RefSpeed:
     """One cycle of the car's reference speed (pure).
 
     wheel_mps: the axle's r·ω; accel_mps2: the car's acceleration, the accelerometer less its bias
