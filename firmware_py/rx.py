@@ -3,9 +3,10 @@
 `RxTable` holds the latest value of each input signal, NaN until first received, with the time it was
 received.  The node runtime (hil.runtime.node) fills it from the frames it receives (`update`, `take`);
 a unit test builds one with `RxTable.received(values, t_us)` and refreshes it with `receive`; a device
-that adds inputs of its own to those its node received merges them with `copy_from` and `receive`.  A
-controller asks `rx.age_us(name, now_us)` how old an input is (None: never received), so a test and a
-run on the bus exercise the same freshness and time-out logic.
+that adds inputs of its own to those its node received merges them with `copy_from` and `receive`;
+`copy` is a snapshot of the table as a controller saw it in one cycle.  A controller asks
+`rx.age_us(name, now_us)` how old an input is (None: never received), so a test and a run on the bus
+exercise the same freshness and time-out logic.
 """
 
 from __future__ import annotations
@@ -67,6 +68,15 @@ class RxTable(Mapping[str, float]):
             else:
                 times[name] = t_us
         self.version += 1
+
+    def copy(self) -> RxTable:
+        """A snapshot: a table with this one's values, reception times, version and E2E statuses, in tables
+        of its own, so that what either receives later leaves the other as it is."""
+        snap = RxTable(())
+        snap._values, snap._times = dict(self._values), dict(self._times)
+        snap.version = self.version
+        snap.e2e = dict(self.e2e)
+        return snap
 
     def copy_from(self, other: RxTable, names: Iterable[str]) -> None:
         """`names` as `other` holds them: each value with its reception time (or none: not received)."""
