@@ -52,6 +52,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import ClassVar
 
 from firmware_py.bcu import Demand, Train
 from firmware_py.limits import clip, finite_or
@@ -346,12 +347,16 @@ class Acd:
     control centre knows nobody ahead).
     """
 
-    OUTPUTS = ("Request", "RequestedDecel", "DistanceToObstacle")
-    INPUTS = ("RADIO_LEADER_POS.Latitude", "RADIO_LEADER_POS.Longitude", "RADIO_LEADER_INFO.LeaderId",
-              "RADIO_LEADER_INFO.RouteSection", "RADIO_LEADER_INFO.Speed", "RADIO_LEADER_INFO.TrainLength",
-              "RADIO_LEADER_INFO.AgeOfReport", "RADIO_SIGNAL.Aspect", "RADIO_SIGNAL.AgeOfAspect")
-    LOCAL_INPUTS = ("OwnLatitude", "OwnLongitude", "OwnSpeed", "OwnFixValid", "OwnFixAge", "OwnRouteSection",
-                    "SignalLatitude", "SignalLongitude")
+    OUTPUTS: ClassVar[tuple[str, ...]] = ("Request", "RequestedDecel", "DistanceToObstacle")
+    # the leader's report (RADIO_LEADER_POS, RADIO_LEADER_INFO), in the order `inputs_from` reads it
+    LEADER_INPUTS: ClassVar[tuple[str, ...]] = (
+        "RADIO_LEADER_POS.Latitude", "RADIO_LEADER_POS.Longitude", "RADIO_LEADER_INFO.LeaderId",
+        "RADIO_LEADER_INFO.RouteSection", "RADIO_LEADER_INFO.Speed", "RADIO_LEADER_INFO.TrainLength",
+        "RADIO_LEADER_INFO.AgeOfReport")
+    INPUTS: ClassVar[tuple[str, ...]] = LEADER_INPUTS + ("RADIO_SIGNAL.Aspect", "RADIO_SIGNAL.AgeOfAspect")
+    LOCAL_INPUTS: ClassVar[tuple[str, ...]] = ("OwnLatitude", "OwnLongitude", "OwnSpeed", "OwnFixValid",
+                                               "OwnFixAge", "OwnRouteSection", "SignalLatitude",
+                                               "SignalLongitude")
 
     def __init__(self, params: AcdParams | None = None) -> None:
         self.p = params or AcdParams()
@@ -368,8 +373,8 @@ class Acd:
         """The cycle's AcdInputs from `rx` (keeps the last valid own fix)."""
         lat, lon, speed = _num(rx, "OwnLatitude"), _num(rx, "OwnLongitude"), _num(rx, "OwnSpeed")
         valid, fix_age = _num(rx, "OwnFixValid"), _num(rx, "OwnFixAge")
-        if valid >= 0.5 and lat == lat and lon == lon and speed == speed:
-            age_us = round(max(fix_age, 0.0) * 1e6) if fix_age == fix_age else 0
+        if valid >= 0.5 and not (math.isnan(lat) or math.isnan(lon) or math.isnan(speed)):
+            age_us = 0 if math.isnan(fix_age) else round(max(fix_age, 0.0) * 1e6)
             self._fix = (lat, lon, speed, now_us - age_us)
         own = None
         if self._fix is not None:
@@ -378,21 +383,21 @@ class Acd:
         section = _num(rx, "OwnRouteSection")
 
         leader = None
-        vals = [_num(rx, k) for k in self.INPUTS[:7]]
-        if all(v == v for v in vals) and round(vals[2]) != 0:
-            llat, llon, lid, lsec, lspeed, llen, lage = vals
-            age = lage + self._rx_age_s(rx, self.INPUTS[:7], now_us)
+        report = [_num(rx, k) for k in self.LEADER_INPUTS]
+        llat, llon, lid, lsec, lspeed, llen, lage = report
+        if not any(math.isnan(v) for v in report) and round(lid) != 0:
+            age = lage + self._rx_age_s(rx, self.LEADER_INPUTS, now_us)
             leader = LeaderReport(int(round(lid)), llat, llon, lspeed, int(round(lsec)), llen, age)
 
         signal = None
         aspect = _num(rx, "RADIO_SIGNAL.Aspect")
         slat, slon = _num(rx, "SignalLatitude"), _num(rx, "SignalLongitude")
-        if aspect == aspect and slat == slat and slon == slon:
+        if not (math.isnan(aspect) or math.isnan(slat) or math.isnan(slon)):
             sent_age = _num(rx, "RADIO_SIGNAL.AgeOfAspect")
             signal = SignalReport(int(round(aspect)), slat, slon,
-                                  (sent_age if sent_age == sent_age else 0.0)
+                                  (0.0 if math.isnan(sent_age) else sent_age)
                                   + self._rx_age_s(rx, ("RADIO_SIGNAL.Aspect",), now_us))
-        return AcdInputs(own, int(round(section)) if section == section else None, leader, signal)
+        return AcdInputs(own, None if math.isnan(section) else int(round(section)), leader, signal)
 
     def step(self, now_us: int, rx: RxTable) -> dict[str, float]:
         dec = acd_evaluate(self.p, self.mode, self.inputs_from(now_us, rx))
@@ -456,6 +461,9 @@ def pair_on_sections(trains: Iterable[TrainPosition]) -> dict[str, tuple[str | N
     return out
 
 
+REQUEST, REQUESTED_DECEL = "ACD_BRAKE_REQ.Request", "ACD_BRAKE_REQ.RequestedDecel"   # the ACD's request
+
+
 @dataclass(frozen=True)
 class AcdRequestParams:
     """The BCU's side of the ACD (`AcdBrakeRequest`)."""
@@ -472,9 +480,9 @@ class AcdBrakeRequest:
     request stays in force until the train stands (a lost or deleted request never releases a brake the
     ACD asked for, issue #19), and an ACD silent while asking for nothing requests nothing."""
 
-    INPUTS = ("ACD_BRAKE_REQ.Request", "ACD_BRAKE_REQ.RequestedDecel")
-    OUTPUTS: tuple[str, ...] = ()
-    SOURCE = 2                       # BCU_EMERGENCY.Source of an emergency the ACD asked for
+    INPUTS: ClassVar[tuple[str, ...]] = (REQUEST, REQUESTED_DECEL)
+    OUTPUTS: ClassVar[tuple[str, ...]] = ()
+    SOURCE: ClassVar[int] = 2        # BCU_EMERGENCY.Source of an emergency the ACD asked for
 
     def __init__(self, params: AcdRequestParams) -> None:
         self.p = params
@@ -486,14 +494,14 @@ class AcdBrakeRequest:
 
     def _request(self, now_us: int, rx: RxTable, standstill: bool) -> tuple[bool, float, bool]:
         """(emergency requested, service deceleration requested [m/s²], silent) from ACD_BRAKE_REQ."""
-        age = rx.age_us(self.INPUTS[0], now_us)
-        request, ok = finite_or(rx[self.INPUTS[0]], 0.0)
+        age = rx.age_us(REQUEST, now_us)
+        request, ok = finite_or(rx[REQUEST], 0.0)
         if age is None or age > self.p.timeout_us or not ok:
             if standstill:
                 self._last = (False, 0.0)
             return (*self._last, age is not None)          # never heard from: not (yet) silent
         full = self.p.full_service_mps2
-        decel, ok_decel = finite_or(rx[self.INPUTS[1]], full)
+        decel, ok_decel = finite_or(rx[REQUESTED_DECEL], full)
         if round(request) == 2:
             self._last = (True, 0.0)
         elif round(request) == 1:                          # a bad deceleration asks for full service

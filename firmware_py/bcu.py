@@ -29,7 +29,7 @@ import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import NamedTuple, Protocol
+from typing import ClassVar, NamedTuple, Protocol
 
 from firmware_py.brake_valve import BrakeValve, BrakeValveParams, ValvePosition
 from firmware_py.cycle import CycleTimer
@@ -64,11 +64,12 @@ def disagreement(speeds: Sequence[float], trusted: Sequence[bool], limit_mps: fl
     disagreeing.  Needs `min_voters` such cars: with two, nobody can tell which one is wrong.  The median
     includes the car itself: with three cars the median of the other two is their mean, which one stuck
     car drags along."""
-    voters = [v for v, ok in zip(speeds, trusted, strict=True) if ok and v == v]
+    voters = [v for v, ok in zip(speeds, trusted, strict=True) if ok and not math.isnan(v)]
     if len(voters) < min_voters:
         return [0] * len(speeds)
     median = statistics.median(voters)
-    return [0 if not (v == v and abs(v - median) > limit_mps) else 1 if v > median else -1 for v in speeds]
+    return [0 if math.isnan(v) or not abs(v - median) > limit_mps else 1 if v > median else -1
+            for v in speeds]
 
 
 def disagreeing_cars(speeds: Sequence[float], trusted: Sequence[bool], limit_mps: float,
@@ -137,8 +138,12 @@ class Demand(NamedTuple):
 class DemandSource(Protocol):
     """A function that asks for braking."""
 
-    INPUTS: tuple[str, ...]     # its input signals (rx keys), bound beside the BCU's own
-    OUTPUTS: tuple[str, ...]    # the output signals it writes into `out` every cycle
+    # read-only: a stage has them as class constants or sets them per instance
+    @property
+    def INPUTS(self) -> tuple[str, ...]: ...      # its input signals (rx keys), bound beside the BCU's own
+
+    @property
+    def OUTPUTS(self) -> tuple[str, ...]: ...     # the output signals it writes into `out` every cycle
 
     def demand(self, now_us: int, rx: RxTable, train: Train, out: dict[str, float]) -> Demand: ...
 
@@ -146,8 +151,11 @@ class DemandSource(Protocol):
 class Follower(Protocol):
     """A function that follows the demand the BCU decided and sends its own signals."""
 
-    INPUTS: tuple[str, ...]
-    OUTPUTS: tuple[str, ...]
+    @property
+    def INPUTS(self) -> tuple[str, ...]: ...
+
+    @property
+    def OUTPUTS(self) -> tuple[str, ...]: ...
 
     def follow(self, now_us: int, rx: RxTable, train: Train, out: dict[str, float]) -> None: ...
 
@@ -155,8 +163,8 @@ class Follower(Protocol):
 class Bcu:
     """step(now_us, rx) -> BCU_DEMAND / BCU_EMERGENCY / BCU_STATUS signals and the stages'."""
 
-    OUTPUTS = ("Mode", "BrakeStep", "TargetDecel", "EmergencyActive", "Source", "CarsSilent", "Degraded",
-               "TrainSpeedEst", "CarsImplausible")
+    OUTPUTS: ClassVar[tuple[str, ...]] = ("Mode", "BrakeStep", "TargetDecel", "EmergencyActive", "Source",
+                                          "CarsSilent", "Degraded", "TrainSpeedEst", "CarsImplausible")
 
     def __init__(self, n_cars: int, params: BcuParams | None = None, sources: Sequence[DemandSource] = (),
                  followers: Sequence[Follower] = ()) -> None:
@@ -192,9 +200,9 @@ class Bcu:
                   for a, v in zip(ages, speeds, strict=True)]
         heard = [a for a in ages if a is not None]
         self._vote(now_us, speeds)
-        known = [v for v, bad in zip(speeds, self.implausible, strict=True) if v == v and not bad]
+        known = [v for v, bad in zip(speeds, self.implausible, strict=True) if not (math.isnan(v) or bad)]
         train_speed = max(known) if known else float("nan")
-        silent = sum(1 << i for i, v in enumerate(speeds) if v != v)
+        silent = sum(1 << i for i, v in enumerate(speeds) if math.isnan(v))
         implausible = sum(1 << i for i, bad in enumerate(self.implausible) if bad)
         sensor_fault = any(finite_or(rx.get(key, 0.0), 0.0)[0] >= 0.5 for key in self.fault_keys)
         standstill = bool(known) and train_speed < p.standstill_mps
@@ -219,7 +227,7 @@ class Bcu:
                 self.source = asked or 1
         else:
             self.source = 0
-            wanted = max(step_decel, valve_cmd, *(d.decel_mps2 for d in demands))
+            wanted = max(step_decel, valve_cmd, *[d.decel_mps2 for d in demands])
             jerk = p.jerk_limit_mps3 * dt_s
             self.target = rate_limit(wanted, self.target, jerk, jerk)
         if self.followers:
@@ -238,7 +246,7 @@ class Bcu:
         is not used (NONE, or never received); its position integrated (firmware_py.brake_valve); a
         position gone stale, or a value that is no position, brakes (V)."""
         raw = rx.get("BrakeValve", math.nan)      # not bound in a controller test: not used
-        if raw != raw or raw == 0:
+        if math.isnan(raw) or raw == 0:
             self.valve.demand = 0.0                  # not used: the brake step alone
             return 0.0
         position = int(raw) if raw in VALVE_POSITIONS else ValvePosition.SERVICE

@@ -26,7 +26,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import NamedTuple, Protocol
+from typing import ClassVar, NamedTuple, Protocol
 
 from firmware_py.constants import G_MPS2
 from firmware_py.cycle import CycleTimer
@@ -61,6 +61,9 @@ class WspResume(StrEnum):
 
 @dataclass(frozen=True)
 class BecuParams:
+    """The modes (reference, control, wsp_resume) are the enum or its value, as a scenario file or a caller
+    spells it ("decel"); `__post_init__` checks them."""
+
     cycle_us: int = 10_000                   # BECU cycle, DESIGN.md node table
     car_mass_kg: float = 40_000.0            # nominal car mass (load-weighed in service), chosen
     wheel_radius_m: float = 0.46             # nominal wheel radius
@@ -71,7 +74,7 @@ class BecuParams:
     pressure_pi: PIParams = field(default_factory=lambda: PIParams(
         kp=2.0e-5, ki=4.0e-5, out_min=-1.0, out_max=1.0))
     wsp: WspParams = field(default_factory=WspParams)
-    reference: RefMode = RefMode.FILTERED    # which reference speed (`reference_speed`)
+    reference: RefMode | str = RefMode.FILTERED    # which reference speed (`reference_speed`)
     # RefMode.FILTERED: the wheel slides when it reads more than this below the estimate [m/s].  Above the
     # most an accelerometer error within its fault limit moves the estimate off the axle (RefSpeedParams:
     # 0.7 m/s² × 0.17 s = 0.12 m/s) and below WSP's lowest vent threshold (0.3 m/s); a slip growing faster
@@ -95,12 +98,12 @@ class BecuParams:
     failsafe_cycles: int = 3
     # Control.DECEL still drives the EP valve with the pressure PI, for plants without an integrated
     # pressure controller
-    control: Control = Control.PRESSURE
+    control: Control | str = Control.PRESSURE
     # eq. (16) gains, issue #4's set: K_P = 5 bar/g, K_I = 40 bar/(g s), in Pa per m/s² (1 bar = 1e5 Pa,
     # g = 9.81 m/s²); output bounded to 0 ≤ u ≤ p̄, eq. (5b)
     decel_pi: PIParams = field(default_factory=lambda: PIParams(
         kp=5e5 / G_MPS2, ki=40e5 / G_MPS2, out_min=0.0, out_max=450e3))
-    wsp_resume: WspResume = WspResume.FREEZE
+    wsp_resume: WspResume | str = WspResume.FREEZE
     sensors: SensorCheckParams = field(default_factory=SensorCheckParams)   # plausibility, issue #9
 
     def __post_init__(self) -> None:
@@ -130,8 +133,12 @@ class ReferenceStage(Protocol):
     """A limiter before the loop: the reference so far (the demand, through the stages before it) -> the
     deceleration reference the loop tracks [m/s²]."""
 
-    INPUTS: tuple[str, ...]     # its input signals (rx keys), bound beside the BECU's own
-    OUTPUTS: tuple[str, ...]    # the output signals it writes into `out` every cycle
+    # read-only: a stage has them as class constants or sets them per instance
+    @property
+    def INPUTS(self) -> tuple[str, ...]: ...      # its input signals (rx keys), bound beside the BECU's own
+
+    @property
+    def OUTPUTS(self) -> tuple[str, ...]: ...     # the output signals it writes into `out` every cycle
 
     def reference(self, now_us: int, rx: RxTable, r_mps2: float, loop: Loop,
                   out: dict[str, float]) -> float: ...
@@ -140,8 +147,11 @@ class ReferenceStage(Protocol):
 class SetpointStage(Protocol):
     """A corrector after the loop: the cylinder pressure set-point -> the one the pressure PI tracks."""
 
-    INPUTS: tuple[str, ...]
-    OUTPUTS: tuple[str, ...]
+    @property
+    def INPUTS(self) -> tuple[str, ...]: ...
+
+    @property
+    def OUTPUTS(self) -> tuple[str, ...]: ...
 
     def setpoint(self, now_us: int, rx: RxTable, p_set_Pa: float, loop: Loop,
                  out: dict[str, float]) -> float: ...
@@ -150,10 +160,12 @@ class SetpointStage(Protocol):
 class Becu:
     """One car's brake ECU: step(now_us, rx) -> dict of output signals."""
 
-    INPUTS = ("AxleSpeed", "CylPressure", "AccelLong", "TargetDecel", "BCU_DEMAND.Mode", "EmergencyActive")
-    OUTPUTS = ("CylPressureSet", "ValveCmd", "WspValve", "SpeedEst", "SlipSpeedEst", "WspActive",
-               "IntegratorSat", "InputMissing", "SpeedSensorFault", "AccelSensorFault", "CylSensorFault",
-               "AccelBiasEst")
+    INPUTS: ClassVar[tuple[str, ...]] = ("AxleSpeed", "CylPressure", "AccelLong", "TargetDecel",
+                                         "BCU_DEMAND.Mode", "EmergencyActive")
+    OUTPUTS: ClassVar[tuple[str, ...]] = ("CylPressureSet", "ValveCmd", "WspValve", "SpeedEst",
+                                          "SlipSpeedEst", "WspActive", "IntegratorSat", "InputMissing",
+                                          "SpeedSensorFault", "AccelSensorFault", "CylSensorFault",
+                                          "AccelBiasEst")
 
     def __init__(self, params: BecuParams | None = None, reference_stages: Sequence[ReferenceStage] = (),
                  setpoint_stages: Sequence[SetpointStage] = ()) -> None:
@@ -308,9 +320,8 @@ class Becu:
 
         overridden = self.wsp != Wsp.FILL
         out: dict[str, float] = {}
-        stages = self.reference_stages or self.setpoint_stages
         loop = Loop(decel, -accel_used, pressure, self.v_ref, self.decel_pi.i, self.u_sent, emergency >= 0.5,
-                    lost) if stages else None
+                    lost)
         r = decel
         for stage in self.reference_stages:
             r = stage.reference(now_us, rx, r, loop, out)

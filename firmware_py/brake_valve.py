@@ -47,14 +47,15 @@ class BrakeValveParams:
 class BrakeValve:
     """`step(dt_s, position) -> demanded deceleration [m/s²]`: the demand after dt_s in `position`.
 
-    A position that is not one of `ValvePosition` is taken as LAP (the demand is held, nothing new is
-    applied or released); a non-finite or negative dt_s changes nothing."""
+    `position` is a number, as the PLC's CAN signal decodes (5.0 is SERVICE); one that is not one of
+    `ValvePosition` is taken as LAP (the demand is held, nothing new is applied or released); a non-finite
+    or negative dt_s changes nothing."""
 
     def __init__(self, p: BrakeValveParams, demand_mps2: float = 0.0) -> None:
         self.p = p
         self.demand = clip(demand_mps2, 0.0, p.max_decel_mps2)
 
-    def step(self, dt_s: float, position: int) -> float:
+    def step(self, dt_s: float, position: float) -> float:
         p = self.p
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             return self.demand

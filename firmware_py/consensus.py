@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import ClassVar
 
 from firmware_py.rx import RxTable
 
@@ -249,16 +250,19 @@ class ConsensusBecu:
     def __init__(self, p: ConsensusBecuParams) -> None:
         self.p = p
         i, n = p.car, p.n_cars
-        self.own = (f"PLANT_CONS_CAR{i}.Speed", f"PLANT_CONS_CAR{i}.Position", f"PLANT_CONS_CAR{i}.Sample")
+        own = f"PLANT_CONS_CAR{i}"                      # the car's sensor frame
+        self.k_own_speed, self.k_own_pos = f"{own}.Speed", f"{own}.Position"
+        self.k_own_sample = f"{own}.Sample"
         # every other car j: (speed key, sample key) — the complete graph of eq. (6)
         self.others = [(f"BECU{j}_CONS.Speed", f"BECU{j}_CONS.Sample") for j in range(1, n + 1) if j != i]
         # neighbour j: (position key, speed key, sample key, rest offset r_ij = x_i − x_j at rest [m])
         self.neighbours = [(f"BECU{j}_CONS.Position", f"BECU{j}_CONS.Speed", f"BECU{j}_CONS.Sample",
                             (j - i) * p.pitch_m) for j in (i - 1, i + 1) if 1 <= j <= n]
-        self.ref = ("CONS_REF.VRef", "CONS_REF.ARef")
-        self.inputs = tuple([*self.own, *(k for o in self.others for k in o),
-                             *(nb[0] for nb in self.neighbours),
-                             *self.ref])
+        self.k_v_ref, self.k_a_ref = "CONS_REF.VRef", "CONS_REF.ARef"     # the virtual leader's v*, a*
+        self.inputs = (self.k_own_speed, self.k_own_pos, self.k_own_sample,
+                       *[k for o in self.others for k in o],
+                       *[pos_key for pos_key, _, _, _ in self.neighbours],
+                       self.k_v_ref, self.k_a_ref)
         out = f"BECU{i}_CONS"
         diag = f"BECU{i}_CONS_DIAG"
         self.k_force, self.k_speed, self.k_pos = f"{out}.ForceCmd", f"{out}.Speed", f"{out}.Position"
@@ -300,20 +304,19 @@ class ConsensusBecu:
         p, g = self.p, self.gains
         dt_s = 0.0 if self.last_us is None else (now_us - self.last_us) * 1e-6
         self.last_us = now_us
-        v_i = self._fresh(rx, self.own[0], now_us)
-        x_i = self._fresh(rx, self.own[1], now_us)
-        missing = v_i is None or x_i is None
-        if missing:                     # no own sensor: keep braking at the last command (fail-safe)
+        v_i = self._fresh(rx, self.k_own_speed, now_us)
+        x_i = self._fresh(rx, self.k_own_pos, now_us)
+        if v_i is None or x_i is None:  # no own sensor: keep braking at the last command (fail-safe)
             return {self.k_force: self.u, self.k_speed: 0.0, self.k_pos: 0.0, self.k_sample: 0, self.k_obs: 0,
                     self.k_sat: 0, self.k_missing: 1, self.k_phi: self.observer.phi_hat,
                     self.k_u1: 0.0, self.k_u2: 0.0, self.k_verr: 0.0}
-        own_sample = rx[self.own[2]]
-        v_ref = self._fresh(rx, self.ref[0], now_us, p.stale_us)     # a ramp: extrapolated, no sample tag
-        a_ref = self._fresh(rx, self.ref[1], now_us, p.stale_us)
+        own_sample = rx[self.k_own_sample]
+        v_ref = self._fresh(rx, self.k_v_ref, now_us, p.stale_us)    # a ramp: extrapolated, no sample tag
+        a_ref = self._fresh(rx, self.k_a_ref, now_us, p.stale_us)
         if v_ref is None or a_ref is None:
             v_star, a_star = v_i, 0.0       # no virtual leader yet: consensus only
         else:
-            age = rx.age_us(self.ref[0], now_us)
+            age = rx.age_us(self.k_v_ref, now_us)
             v_star, a_star = max(0.0, v_ref - a_ref * (age or 0) * 1e-6), a_ref   # v* now, eq. (9)
         period_s = p.sample_period_us * 1e-6
         v_others = []
@@ -357,8 +360,8 @@ class VirtualLeaderParams:
 class VirtualLeader:
     """The BCU as virtual leader: sends v*(t) and a* (eq. (9))."""
 
-    outputs = ("CONS_REF.VRef", "CONS_REF.ARef", "CONS_REF.Active")
-    inputs: tuple[str, ...] = ()
+    outputs: ClassVar[tuple[str, ...]] = ("CONS_REF.VRef", "CONS_REF.ARef", "CONS_REF.Active")
+    inputs: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, p: VirtualLeaderParams) -> None:
         self.p = p

@@ -28,8 +28,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import ClassVar
 
 from firmware_py.bcu import BcuMode, Train
+from firmware_py.becu import Loop
 from firmware_py.ekf import DecelEstimator, DecelEstimatorParams
 from firmware_py.limits import clip, finite_or
 from firmware_py.pi import PI, PIParams
@@ -176,7 +178,7 @@ class DecelFeedback:
                   and train_speed_mps >= p.min_speed_mps)
         if steady:
             raw = decel / self.expected
-            self.ratio = raw if self.ratio != self.ratio else (
+            self.ratio = raw if math.isnan(self.ratio) else (
                 self.ratio + (1.0 - math.exp(-dt_s / p.ratio_tau_s)) * (raw - self.ratio))
         else:
             self.ratio = math.nan
@@ -202,7 +204,7 @@ class DecelFeedback:
                 # eq. (34) measured at engagement: with φ = 1 so far, μ_d/μ_d0 = actual/target now; the
                 # trim starts where it makes φ equal to that, and the set carries it on from there
                 self.engaged_at_s = self.brake_t_s
-                start = ratio / self.set_phi() if ratio == ratio else 1.0
+                start = 1.0 if math.isnan(ratio) else ratio / self.set_phi()
                 self.trim.handover(clip(start, p.trim_pi.out_min, p.trim_pi.out_max),
                                    error=(ratio - 1.0) if judged else 0.0)
             error = (ratio - 1.0) if judged else 0.0                       # > 0: braking too hard
@@ -225,7 +227,7 @@ class TrainFeedback:
     with its state in the authenticated BCU_BRAKE_CORR (FbState, FrictionPhi); the BECUs apply φ while
     FbState is ENGAGED or HELD (`PhiCorrection`)."""
 
-    OUTPUTS = ("FbState", "FrictionPhi", "SlopeEst")
+    OUTPUTS: ClassVar[tuple[str, ...]] = ("FbState", "FrictionPhi", "SlopeEst")
 
     def __init__(self, params: FeedbackParams, n_cars: int) -> None:
         self.feedback = DecelFeedback(params)
@@ -237,10 +239,11 @@ class TrainFeedback:
         self._speed_rx_us: int | None = None
 
     def follow(self, now_us: int, rx: RxTable, train: Train, out: dict[str, float]) -> None:
-        accel = [finite_or(rx[key], math.nan)[0] for key in self.accel_keys]
-        if not all(a == a for a in accel):             # an accelerometer not heard from: use the other
-            good = [a for a in accel if a == a]
-            accel = [good[0]] * 2 if good else [0.0, 0.0]
+        front, rear = [finite_or(rx[key], math.nan)[0] for key in self.accel_keys]
+        if math.isnan(front):                          # an accelerometer not heard from: use the other
+            front = 0.0 if math.isnan(rear) else rear
+        if math.isnan(rear):
+            rear = front
         wsp = any(finite_or(rx[key], 0.0)[0] >= 0.5 for key in self.wsp_keys)
         # a fresh speed estimate for the EKF: when a new BECU1_STATUS arrived
         train_speed = train.speed_mps if train.known_mps else 0.0
@@ -255,7 +258,7 @@ class TrainFeedback:
         service = train.mode == BcuMode.SERVICE and wanted > 0.0
         target = train.target_mps2
         fb = self.out = self.feedback.step(train.dt_s, target, target == wanted, service,
-                                           train.mode == BcuMode.EMERGENCY, wsp, accel[0], accel[1], speed,
+                                           train.mode == BcuMode.EMERGENCY, wsp, front, rear, speed,
                                            train_speed)
         out.update(FbState=int(fb.state), FrictionPhi=fb.phi,
                    SlopeEst=clip(fb.slope, -0.064, 0.06375))          # the DBC signal's range
@@ -285,13 +288,13 @@ class PhiCorrection:
     correction, §5), and when φ is not received, older than `timeout_us`, not finite, in emergency or on
     loss of command (§5: not for emergency braking).  `preload_Pa`, `p_max_Pa`: the BECU's brake data."""
 
-    INPUTS = ("FrictionPhi", "FbState")        # BCU_BRAKE_CORR
-    OUTPUTS: tuple[str, ...] = ()
+    INPUTS: ClassVar[tuple[str, ...]] = ("FrictionPhi", "FbState")        # BCU_BRAKE_CORR
+    OUTPUTS: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, params: PhiParams, preload_Pa: float, p_max_Pa: float) -> None:
         self.p, self.preload_Pa, self.p_max_Pa = params, preload_Pa, p_max_Pa
 
-    def setpoint(self, now_us: int, rx: RxTable, p_set_Pa: float, loop, out: dict[str, float]) -> float:
+    def setpoint(self, now_us: int, rx: RxTable, p_set_Pa: float, loop: Loop, out: dict[str, float]) -> float:
         phi, phi_ok = finite_or(rx.get("FrictionPhi", 1.0), 1.0)
         engaged = finite_or(rx.get("FbState", 0.0), 0.0)[0] in PHI_STATES and not self.stale(now_us, rx)
         if phi_ok and engaged and not (loop.emergency or loop.lost):

@@ -66,12 +66,12 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass
+from typing import Any, ClassVar
 
-import numba
-from numba.extending import register_jitable
-
+from firmware_py.becu import Loop
+from firmware_py.governor_kernel import play_scalar, predict_loop, warm_up
 from firmware_py.limits import clip
-from firmware_py.pi import PIParams, pi_step_scalar
+from firmware_py.pi import PIParams
 from firmware_py.rx import RxTable
 
 
@@ -184,19 +184,9 @@ class GovernorDecision:
 
 def play(tau_prev: float, p: float, gp: GovernorParams) -> float:
     """Brake torque after the pressure moved to p: eq. (10a) as a play operator (cf. plant_sim.brake,
-    which the firmware cannot import: the ECU carries its own model of the brake), clipped at 0."""
+    which the firmware cannot import: the ECU carries its own model of the brake), clipped at 0
+    (firmware_py.governor_kernel.play_scalar, which the compiled prediction runs)."""
     return play_scalar(tau_prev, p, gp.alpha_squeeze, gp.beta_squeeze, gp.alpha_release, gp.beta_release)
-
-
-@register_jitable
-def play_scalar(tau_prev: float, p: float, alpha_sq: float, beta_sq: float, alpha_rel: float,
-                beta_rel: float) -> float:
-    """`play` on plain numbers (squeeze line ᾱ p + β̄, release line α̲ p + β̲) [N m]."""
-    sq = alpha_sq * p + beta_sq
-    rel = alpha_rel * p + beta_rel
-    tau = sq if sq > tau_prev else tau_prev
-    tau = rel if rel < tau else tau
-    return 0.0 if tau < 0.0 else tau
 
 
 #: predict_peak_torque's friction schedules, as the compiled loop takes them
@@ -210,7 +200,8 @@ def predict_peak_torque(x: GovernorState, r: float, gp: GovernorParams, vertex: 
     vertex: "adversary" (a_k chosen each step to minimise F, step (4) of the module docstring), "slow"
     (a = ā throughout) or "fast" (a = a̲ throughout). The simulation stops early once the torque exceeds
     `stop_above` (the candidate is rejected anyway) or once the loop has settled.  The loop runs compiled
-    (`predict_loop`, numba; NUMBA_DISABLE_JIT=1 runs it as Python, to the same bits).
+    (firmware_py.governor_kernel.predict_loop, numba; NUMBA_DISABLE_JIT=1 runs it as Python, to the same
+    bits).
     """
     pi = gp.pi
     return predict_loop(x.integrator_Pa, x.pressure_Pa, x.torque_Nm, x.friction_N, x.resistance_N, r,
@@ -218,38 +209,6 @@ def predict_peak_torque(x: GovernorState, r: float, gp: GovernorParams, vertex: 
                         gp.mass_kg, gp.kappa, gp.phi, gp.a_lo, gp.a_hi, gp.alpha_squeeze, gp.beta_squeeze,
                         gp.alpha_release, gp.beta_release, gp.settle_frac * gp.friction_max_N,
                         gp.settle_frac * pi.out_max, gp.horizon_steps)
-
-
-def warm_up() -> None:
-    """Compile `predict_loop` (or load its cached machine code) now, not in a node's first cycle."""
-    predict_loop(0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0, math.inf, 1.0, 1.0, 0.0, 1.0, 0.01, 1.0, 1.0, 0.5, 0.5, 0.9,
-                 1.0, 0.0, 1.0, 0.0, 1.0, 1.0, 10)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def predict_loop(i, p, tau, f, res, r, vertex, stop_above, kp, ki, out_min, out_max, dt, m, kappa, phi, a_lo,
-                 a_hi, alpha_sq, beta_sq, alpha_rel, beta_rel, tol_f, tol_p, horizon):
-    """The loop of `predict_peak_torque` on plain numbers (vertex: VERTEX_CODES)."""
-    peak = tau
-    f_target = max(m * r - res, 0.0)        # r below R/M: the brake released, the resistance alone
-    for k in range(horizon):
-        e = r - (f + res) / m                                          # error of eq. (16), v̇ = (F + R)/M
-        u, i, _ = pi_step_scalar(kp, ki, out_min, out_max, i, e, dt, 0.0, False)  # eq. (16), (5b)
-        p = u + (p - u) * phi                                          # eq. (4), exact ZOH step
-        tau = play_scalar(tau, p, alpha_sq, beta_sq, alpha_rel, beta_rel)   # eq. (10a)
-        ft = kappa * tau
-        if vertex == 0:
-            a = a_hi if f < ft else a_lo                               # decel-minimising friction lag
-        else:
-            a = a_hi if vertex == 1 else a_lo
-        f = a * f + (1.0 - a) * ft                                     # slip inclusion, in F
-        if tau > peak:
-            peak = tau
-            if peak > stop_above:
-                return peak, False
-        if k % 10 == 9 and abs(f - f_target) < tol_f and abs(u - p) < tol_p:
-            return peak, True
-    return peak, False
 
 
 def admissible(x: GovernorState, r: float, gp: GovernorParams) -> tuple[bool, float]:
@@ -289,13 +248,14 @@ def govern(x: GovernorState, r0: float, gp: GovernorParams, r_prev: float | None
     if ok:
         return GovernorDecision(r0, False, head + back, evals)
     top = min(r0, x.reference_top_mps2(gp))
-    base = r_prev if (r_prev is not None and 0.0 <= r_prev < top) else None
-    ok_b = False
-    if base is not None:
+    if r_prev is not None and 0.0 <= r_prev < top:    # the previous reference, admissible again?
+        base = r_prev
         ok_b, head_b = admissible(x, base, gp)
         evals += 1
-    if not ok_b:
-        lo, hi = 0.0, (base if base is not None else top)
+    else:
+        base, ok_b = top, False
+    if not ok_b:                                     # a base by bisection on [0, r_prev] (or [0, top])
+        lo, hi = 0.0, base
         ok_b, head_b = admissible(x, lo, gp)
         evals += 1
         if not ok_b:
@@ -328,7 +288,7 @@ def govern(x: GovernorState, r0: float, gp: GovernorParams, r_prev: float | None
 def governor_params(*, dt_s: float, mass_kg: float, wheel_radius_m: float, inertia_kgm2: float,
                     friction_max_N: float, slope_lo_N_per_mps: float, slope_hi_N_per_mps: float, tp_s: float,
                     alpha_squeeze: float, beta_squeeze: float, alpha_release: float, beta_release: float,
-                    pi: PIParams, **options) -> GovernorParams:
+                    pi: PIParams, **options: Any) -> GovernorParams:
     """GovernorParams from the physical data: k = 1/M + r_w²/J and κ = r_w/(J k) (eq. 3), γ = k f'(s)
     with f' ∈ [slope_lo, slope_hi] over [0, s̄] (the friction-force slope of the curve family [N/(m/s)]),
     a = exp(−γΔ), φ = exp(−Δ/Tp) (eq. 4). `options` are the remaining GovernorParams fields."""
@@ -367,8 +327,8 @@ class ReferenceGovernor:
     play model (10a) on the observed pressure (on the raw measurement, sensor noise would ratchet the
     estimated torque up)."""
 
-    INPUTS: tuple[str, ...] = ()
-    OUTPUTS = GOVERNOR_OUTPUTS
+    INPUTS: ClassVar[tuple[str, ...]] = ()
+    OUTPUTS: ClassVar[tuple[str, ...]] = GOVERNOR_OUTPUTS
 
     def __init__(self, params: ReferenceGovernorParams) -> None:
         self.p = params
@@ -378,7 +338,7 @@ class ReferenceGovernor:
         self.decision: GovernorDecision | None = None   # last decision (diagnostic)
         warm_up()                     # the compiled prediction ready before the first cycle
 
-    def reference(self, now_us: int, rx: RxTable, r_mps2: float, loop, out: dict[str, float]) -> float:
+    def reference(self, now_us: int, rx: RxTable, r_mps2: float, loop: Loop, out: dict[str, float]) -> float:
         """The largest admissible reference towards `r_mps2`, the request r⁰ of eq. (9a)."""
         p = self.p
         gp = p.model.at(loop.v_ref_mps) if isinstance(p.model, GovernorSchedule) else p.model
@@ -404,10 +364,10 @@ class Ungoverned:
     the BECU's frames say what the DBC gives them for that case (GovernedDecel = the demand it passed,
     GovernorActive 0, GovernorMargin 0, GovernorFeasible 1)."""
 
-    INPUTS: tuple[str, ...] = ()
-    OUTPUTS = GOVERNOR_OUTPUTS
+    INPUTS: ClassVar[tuple[str, ...]] = ()
+    OUTPUTS: ClassVar[tuple[str, ...]] = GOVERNOR_OUTPUTS
 
-    def reference(self, now_us: int, rx: RxTable, r_mps2: float, loop, out: dict[str, float]) -> float:
+    def reference(self, now_us: int, rx: RxTable, r_mps2: float, loop: Loop, out: dict[str, float]) -> float:
         out["GovernorActive"] = 0
         out["GovernedDecel"] = r_mps2
         out["GovernorMargin"] = 0.0

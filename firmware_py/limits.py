@@ -1,15 +1,16 @@
-"""Small pure helpers for limits, as opendbc keeps them (apply_hysteresis, rate_limit)."""
+"""Small pure helpers for limits, as opendbc keeps them (apply_hysteresis, rate_limit).
+
+`clip` is defined in firmware_py.governor_kernel, where numba can compile it into the governor's
+prediction (with the PI step that calls it); the controllers import it from here.
+"""
 
 from __future__ import annotations
 
 import math
 
-from numba.extending import register_jitable
+from firmware_py.governor_kernel import clip
 
-
-@register_jitable
-def clip(x: float, lo: float, hi: float) -> float:
-    return lo if x < lo else hi if x > hi else x
+__all__ = ["clip", "finite_or", "rate_limit"]
 
 
 def rate_limit(new: float, last: float, dw_step: float, up_step: float) -> float:

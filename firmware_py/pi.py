@@ -10,9 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from numba.extending import register_jitable
-
-from firmware_py.limits import clip
+from firmware_py.governor_kernel import clip, pi_step_scalar
 
 
 @dataclass(frozen=True)
@@ -29,23 +27,11 @@ def pi_step(p: PIParams, i: float, error: float, dt_s: float, feedforward: float
 
     u = clip(ff + kp·e + i⁺) with i⁺ = i + ki·e·dt, except that i is kept when frozen or when the
     unclipped output is beyond a limit and the error pushes further into it (conditional anti-windup).
-    `PI.update` is this function plus the stored state; predictions (firmware_py.governor) run it, as
-    `pi_step_scalar`, so the controller and its model are one implementation.
+    `PI.update` is this function plus the stored state.  The equations are
+    `firmware_py.governor_kernel.pi_step_scalar`, which the governor's compiled prediction runs too
+    (firmware_py.governor): the controller and its model are one implementation.
     """
     return pi_step_scalar(p.kp, p.ki, p.out_min, p.out_max, i, error, dt_s, feedforward, freeze)
-
-
-@register_jitable
-def pi_step_scalar(kp: float, ki: float, out_min: float, out_max: float, i: float, error: float, dt_s: float,
-                   feedforward: float, freeze: bool) -> tuple[float, float, bool]:
-    """`pi_step` on plain numbers: plain Python when called from Python, compiled into the governor's
-    prediction (firmware_py.governor)."""
-    i_next = i if freeze else i + ki * error * dt_s
-    unclipped = feedforward + kp * error + i_next
-    out = clip(unclipped, out_min, out_max)
-    # conditional anti-windup: keep the old integrator when it would push further into the limit
-    winding_up = (unclipped > out_max and error > 0.0) or (unclipped < out_min and error < 0.0)
-    return out, (i if winding_up else i_next), unclipped != out
 
 
 class PI:

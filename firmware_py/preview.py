@@ -23,6 +23,8 @@ import bisect
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from firmware_py.rx import RxTable
 
 LN2 = math.log(2.0)
@@ -187,8 +189,6 @@ class SigmaEstimator:
     value, and drifted to a wrong peak that the slip then followed (a dual-control trap)."""
 
     def __init__(self, p: EstimatorParams = EstimatorParams()) -> None:
-        import numpy as np
-        self._np = np
         self.p = p
         fam = np.asarray(p.family, dtype=float)
         w = np.linspace(0.0, 1.0, p.steps + 1)[:-1]
@@ -210,7 +210,7 @@ class SigmaEstimator:
     def update(self, x_m: float, v_mps: float, sigma: float, mu: float) -> float:
         """One measurement at track position x_m [m], speed v [m/s], slip σ [-] and adhesion μ [-];
         returns σ̄° [-]."""
-        p, np = self.p, self._np
+        p = self.p
         if self.last_x is not None:
             self.cost *= math.exp(-abs(x_m - self.last_x) / p.memory_m)
         self.last_x = x_m
@@ -247,18 +247,24 @@ class PreviewBecu:
                      f"PLANT_CAR{i}_ADH.SigmaOptBarTrue")
         self._ahead = [(j, f"BECU{j}_PREVIEW.SigmaOptBar", f"BECU{j}_PREVIEW.Position",
                         f"BECU{j}_PREVIEW.Valid") for j in range(1, i)]
-        self.inputs = self._train + self._adh + tuple(k for a in self._ahead for k in a[1:])
-        self.OUTPUTS = tuple(f"BECU{i}_SLIP_REF.{s}" for s in
-                             ("SlipRef", "PreviewDist", "PredSpeed", "Method", "Source", "PreviewMiss")) + \
-            tuple(f"BECU{i}_PREVIEW.{s}" for s in ("SigmaOptBar", "Position", "Source", "Valid"))
+        self.inputs = self._train + self._adh + tuple(k for _, *keys in self._ahead for k in keys)
+        ref, pv = f"BECU{i}_SLIP_REF", f"BECU{i}_PREVIEW"     # the reference; the car's own σ̄° broadcast
+        self.k_slip_ref, self.k_preview_dist = f"{ref}.SlipRef", f"{ref}.PreviewDist"
+        self.k_pred_speed, self.k_method = f"{ref}.PredSpeed", f"{ref}.Method"
+        self.k_ref_source, self.k_preview_miss = f"{ref}.Source", f"{ref}.PreviewMiss"
+        self.k_sigma_bar, self.k_position = f"{pv}.SigmaOptBar", f"{pv}.Position"
+        self.k_bar_source, self.k_valid = f"{pv}.Source", f"{pv}.Valid"
+        self.OUTPUTS = (self.k_slip_ref, self.k_preview_dist, self.k_pred_speed, self.k_method,
+                        self.k_ref_source, self.k_preview_miss, self.k_sigma_bar, self.k_position,
+                        self.k_bar_source, self.k_valid)
         self._version = -1
         self._out: dict[str, float] = self._idle()
 
     def _idle(self) -> dict[str, float]:
-        o = self.OUTPUTS
-        return {o[0]: self.p.sigma0, o[1]: 0.0, o[2]: 0.0, o[3]: METHOD_CODE[self.p.method],
-                o[4]: SOURCE_CODE[self.source], o[5]: 0, o[6]: 0.0, o[7]: 0.0,
-                o[8]: SOURCE_CODE[self.source], o[9]: 0}
+        source = SOURCE_CODE[self.source]
+        return {self.k_slip_ref: self.p.sigma0, self.k_preview_dist: 0.0, self.k_pred_speed: 0.0,
+                self.k_method: METHOD_CODE[self.p.method], self.k_ref_source: source, self.k_preview_miss: 0,
+                self.k_sigma_bar: 0.0, self.k_position: 0.0, self.k_bar_source: source, self.k_valid: 0}
 
     def step(self, now_us: int, rx: RxTable) -> dict[str, float]:
         if rx.version == self._version:
@@ -271,8 +277,8 @@ class PreviewBecu:
                 self.buffer.add(j, pos, val)
                 if j == 1:
                     lead = val
-        v, a, x1 = (rx[k] for k in self._train)
-        sigma, mu, true_bar = (rx[k] for k in self._adh)
+        v, a, x1 = [rx[k] for k in self._train]
+        sigma, mu, true_bar = [rx[k] for k in self._adh]
         if not (math.isfinite(v) and math.isfinite(a) and math.isfinite(x1) and math.isfinite(true_bar)):
             return self._out
         p = self.p
@@ -281,15 +287,17 @@ class PreviewBecu:
             own = self.estimator.update(x_own, v, sigma, mu)
         else:
             own = true_bar
-        if lead != lead:                                  # car 1 itself, or nothing from car 1 yet
+        if math.isnan(lead):                              # car 1 itself, or nothing from car 1 yet
             lead = own
         preview = None
         if p.method == "Dp" and p.car > 1:
             preview = self.buffer.lookup(x1 - delta_star(p.spacing_m, v, p.alpha_per_s))
             self.buffer.prune(x_own)
         ref = reference(p, v, a, own, lead, preview)
-        o = self.OUTPUTS
-        self._out = {o[0]: min(max(ref.sigma, 0.0), 0.65), o[1]: ref.delta_m, o[2]: ref.v_pred_mps,
-                     o[3]: METHOD_CODE[p.method], o[4]: SOURCE_CODE[self.source], o[5]: int(ref.preview_miss),
-                     o[6]: own, o[7]: x_own, o[8]: SOURCE_CODE[self.source], o[9]: 1}
+        source = SOURCE_CODE[self.source]
+        self._out = {self.k_slip_ref: min(max(ref.sigma, 0.0), 0.65), self.k_preview_dist: ref.delta_m,
+                     self.k_pred_speed: ref.v_pred_mps, self.k_method: METHOD_CODE[p.method],
+                     self.k_ref_source: source, self.k_preview_miss: int(ref.preview_miss),
+                     self.k_sigma_bar: own, self.k_position: x_own, self.k_bar_source: source,
+                     self.k_valid: 1}
         return self._out

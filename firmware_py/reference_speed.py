@@ -9,7 +9,6 @@ runs on the accelerometer alone, so it does not follow a sliding wheel down.  `R
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 from enum import StrEnum
@@ -48,19 +47,11 @@ def creep_mps(mu_used: float, v_mps: float, cp: CreepParams) -> float:
     t1, t2, t3 = cp.theta
     v = max(v_mps, 0.0)
     k1, k2 = 1.0 + cp.pi1_s_per_m * v, 1.0 + cp.pi2_s_per_m * v
-    x_peak = _x_peak(tuple(cp.theta))
+    x_peak = (-t2 + math.sqrt(t2 * t2 + 12.0 * t1 * t3)) / (6.0 * t3)       # seed 000 §2.1
     x = 0.0
     for _ in range(8):
-        y = (mu_used * k1 * (t1 + x * (t2 + t3 * x))) ** 2
-        x = x_peak if x_peak < y else y                    # min(y, x_peak), without the builtin's call
+        x = min((mu_used * k1 * (t1 + x * (t2 + t3 * x))) ** 2, x_peak)
     return x / k2 * max(v, cp.v_eps_mps)
-
-
-@functools.cache
-def _x_peak(theta: tuple[float, float, float]) -> float:
-    """x° = k2 σ at the peak of seed 000's μ̄ (§2.1): (−θ2 + √(θ2² + 12 θ1 θ3)) / (6 θ3)."""
-    t1, t2, t3 = theta
-    return (-t2 + math.sqrt(t2 * t2 + 12.0 * t1 * t3)) / (6.0 * t3)
 
 
 @dataclass(frozen=True)
@@ -121,7 +112,7 @@ class RefSpeed(NamedTuple):
 def reference_speed(s: RefSpeed, wheel_mps: float, accel_mps2: float, dt_s: float, fresh: bool,
                     wsp_fill: bool, torque_free: bool, gate_mps: float, p: RefSpeedParams,
                     creep: float = 0.0, wheel_suspect: bool = False, spinning_up: bool = False,
-                    mode: RefMode = RefMode.FILTERED) -> RefSpeed:
+                    mode: RefMode | str = RefMode.FILTERED) -> RefSpeed:
     """One cycle of the car's reference speed (pure).
 
     wheel_mps: the axle's r·ω; accel_mps2: the car's acceleration, the accelerometer less its bias

@@ -3,13 +3,15 @@
 `RxTable` holds the latest value of each input signal, NaN until first received, with the time it was
 received.  The node runtime (hil.runtime.node) fills it from the frames it receives (`update`, `take`);
 a unit test builds one with `RxTable.received(values, t_us)` and refreshes it with `receive`; a device
-that adds inputs of its own to those its node received merges them with `copy_from` and `receive`.  A
-controller asks `rx.age_us(name, now_us)` how old an input is (None: never received), so a test and a
-run on the bus exercise the same freshness and time-out logic.
+that adds inputs of its own to those its node received merges them with `copy_from` and `receive`;
+`copy` is a snapshot of the table as a controller saw it in one cycle.  A controller asks
+`rx.age_us(name, now_us)` how old an input is (None: never received), so a test and a run on the bus
+exercise the same freshness and time-out logic.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from enum import Enum
 
@@ -37,9 +39,6 @@ class RxTable(Mapping[str, float]):
     def __getitem__(self, name: str) -> float:
         return self._values[name]
 
-    def get(self, name: str, default: float | None = None) -> float | None:   # Mapping.get, without a
-        return self._values.get(name, default)                               # try/except per call
-
     def __iter__(self) -> Iterator[str]:
         return iter(self._values)
 
@@ -64,11 +63,20 @@ class RxTable(Mapping[str, float]):
         store, times = self._values, self._times
         for name, value in values.items():
             store[name] = value
-            if value != value:
+            if math.isnan(value):
                 times.pop(name, None)
             else:
                 times[name] = t_us
         self.version += 1
+
+    def copy(self) -> RxTable:
+        """A snapshot: a table with this one's values, reception times, version and E2E statuses, in tables
+        of its own, so that what either receives later leaves the other as it is."""
+        snap = RxTable(())
+        snap._values, snap._times = dict(self._values), dict(self._times)
+        snap.version = self.version
+        snap.e2e = dict(self.e2e)
+        return snap
 
     def copy_from(self, other: RxTable, names: Iterable[str]) -> None:
         """`names` as `other` holds them: each value with its reception time (or none: not received)."""
@@ -95,7 +103,8 @@ class RxTable(Mapping[str, float]):
                     times[key] = t_us
         self.version += 1
 
-    def take(self, store: Callable[[bytes, dict, dict, int], None], data: bytes, t_us: int) -> None:
+    def take(self, store: Callable[[bytes, dict[str, float], dict[str, int], int], None], data: bytes,
+             t_us: int) -> None:
         """`update` from a frame's payload: `store` (FrameCodec.storer of the pairs) decodes them into the
         table."""
         store(data, self._values, self._times, t_us)

@@ -123,19 +123,18 @@ class SlipBecu:
         self.gen = PreviewBecu(ref, n_cars, source, estimator)
         i = ref.car
         self.inputs = self.gen.inputs
-        self._press = (f"BECU{i}_PRESS_CMD.CylPressureSet", f"BECU{i}_PRESS_CMD.ValveCmd",
-                       f"BECU{i}_PRESS_CMD.WspValve")
-        self.OUTPUTS = self.gen.OUTPUTS + self._press
+        cmd = f"BECU{i}_PRESS_CMD"
+        self.k_pressure_set, self.k_valve_cmd, self.k_wsp_valve = (f"{cmd}.CylPressureSet", f"{cmd}.ValveCmd",
+                                                                   f"{cmd}.WspValve")
+        self.OUTPUTS = self.gen.OUTPUTS + (self.k_pressure_set, self.k_valve_cmd, self.k_wsp_valve)
         q = self.p
         self.pi = PI(PIParams(kp=q.alpha_c_per_s, ki=q.ki_per_s2, out_min=-50.0, out_max=50.0))  # σ̇ [1/s]
         self.pressure = 0.0
         self._p_des: float | None = None
         self._releasing = False
         self.wsp = Wsp.FILL
-        self._ref_key = self.gen.OUTPUTS[0]
         self._slip_key = f"PLANT_CAR{i}_ADH.Slip"
         self._mu_key = f"PLANT_CAR{i}_ADH.AdhesionUsed"
-        self._own_key, self._valid_key = f"BECU{i}_PREVIEW.SigmaOptBar", f"BECU{i}_PREVIEW.Valid"
         self._last_us: int | None = None
         self._accel_key = f"PLANT_CAR{i}_SENSORS.AccelLong"
         if self.p.accel_source == "own":
@@ -163,9 +162,10 @@ class SlipBecu:
             self._advance_model(dt)
         sigma, mu, v = rx[self._slip_key], rx[self._mu_key], rx["PLANT_TRAIN.Speed"]
         q = self.p
-        own = out[self._own_key] / k2(v if math.isfinite(v) else 0.0, self.gen.p.pi2_s_per_m)
-        ref = out[self._ref_key]
-        if out[self._valid_key] and q.above_own is not None:
+        gen = self.gen
+        own = out[gen.k_sigma_bar] / k2(v if math.isfinite(v) else 0.0, gen.p.pi2_s_per_m)
+        ref = out[gen.k_slip_ref]
+        if out[gen.k_valid] and q.above_own is not None:
             ref = min(ref, (1.0 + q.above_own) * own)
         if math.isfinite(sigma) and math.isfinite(v) and math.isfinite(mu):
             self.wsp = wsp_transition(self.wsp, sigma * v, v, q.wsp)            # slip speed s = σ v
@@ -179,9 +179,9 @@ class SlipBecu:
                 quantum = q.setpoint_quantum_Pa
                 self.pressure = round(u / quantum) * quantum                # as the DBC sends it
                 self._u_applied, self._wsp_applied = self.pressure, self.wsp
-                out[self._press[0]] = self.pressure
-                out[self._press[1]] = 1.0
-                out[self._press[2]] = int(self.wsp)
+                out[self.k_pressure_set] = self.pressure
+                out[self.k_valve_cmd] = 1.0
+                out[self.k_wsp_valve] = int(self.wsp)
                 return out
             p_des = torque / q.brake_gain_Nm_per_Pa + q.preload_Pa                  # on the squeeze line
             lead = 0.0 if self._p_des is None or dt <= 0.0 else q.tp_s * (p_des - self._p_des) / dt
@@ -190,7 +190,7 @@ class SlipBecu:
             self._p_des = p_des
             release = q.hysteresis_Pa if self._releasing else 0.0
             self.pressure = min(max(p_des + lead - release, 0.0), q.p_max_Pa)
-        out[self._press[0]] = self.pressure             # nothing measured yet: 0, then the last value
-        out[self._press[1]] = 1.0
-        out[self._press[2]] = int(self.wsp)
+        out[self.k_pressure_set] = self.pressure        # nothing measured yet: 0, then the last value
+        out[self.k_valve_cmd] = 1.0
+        out[self.k_wsp_valve] = int(self.wsp)
         return out

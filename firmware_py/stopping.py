@@ -49,6 +49,7 @@ import math
 import statistics
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import ClassVar, NamedTuple
 
 from firmware_py.bcu import BcuMode, Demand, Train
 from firmware_py.brake_valve import BrakeValve, BrakeValveParams, ValvePosition
@@ -128,8 +129,8 @@ class StoppingParams:
     scan_us: int = 100_000                   # the PLC's scan cycle [µs] (chosen: a SIMATIC S7-200, §VI,
     #                                          scans a program of this size in a few ms; 100 ms is its
     #                                          usual cyclic-interrupt period for a slow loop)
-    valve_service_rate_mps3: float = BrakeValveParams.service_rate_mps3   # V: the valve's application
-    valve_release_rate_mps3: float = BrakeValveParams.release_rate_mps3   # ... and II: its release rate
+    valve_service_rate_mps3: float = BrakeValveParams().service_rate_mps3   # V: the valve's application
+    valve_release_rate_mps3: float = BrakeValveParams().release_rate_mps3   # ... and II: its release rate
     #                                          [m/s³] (firmware_py/brake_valve.py: 0.3, chosen)
     # --- adaptive search (Fig. 2), the same for both variants: work period, work step, δ, insensitivity
     # (the paper gives none of these numbers; chosen together from its text and the bench's brake, and
@@ -189,18 +190,19 @@ class Odometer:
     def __init__(self, x0_m: float, t0_us: int, latency_s: float, decel_tau_s: float = 0.5) -> None:
         self.x0, self.t0, self.latency_s, self.decel_tau_s = x0_m, t0_us, latency_s, decel_tau_s
         self.decel = 0.0                      # −dv/dt of the samples, low-passed with decel_tau_s [m/s²]
-        self.x: float | None = None           # position at the last sample's reference time
-        self.t_us: int | None = None          # the last sample's reception time
-        self.v = 0.0
+        self.t_us: int | None = None          # the last sample's reception time; None: no sample yet
+        self.x = x0_m                         # position at the last sample's reference time [m]
+        self.v = 0.0                          # the last sample [m/s]
 
     def sample(self, t_rx_us: int, v_mps: float) -> None:
         if not math.isfinite(v_mps):
             return
-        if self.x is None:
+        t_last = self.t_us
+        if t_last is None:
             # the sample describes the train latency_s before it arrived: anchor on the reference point
             self.x = self.x0 + v_mps * ((t_rx_us - self.t0) * 1e-6 - self.latency_s)
-        elif t_rx_us > self.t_us:
-            dt = (t_rx_us - self.t_us) * 1e-6
+        elif t_rx_us > t_last:
+            dt = (t_rx_us - t_last) * 1e-6
             self.x += 0.5 * (self.v + v_mps) * dt                                     # trapezoid
             self.decel += (1.0 - math.exp(-dt / self.decel_tau_s)) * ((self.v - v_mps) / dt - self.decel)
         else:
@@ -208,7 +210,7 @@ class Odometer:
         self.t_us, self.v = t_rx_us, v_mps
 
     def position(self, now_us: int) -> float:
-        if self.x is None:
+        if self.t_us is None:
             return self.x0
         return self.x + self.v * ((now_us - self.t_us) * 1e-6 + self.latency_s)
 
@@ -217,12 +219,20 @@ class Odometer:
         it reads x_m then.  Returns the correction [m] (+: the odometer was behind)."""
         if not (math.isfinite(x_m) and math.isfinite(t_us)):
             return 0.0
-        if self.x is None:                  # no speed sample yet: the balise is the new reference point
+        if self.t_us is None:               # no speed sample yet: the balise is the new reference point
             self.x0, self.t0 = x_m, round(t_us)
             return 0.0
         shift = x_m - (self.x + self.v * ((t_us - self.t_us) * 1e-6 + self.latency_s))
         self.x += shift
         return shift
+
+
+class CurvePoint(NamedTuple):
+    """The theoretical braking curve at one time (§VI)."""
+
+    s_m: float            # S_th: path from the curve's start [m]
+    v_mps: float          # V_th: speed [m/s]
+    a_mps2: float         # a_th: deceleration [m/s²]
 
 
 @dataclass(frozen=True)
@@ -240,15 +250,16 @@ class Curve:
         """The curve's end (V_th = 0) [µs]."""
         return self.t0_us + (self.v0_mps / self.a_mps2 * 1e6 if self.a_mps2 > 0.0 else math.inf)
 
-    def state(self, now_us: float) -> tuple[float, float, float]:
+    def state(self, now_us: float) -> CurvePoint:
         """(S_th, V_th, a_th): path [m] from the curve's start, speed [m/s] and deceleration [m/s²] at now_us;
         before the start the train coasts at v0, after the end it stands at d0."""
         tau = (now_us - self.t0_us) * 1e-6
         if tau < 0.0:
-            return self.v0_mps * tau, self.v0_mps, 0.0
+            return CurvePoint(self.v0_mps * tau, self.v0_mps, 0.0)
         if now_us >= self.end_us:
-            return self.d0_m, 0.0, 0.0
-        return self.v0_mps * tau - 0.5 * self.a_mps2 * tau * tau, self.v0_mps - self.a_mps2 * tau, self.a_mps2
+            return CurvePoint(self.d0_m, 0.0, 0.0)
+        return CurvePoint(self.v0_mps * tau - 0.5 * self.a_mps2 * tau * tau, self.v0_mps - self.a_mps2 * tau,
+                          self.a_mps2)
 
     def at(self, now_us: float) -> tuple[float, float]:
         """(S_th, V_th) at now_us (not before the curve's start)."""
@@ -301,9 +312,9 @@ class AdaptiveSearch:
         the train's path extrapolated with V and a (to its standstill when that comes first) minus the
         curve's path at t + T_d, = e + T_d·ė + T_d²/2·ë while neither stops."""
         if not self.diff:
-            return s_m - self.curve.state(now_us)[0]
+            return s_m - self.curve.state(now_us).s_m
         h = self.p.diff_horizon_s
-        return s_m + braked_path(v_mps, a_mps2, h) - self.curve.state(now_us + h * 1e6)[0]
+        return s_m + braked_path(v_mps, a_mps2, h) - self.curve.state(now_us + h * 1e6).s_m
 
     def expected_quality(self, now_us: int, s_m: float, v_mps: float, a_mps2: float, q: float) -> float:
         """What Q will be at the next evaluation if the work step has no effect: the plain search expects
@@ -365,14 +376,19 @@ class StoppingController:
         self.state = StopState.OFF
         self.odometer = Odometer(p.start_position_m, p.start_time_us, p.speed_latency_s, p.diff_tau_s)
         self.target_m: float | None = None
-        self.curve: Curve | None = None
+        self.curve: Curve | None = None            # the braking curve followed; None: not following
         self.command = 0.0
         self.pi = PI(p.pi)
-        self.search: AdaptiveSearch | None = None
+        self.search: AdaptiveSearch | None = None  # the adaptive methods' search along the curve
         self.valve = BrakeValve(p.valve)
-        self.valve_position: ValvePosition | None = None if p.method == "pi" else ValvePosition.RELEASE
+        self._valve_position = ValvePosition.RELEASE   # the adaptive methods' position in force
         self._next_scan_us = 0
         self.quality = math.nan
+
+    @property
+    def valve_position(self) -> ValvePosition | None:
+        """The brake valve position in force (the adaptive methods; None for pi)."""
+        return None if self.p.method == "pi" else self._valve_position
 
     def step(self, now_us: int, dt_s: float, *, target_valid: bool, target_m: float, emergency: bool,
              standstill: bool, train_speed_mps: float) -> StopOutput:
@@ -392,50 +408,62 @@ class StoppingController:
                                            curve_reached=curve_reached)
         ref_speed = math.nan
         if self.state == StopState.FOLLOWING:
-            if before != StopState.FOLLOWING or new_target:
-                self._start_curve(now_us, x, v, togo)
-            ref_speed = self._follow(now_us, dt_s, x, v, togo)
+            curve, search = self.curve, self.search
+            if curve is None or before != StopState.FOLLOWING or new_target:
+                curve, search = self._start_curve(now_us, x, v, togo)
+            if search is None:                                  # pi: the curve tracked on distance to go
+                ref_speed = self._track(curve, dt_s, v, togo)
+            else:
+                ref_speed = self._scan(curve, search, now_us, dt_s, x, v)
         elif self.state == StopState.STOPPED:
             self.command = p.hold_decel_mps2
             if p.method != "pi":
-                self.valve_position = ValvePosition.SERVICE
+                self._valve_position = ValvePosition.SERVICE
                 self.valve.demand = self.command
         else:
             self.command, self.curve, self.search, self.quality = 0.0, None, None, math.nan
             if p.method != "pi":
-                self.valve_position, self.valve.demand = ValvePosition.RELEASE, 0.0
+                self._valve_position, self.valve.demand = ValvePosition.RELEASE, 0.0
         return StopOutput(self.state, self.command, togo, ref_speed, self.quality, self.valve_position)
 
-    def _start_curve(self, now_us: int, x: float, v: float, togo: float) -> None:
+    def _start_curve(self, now_us: int, x: float, v: float,
+                     togo: float) -> tuple[Curve, AdaptiveSearch | None]:
+        """A new braking curve from here, and for the adaptive methods a new search along it."""
         p = self.p
-        self.curve = braking_curve(now_us, x, v, togo, p)
+        curve = self.curve = braking_curve(now_us, x, v, togo, p)
         if p.method == "pi":
             d0 = max(togo, 0.01)
-            self.command = min(self.curve.a_mps2, p.max_decel_mps2)     # the desired braking acceleration
+            self.command = min(curve.a_mps2, p.max_decel_mps2)          # the desired braking acceleration
             # bumpless: the first PI output is the curve's deceleration, with the feed-forward v²/(2 d0) in it
             self.pi.handover(self.command, feedforward=min(v * v / (2.0 * d0), p.max_decel_mps2))
-        else:
-            self.search = AdaptiveSearch(p, self.curve, diff=p.method == "adaptive_diff")
-            self.search.model.demand = self.valve.demand                # a new target while braking
-            self._next_scan_us = now_us
+            return curve, None
+        search = self.search = AdaptiveSearch(p, curve, diff=p.method == "adaptive_diff")
+        search.model.demand = self.valve.demand                         # a new target while braking
+        self._next_scan_us = now_us
+        return curve, search
 
-    def _follow(self, now_us: int, dt_s: float, x: float, v: float, togo: float) -> float:
-        p, curve = self.p, self.curve
-        if p.method == "pi":
-            s = max(togo, 0.0)
-            ref = math.sqrt(2.0 * curve.a_mps2 * s)
-            if togo > p.final_distance_m:
-                ff = v * v / (2.0 * togo)
-            else:
-                ff = p.max_decel_mps2 if togo <= 0.0 else v * v / (2.0 * p.final_distance_m)
-            self.command = self.pi.update(v - ref, dt_s, feedforward=clip(ff, 0.0, p.max_decel_mps2))
-            return ref
+    def _track(self, curve: Curve, dt_s: float, v: float, togo: float) -> float:
+        """The pi method's cycle: the feed-forward v²/(2 s) plus the PI on the speed error to V_th(s)."""
+        p = self.p
+        s = max(togo, 0.0)
+        ref = math.sqrt(2.0 * curve.a_mps2 * s)
+        if togo > p.final_distance_m:
+            ff = v * v / (2.0 * togo)
+        else:
+            ff = p.max_decel_mps2 if togo <= 0.0 else v * v / (2.0 * p.final_distance_m)
+        self.command = self.pi.update(v - ref, dt_s, feedforward=clip(ff, 0.0, p.max_decel_mps2))
+        return ref
+
+    def _scan(self, curve: Curve, search: AdaptiveSearch, now_us: int, dt_s: float, x: float,
+              v: float) -> float:
+        """The adaptive methods' cycle: a PLC scan when one is due, the valve's position into the command."""
+        p = self.p
         if now_us >= self._next_scan_us:                       # one PLC scan
-            self.valve_position = self.search.scan(now_us, x - curve.x0_m, v, self.odometer.decel)
-            self.quality = self.search.quality
+            self._valve_position = search.scan(now_us, x - curve.x0_m, v, self.odometer.decel)
+            self.quality = search.quality
             self._next_scan_us += p.scan_us * max(1, (now_us - self._next_scan_us) // p.scan_us + 1)
-        self.command = self.valve.step(dt_s, self.valve_position)
-        return curve.state(now_us)[1]
+        self.command = self.valve.step(dt_s, self._valve_position)
+        return curve.state(now_us).v_mps
 
 
 # the BCU_STOP frame's signals and StopState in BCU_STATUS
@@ -450,7 +478,7 @@ class StoppingDemand:
     theoretical braking curve; it sends where it believes the train is against its target and curve
     (BCU_STOP) and its state (BCU_STATUS.StopState)."""
 
-    OUTPUTS = STOP_OUTPUTS
+    OUTPUTS: ClassVar[tuple[str, ...]] = STOP_OUTPUTS
 
     def __init__(self, p: StoppingParams) -> None:
         self.p = p
@@ -468,7 +496,7 @@ class StoppingDemand:
         and that bias integrates."""
         t_rx = train.status_rx_us
         odo_speed = statistics.median(train.known_mps) if train.known_mps else math.nan
-        if t_rx is not None and t_rx != self._odo_rx_us and odo_speed == odo_speed:
+        if t_rx is not None and t_rx != self._odo_rx_us and not math.isnan(odo_speed):
             self.controller.odometer.sample(t_rx, odo_speed)
             self._odo_rx_us = t_rx
         if self.p.balises:
@@ -479,12 +507,12 @@ class StoppingDemand:
         so = self.out = self.controller.step(
             now_us, train.dt_s, target_valid=valid >= 0.5 and ok, target_m=target_m,
             emergency=train.desk_emergency or train.mode == BcuMode.EMERGENCY, standstill=train.standstill,
-            train_speed_mps=speed if speed == speed else 0.0)
+            train_speed_mps=0.0 if math.isnan(speed) else speed)
         out.update(StopState=int(so.state),
-                   DistanceToGo=so.distance_to_go_m if so.distance_to_go_m == so.distance_to_go_m else 0.0,
-                   RefSpeed=so.ref_speed_mps if so.ref_speed_mps == so.ref_speed_mps else 0.0,
+                   DistanceToGo=0.0 if math.isnan(so.distance_to_go_m) else so.distance_to_go_m,
+                   RefSpeed=0.0 if math.isnan(so.ref_speed_mps) else so.ref_speed_mps,
                    StopCommand=so.command_mps2, BalisesSeen=self.balises_seen % 16,
-                   SearchQ=min(so.quality, 127.5) if so.quality == so.quality else 0.0)
+                   SearchQ=0.0 if math.isnan(so.quality) else min(so.quality, 127.5))
         braking = so.state in (StopState.FOLLOWING, StopState.STOPPED)    # or holding the train at the stop
         return Demand(so.command_mps2 if braking else 0.0, braking)
 

@@ -51,7 +51,7 @@ class WspParams:
     # vent early, once the slip passes early_vent_fraction of the vent threshold while the axle
     # decelerates faster than early_vent_decel_mps2, which no car does (a slide's onset: venting then
     # keeps the slide shallow)
-    mode: WspMode = WspMode.DUMP
+    mode: WspMode | str = WspMode.DUMP      # the enum or its value ("slip")
     ceiling_fraction: float = 0.9          # (chosen)
     ceiling_rise_Pa_per_s: float = 50e3    # 0.5 bar/s (chosen: railhil wsp-test)
     ceiling_release_s: float = 0.45        # [s] (chosen: railhil wsp-test, sudden change of adhesion)

@@ -210,7 +210,8 @@ def test_the_compiled_prediction_is_the_python_loop_to_the_bit():
     """predict_loop runs compiled (numba); as plain Python (its py_func, what NUMBA_DISABLE_JIT=1 runs) it
     gives the same peak torque and settled flag, bit for bit, on random states, references, resistances and
     vertices."""
-    from firmware_py.governor import VERTEX_CODES, predict_loop
+    from firmware_py.governor import VERTEX_CODES
+    from firmware_py.governor_kernel import predict_loop
 
     rng = random.Random(7)
     pi = GP.pi

@@ -1,5 +1,6 @@
 """The receive table controllers read their inputs from (firmware_py.rx.RxTable)."""
 
+import enum
 import math
 
 from firmware_py.rx import RxTable
@@ -41,3 +42,22 @@ def test_copy_from_takes_values_and_reception_times_from_another_table():
     assert rx["RADIO_SIGNAL.Aspect"] == 2.0 and rx.age_us("RADIO_SIGNAL.Aspect", 150_000) == 50_000
     assert math.isnan(rx["RADIO_LEADER_INFO.Speed"]) and rx.age_us("RADIO_LEADER_INFO.Speed", 150_000) is None
     assert rx["OwnSpeed"] == 20.0 and rx.age_us("OwnSpeed", 150_000) == 150_000
+
+
+def test_a_copy_is_the_table_as_it_was_and_later_receptions_change_only_one_of_them():
+    class Status(enum.Enum):             # stands in for hil.can.e2e.Status
+        OK = 0
+        WRONGSEQUENCE = 1
+
+    rx = RxTable.received({"AxleSpeed": 30.0, "TargetDecel": 0.5}, 10_000)
+    rx.e2e["BCU_DEMAND"] = Status.OK
+    snap = rx.copy()
+    assert dict(snap) == dict(rx) and snap.version == rx.version and snap.e2e == {"BCU_DEMAND": Status.OK}
+    assert snap.age_us("AxleSpeed", 30_000) == 20_000
+    rx.receive({"AxleSpeed": 29.0, "TargetDecel": NAN, "Other": 1.0}, 20_000)
+    rx.e2e["BCU_DEMAND"] = Status.WRONGSEQUENCE
+    assert snap["AxleSpeed"] == 30.0 and snap.age_us("AxleSpeed", 30_000) == 20_000
+    assert snap["TargetDecel"] == 0.5 and snap.age_us("TargetDecel", 30_000) == 20_000
+    assert "Other" not in snap and snap.version < rx.version and snap.e2e == {"BCU_DEMAND": Status.OK}
+    snap.receive({"AxleSpeed": 1.0}, 25_000)
+    assert rx["AxleSpeed"] == 29.0 and rx.age_us("AxleSpeed", 30_000) == 10_000
