@@ -1,5 +1,7 @@
 """Lockstep real-time factor of the default scenario (simulated s per wall s), with and without trace.
 
+The build that runs it (hil.build: the hot modules compiled by mypyc) against the pure build of the same
+checkout: each in a process of its own (RAILHIL_PURE=1 for the pure one), alternately, best of three.
 The trace is written as `railhil run` writes it (hil.trace.writers.open_writer: python-can's BLF format,
 packed in bulk); the same run with the trace writer off shows what writing it costs.  One more,
 instrumented run splits its wall time into the plant (plant_sim: compiled physics step and sensors),
@@ -9,17 +11,21 @@ bit-timed bus, node dispatch, codec, E2E, SecOC): the ceiling on what speeding u
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
 import sys
 import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
 
-ISSUE = "#10"                 # the issue that set the goals printed here (bench/run_all.py)
+ISSUE = "#10, #46"            # the issues that set the goals printed here (bench/run_all.py)
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import hil.runtime.lockstep as lockstep  # noqa: E402
+from hil import build  # noqa: E402
 from hil.can.codec import Codec  # noqa: E402
 from hil.can.dbc import load_dbc  # noqa: E402
 from hil.runtime.lockstep import run_lockstep  # noqa: E402
@@ -87,12 +93,24 @@ def split() -> tuple[float, dict[str, float]]:
     return wall, spent
 
 
+def in_process(pure: bool, what: str) -> dict:
+    """One measurement (`what`: "once" or "split") in a fresh process of the build asked for."""
+    env = {k: v for k, v in os.environ.items() if k != build.PURE_ENV}
+    if pure:
+        env[build.PURE_ENV] = "1"
+    proc = subprocess.run([sys.executable, __file__, what], capture_output=True, text=True, env=env,
+                          cwd=ROOT, check=True)
+    return json.loads(proc.stdout.splitlines()[-1])
+
+
 def run(repeats: int = 3) -> list[tuple[str, str]]:
     _once(False)                                   # warm-up: imports, codec generation, caches
     best = min((_once(True) for _ in range(repeats)), key=lambda r: r[1])
     sim_s, wall_s, frames = best
     no_trace = min((_once(False) for _ in range(repeats)), key=lambda r: r[1])
+    state = build.state()
     rows = [
+        ("build", state.line()),
         ("lockstep default scenario: simulated", f"{sim_s:.2f} s"),
         (f"lockstep default scenario: wall (best of {repeats})", f"{wall_s:.2f} s"),
         ("lockstep real-time factor (goal ≥ 50x, stretch 100x)",
@@ -101,12 +119,38 @@ def run(repeats: int = 3) -> list[tuple[str, str]]:
         ("lockstep frames per wall second", f"{frames / wall_s:,.0f}"),
         ("lockstep real-time factor without trace writing", f"{no_trace[0] / no_trace[1]:.1f}x"),
     ]
-    wall, parts = split()
-    for part, seconds in parts.items():
-        rows.append((f"  wall share: {part}", f"{100 * seconds / wall:.0f} %"))
+    if state.mode == "compiled":                   # compiled and pure side by side, alternately
+        load = os.getloadavg()[0]
+        compiled, pure = [], []
+        for _ in range(repeats):
+            compiled.append(in_process(False, "once"))
+            pure.append(in_process(True, "once"))
+        c = max(r["sim_s"] / r["wall_s"] for r in compiled)
+        p = max(r["sim_s"] / r["wall_s"] for r in pure)
+        rows += [
+            ("1-min load average at the start of the side-by-side runs", f"{load:.1f}"),
+            (f"  compiled build: real-time factor (own process, best of {repeats}; goal ≥ 45x)",
+             f"{c:.1f}x: {'met' if c >= 45 else 'NOT met'}"),
+            (f"  pure build (RAILHIL_PURE=1): real-time factor (best of {repeats})", f"{p:.1f}x"),
+            ("  compiled / pure (goal ≥ 2x)", f"{c / p:.2f}x: {'met' if c / p >= 2 else 'NOT met'}"),
+        ]
+    else:
+        rows.append(("compiled / pure", f"not measured: this build is pure ({state.reason})"))
+    parts = in_process(True, "split")
+    for part, seconds in parts["spent"].items():
+        rows.append((f"  wall share, pure build: {part}", f"{100 * seconds / parts['wall_s']:.0f} %"))
     return rows
 
 
 if __name__ == "__main__":
-    for label, figure in run():
-        print(f"{label:<62} {figure}")
+    if sys.argv[1:] == ["once"]:                   # in_process: warm-up, then one traced run
+        _once(False)
+        sim_s, wall_s, frames = _once(True)
+        print(json.dumps({"sim_s": sim_s, "wall_s": wall_s, "frames": frames}))
+    elif sys.argv[1:] == ["split"]:                # wrappers on the instances: the pure build only
+        _once(False)
+        wall, spent = split()
+        print(json.dumps({"wall_s": wall, "spent": spent}))
+    else:
+        for label, figure in run():
+            print(f"{label:<62} {figure}")
