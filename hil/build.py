@@ -36,8 +36,32 @@ from pathlib import Path
 
 #: the modules compiled by mypyc, as paths from the repository root (setup.py, [tool.mypy] files)
 COMPILED: tuple[str, ...] = (
+    "firmware_py/acd.py",
+    "firmware_py/bcu.py",
+    "firmware_py/becu.py",
+    "firmware_py/brake_valve.py",
+    "firmware_py/consensus.py",
+    "firmware_py/constants.py",
+    "firmware_py/cycle.py",
+    "firmware_py/decel_feedback.py",
+    "firmware_py/ekf.py",
+    "firmware_py/governor.py",
+    "firmware_py/limits.py",
+    "firmware_py/pi.py",
+    "firmware_py/preview.py",
+    "firmware_py/reference_speed.py",
+    "firmware_py/rx.py",
     "firmware_py/sensor_checks.py",
+    "firmware_py/slipctl.py",
+    "firmware_py/stopping.py",
     "firmware_py/wsp.py",
+    "hil/can/bustiming.py",
+    "hil/can/e2e.py",
+    "hil/can/secoc.py",
+    "hil/runtime/lockstep.py",
+    "hil/runtime/node.py",
+    "hil/runtime/plant_node.py",
+    "hil/runtime/release.py",
 )
 
 PURE_ENV = "RAILHIL_PURE"               # set (to anything but "" or "0"): run pure Python
