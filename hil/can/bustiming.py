@@ -29,31 +29,15 @@ from __future__ import annotations
 import heapq
 from dataclasses import dataclass, field
 
-import numba
-import numpy as np
-
 from hil.can.busload import arbitration_key, frame_bits
+from hil.can.stuffing import CRC15_POLY, CRC_TABLE, STUFF_TABLES, load_payload_bits, payload_bits
 
 __all__ = ["STUFFING_MODES", "BitTimedBus", "FrameBits", "Pending", "arbitration_key", "crc15",
            "exact_frame_bits", "frame_duration_bits", "stuff_bits"]
 
 STUFFING_MODES = ("exact", "worst", "none")
-CRC15_POLY = 0x4599          # x^15 + x^14 + x^10 + x^8 + x^7 + x^4 + x^3 + 1 (CAN 2.0 spec, §3.1.1)
 UNSTUFFED_TAIL_BITS = 13     # CRC delimiter, ACK slot, ACK delimiter, EOF (7), interframe space (3)
 IFS_BITS = 3                 # interframe space: after delivery, before the bus is idle
-
-
-def _crc15_table() -> list[int]:
-    table = []
-    for byte in range(256):
-        crc = byte << 7
-        for _ in range(8):
-            crc = ((crc << 1) ^ CRC15_POLY) if crc & 0x4000 else (crc << 1)
-        table.append(crc & 0x7FFF)
-    return table
-
-
-_CRC_TABLE = _crc15_table()
 
 
 def crc15(value: int, nbits: int) -> int:
@@ -71,39 +55,8 @@ def crc15(value: int, nbits: int) -> int:
         if top ^ bit:
             crc ^= CRC15_POLY
     for shift in range(nbits - lead - 8, -1, -8):
-        crc = ((crc << 8) & 0x7FFF) ^ _CRC_TABLE[((crc >> 7) ^ (value >> shift)) & 0xFF]
+        crc = ((crc << 8) & 0x7FFF) ^ CRC_TABLE[((crc >> 7) ^ (value >> shift)) & 0xFF]
     return crc
-
-
-# Stuffing as a state machine over (last bit, run length 0..5), 8 bits at a time: state index
-# last * 6 + run; run 0 only before the first bit.  One table per chunk width 1..8.
-def _stuff_tables() -> list[list[tuple[int, int]]]:
-    tables: list[list[tuple[int, int]]] = [[]]
-    for width in range(1, 9):
-        table = []
-        for state in range(12):
-            for chunk in range(1 << width):
-                last, run = divmod(state, 6)
-                stuffs = 0
-                for i in range(width - 1, -1, -1):
-                    bit = (chunk >> i) & 1
-                    if run and bit == last:
-                        run += 1
-                    else:
-                        last, run = bit, 1
-                    if run == 5:            # five equal bits: a complement bit follows
-                        stuffs += 1
-                        last, run = 1 - last, 1
-                table.append((last * 6 + run, stuffs))
-        tables.append(table)
-    return tables
-
-
-_STUFF = _stuff_tables()
-# the tables as arrays, for compiled code (`_payload_bits`)
-_CRC_NP = np.array(_CRC_TABLE, dtype=np.int64)
-_STUFF8_STATE, _STUFF8_N = (np.array(col, dtype=np.int64) for col in zip(*_STUFF[8], strict=True))
-_STUFF7_STATE, _STUFF7_N = (np.array(col, dtype=np.int64) for col in zip(*_STUFF[7], strict=True))
 
 
 def _stuff_run(state: int, value: int, nbits: int) -> tuple[int, int]:
@@ -112,8 +65,8 @@ def _stuff_run(state: int, value: int, nbits: int) -> tuple[int, int]:
     total = 0
     lead = nbits % 8
     if lead:
-        state, total = _STUFF[lead][(state << lead) | (value >> (nbits - lead))]
-    table = _STUFF[8]
+        state, total = STUFF_TABLES[lead][(state << lead) | (value >> (nbits - lead))]
+    table = STUFF_TABLES[8]
     for shift in range(nbits - lead - 8, -1, -8):
         state, n = table[(state << 8) | ((value >> shift) & 0xFF)]
         total += n
@@ -132,7 +85,8 @@ class FrameBits:
     and stuffing state are computed once; `bits(payload)` then runs the CRC-15 and the stuffing state
     machine over the payload a byte at a time, and over the 15 CRC bits.  The same bits as stuffing the
     whole frame at once (`exact_frame_bits`, which is built on this), in about a fifth of the time: the
-    lockstep bus sizes every frame this way (payloads rarely repeat: alive counters and MACs).
+    lockstep bus sizes every frame this way (payloads rarely repeat: alive counters and MACs), by
+    `hil.can.stuffing.payload_bits`, which numba compiles.
     """
 
     __slots__ = ("payload_bytes", "_crc", "_state", "_stuffs", "_fixed")
@@ -156,20 +110,7 @@ class FrameBits:
 
     def bits(self, payload: bytes) -> int:
         """Bit times of the frame with this payload (`payload_bytes` long), interframe space included."""
-        return _payload_bits(self._crc, self._state, self._stuffs, self._fixed, payload)
-
-
-@numba.njit(cache=True)
-def _payload_bits(crc: int, state: int, total: int, fixed: int, payload: bytes) -> int:
-    """`FrameBits.bits` compiled (numba: ~0.3 µs a frame against ~2.5 µs interpreted): the CRC-15 and
-    the stuffing state machine over the payload a byte at a time, then over the 15 CRC bits (7, then 8)."""
-    for byte in payload:
-        crc = ((crc << 8) & 0x7FFF) ^ _CRC_NP[((crc >> 7) ^ byte) & 0xFF]
-        k = (state << 8) | byte
-        state, total = _STUFF8_STATE[k], total + _STUFF8_N[k]
-    k = (state << 7) | (crc >> 8)
-    state, total = _STUFF7_STATE[k], total + _STUFF7_N[k]
-    return fixed + total + _STUFF8_N[(state << 8) | (crc & 0xFF)]
+        return payload_bits(self._crc, self._state, self._stuffs, self._fixed, payload)
 
 
 def exact_frame_bits(frame_id: int, extended: bool, data: bytes, remote: bool = False,
@@ -244,8 +185,7 @@ class BitTimedBus:
         self._worst = {}          # (dlc, extended) -> bits, for the "worst"/"none" models
         self._exact: dict[int, FrameBits] = {}   # (id, extended, length) -> its FrameBits
         self._spans: dict[int, tuple[int, int]] = {}   # bits -> (until delivery, until idle) [ns]
-        if not getattr(_payload_bits, "signatures", True):   # its machine code loaded now, not in the run
-            _payload_bits(0, 0, 0, 0, b"")
+        load_payload_bits()
 
     def duration_ns(self, bits: int) -> int:
         """Bit times -> ns at the bitrate, rounded to the nearest ns."""
