@@ -27,7 +27,7 @@ counted, and is a deadline miss.
 from __future__ import annotations
 
 import heapq
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from hil.can.busload import arbitration_key, frame_bits
 from hil.can.stuffing import CRC15_POLY, CRC_TABLE, STUFF_TABLES, load_payload_bits, payload_bits
@@ -90,6 +90,11 @@ class FrameBits:
     """
 
     __slots__ = ("payload_bytes", "_crc", "_state", "_stuffs", "_fixed")
+    payload_bytes: int
+    _crc: int           # the CRC register after the head
+    _state: int         # the stuffing state after the head
+    _stuffs: int        # stuff bits in the head
+    _fixed: int         # the frame's bits without stuffing
 
     def __init__(self, frame_id: int, extended: bool, dlc: int, payload_bytes: int,
                  remote: bool = False) -> None:
@@ -104,7 +109,7 @@ class FrameBits:
             head = ((frame_id << 3 | rtr << 2) << 4) | (dlc & 0xF)
             head_bits = 1 + 11 + 3 + 4
         self.payload_bytes = payload_bytes
-        self._crc = crc15(head, head_bits)                      # the CRC register after the head
+        self._crc = crc15(head, head_bits)
         self._state, self._stuffs = _stuff_run(0, head, head_bits)
         self._fixed = head_bits + 8 * payload_bytes + 15 + UNSTUFFED_TAIL_BITS
 
@@ -142,7 +147,9 @@ class Pending:
     data: bytes
     released_ns: int          # entered the transmit queue
     window_ns: int            # start of its release window (nominal release - max early jitter)
-    item: object = None       # what the runner needs at delivery (the frame's codec)
+    # what the runner needs at delivery (the frame's codec); `object | None`, not `object`, which mypyc's
+    # dataclass support cannot name at import (KeyError: 'object', mypyc 2.4)
+    item: object | None = None
     key: int = 0
     overwritten: bool = False
 
@@ -160,31 +167,42 @@ class MessageBusStats:
     bits: int = 0
 
 
-@dataclass
 class BitTimedBus:
     """Transmit queues, arbitration and frame timing; `hil.runtime.lockstep` calls enqueue/arbitrate."""
 
     bitrate_bps: int
     n_nodes: int
-    stuffing: str = "exact"
-    deadlines_ns: dict[int, int] = field(default_factory=dict)   # frame id -> deadline (its cycle)
-    idle_at_ns: int = 0
-    busy_ns: int = 0
-    stats: dict[int, MessageBusStats] = field(default_factory=dict)
+    stuffing: str                                  # one of STUFFING_MODES (module docstring)
+    deadlines_ns: dict[int, int]                   # frame id -> deadline (its cycle)
+    idle_at_ns: int                                # the bus is busy until then
+    busy_ns: int                                   # time the bus has carried frames so far
+    stats: dict[int, MessageBusStats]              # frame id -> what the bus did to its frames
+    # Every node's queue is ordered by priority, so the head that wins arbitration is the lowest key among
+    # all waiting frames: one heap of them all (key, sequence, frame) gives the same winner in O(log n).
+    _heap: list[tuple[int, int, Pending]]
+    _waiting: dict[tuple[int, int, bool], Pending]  # (node, frame id, extended) -> its frame in the queue
+    _seq: int                                      # frames enqueued so far
+    _worst: dict[tuple[int, bool], int]            # (length, extended) -> bits, the "worst"/"none" models
+    _exact: dict[tuple[int, bool, int], FrameBits]  # (frame id, extended, length) -> its FrameBits
 
-    def __post_init__(self) -> None:
-        if self.stuffing not in STUFFING_MODES:
-            raise ValueError(f"stuffing must be one of {', '.join(STUFFING_MODES)}, got {self.stuffing!r}")
-        if self.bitrate_bps <= 0:
-            raise ValueError(f"bitrate must be positive, got {self.bitrate_bps}")
-        # Every node's queue is ordered by priority, so the head that wins arbitration is the lowest
-        # key among all waiting frames: one heap of them all gives the same winner in O(log n).
-        self._heap: list[tuple[int, int, Pending]] = []
-        self._waiting: dict[tuple[int, int, bool], Pending] = {}
+    def __init__(self, bitrate_bps: int, n_nodes: int, stuffing: str = "exact",
+                 deadlines_ns: dict[int, int] | None = None) -> None:
+        if stuffing not in STUFFING_MODES:
+            raise ValueError(f"stuffing must be one of {', '.join(STUFFING_MODES)}, got {stuffing!r}")
+        if bitrate_bps <= 0:
+            raise ValueError(f"bitrate must be positive, got {bitrate_bps}")
+        self.bitrate_bps = bitrate_bps
+        self.n_nodes = n_nodes
+        self.stuffing = stuffing
+        self.deadlines_ns = {} if deadlines_ns is None else deadlines_ns
+        self.idle_at_ns = 0
+        self.busy_ns = 0
+        self.stats = {}
+        self._heap = []
+        self._waiting = {}
         self._seq = 0
-        self._worst = {}          # (dlc, extended) -> bits, for the "worst"/"none" models
-        self._exact: dict[int, FrameBits] = {}   # (id, extended, length) -> its FrameBits
-        self._spans: dict[int, tuple[int, int]] = {}   # bits -> (until delivery, until idle) [ns]
+        self._worst = {}
+        self._exact = {}
         load_payload_bits()
 
     def duration_ns(self, bits: int) -> int:
@@ -192,20 +210,22 @@ class BitTimedBus:
         return (bits * 1_000_000_000 + self.bitrate_bps // 2) // self.bitrate_bps
 
     def frame_bits(self, p: Pending) -> int:
+        """Bit times of the frame `p` by the bus's stuffing model, interframe space included; the exact
+        model keeps one FrameBits per (identifier, format, length) and runs only the payload through it."""
         data = p.data
-        if self.stuffing == "exact" and len(data) <= 8:
-            key = (p.frame_id << 5) | (p.extended << 4) | len(data)
-            plan = self._exact.get(key)
-            if plan is None:
-                plan = self._exact[key] = FrameBits(p.frame_id, p.extended, len(data), len(data))
-            return plan.bits(data)
-        if self.stuffing == "exact":
+        if self.stuffing != "exact":
+            size = (len(data), p.extended)
+            bits = self._worst.get(size)
+            if bits is None:
+                bits = self._worst[size] = frame_duration_bits(p.frame_id, p.extended, data, self.stuffing)
+            return bits
+        if len(data) > 8:
             return exact_frame_bits(p.frame_id, p.extended, data)
-        key = (len(data), p.extended)
-        bits = self._worst.get(key)
-        if bits is None:
-            bits = self._worst[key] = frame_duration_bits(p.frame_id, p.extended, data, self.stuffing)
-        return bits
+        shape = (p.frame_id, p.extended, len(data))
+        plan = self._exact.get(shape)
+        if plan is None:
+            plan = self._exact[shape] = FrameBits(p.frame_id, p.extended, len(data), len(data))
+        return plan.bits(data)
 
     def _stats(self, frame_id: int) -> MessageBusStats:
         s = self.stats.get(frame_id)
@@ -215,18 +235,15 @@ class BitTimedBus:
 
     def enqueue(self, p: Pending) -> None:
         """Put a released frame into its node's transmit queue (replacing a waiting older instance)."""
-        fid = p.frame_id
-        # arbitration_key(fid, p.extended), inlined: the lockstep bus enqueues every frame of a run
-        p.key = ((fid >> 18) << 19) | (1 << 18) | (fid & 0x3FFFF) if p.extended else fid << 19
-        slot = (p.node, fid, p.extended)
-        waiting = self._waiting
-        old = waiting.get(slot)
+        p.key = arbitration_key(p.frame_id, p.extended)
+        slot = (p.node, p.frame_id, p.extended)
+        old = self._waiting.get(slot)
         if old is not None:
             old.overwritten = True          # lazily dropped from the queue heap
-            s = self._stats(fid)
+            s = self._stats(p.frame_id)
             s.overwritten += 1
             s.deadline_misses += 1
-        waiting[slot] = p
+        self._waiting[slot] = p
         self._seq += 1
         heapq.heappush(self._heap, (p.key, self._seq, p))
 
@@ -253,25 +270,17 @@ class BitTimedBus:
         best = heapq.heappop(heap)[2]
         del self._waiting[(best.node, best.frame_id, best.extended)]
         bits = self.frame_bits(best)
-        spans = self._spans.get(bits)
-        if spans is None:
-            spans = self._spans[bits] = (self.duration_ns(bits - IFS_BITS), self.duration_ns(bits))
-        deliver = now_ns + spans[0]
-        end = now_ns + spans[1]
+        deliver = now_ns + self.duration_ns(bits - IFS_BITS)
+        end = now_ns + self.duration_ns(bits)
         self.idle_at_ns = end
-        self.busy_ns += spans[1]
-        s = self.stats.get(best.frame_id)
-        if s is None:
-            s = self._stats(best.frame_id)
+        self.busy_ns += end - now_ns
+        s = self._stats(best.frame_id)
         s.frames += 1
         s.bits += bits
         response = end - best.window_ns
-        if response > s.response_max_ns:
-            s.response_max_ns = response
+        s.response_max_ns = max(s.response_max_ns, response)
         s.response_sum_ns += response
-        queued = now_ns - best.released_ns
-        if queued > s.queued_max_ns:
-            s.queued_max_ns = queued
+        s.queued_max_ns = max(s.queued_max_ns, now_ns - best.released_ns)
         deadline = self.deadlines_ns.get(best.frame_id)
         if deadline is not None and response > deadline:
             s.deadline_misses += 1
