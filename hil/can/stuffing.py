@@ -78,7 +78,8 @@ def _payload_bits(crc: int, state: int, total: int, fixed: int, payload: bytes) 
         state, total = _STUFF8_STATE[k], total + _STUFF8_N[k]
     k = (state << 7) | (crc >> 8)
     state, total = _STUFF7_STATE[k], total + _STUFF7_N[k]
-    return fixed + total + _STUFF8_N[(state << 8) | (crc & 0xFF)]
+    # int(): interpreted (NUMBA_DISABLE_JIT) the sum is a numpy.int64, which compiled bustiming refuses
+    return int(fixed + total + _STUFF8_N[(state << 8) | (crc & 0xFF)])
 
 
 #: `_payload_bits` compiled by numba: ~0.3 µs a frame against ~2.5 µs interpreted.  The lockstep bus
