@@ -7,5 +7,6 @@
 - `attributes` what the DBC's attributes say of a message: its E2E and SecOC, the signals its node fills
 - `busload`   frame lengths and the static bus load of a DBC
 - `bustiming` the bit-timed lockstep bus: durations, arbitration, transmit queues
+- `stuffing`  CRC-15 and bit stuffing of a frame's bits, the tables and their numba kernel (bustiming's)
 - `rta`       worst-case response-time analysis (Davis et al. 2007)
 """

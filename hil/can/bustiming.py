@@ -27,33 +27,17 @@ counted, and is a deadline miss.
 from __future__ import annotations
 
 import heapq
-from dataclasses import dataclass, field
-
-import numba
-import numpy as np
+from dataclasses import dataclass
 
 from hil.can.busload import arbitration_key, frame_bits
+from hil.can.stuffing import CRC15_POLY, CRC_TABLE, STUFF_TABLES, load_payload_bits, payload_bits
 
 __all__ = ["STUFFING_MODES", "BitTimedBus", "FrameBits", "Pending", "arbitration_key", "crc15",
            "exact_frame_bits", "frame_duration_bits", "stuff_bits"]
 
 STUFFING_MODES = ("exact", "worst", "none")
-CRC15_POLY = 0x4599          # x^15 + x^14 + x^10 + x^8 + x^7 + x^4 + x^3 + 1 (CAN 2.0 spec, §3.1.1)
 UNSTUFFED_TAIL_BITS = 13     # CRC delimiter, ACK slot, ACK delimiter, EOF (7), interframe space (3)
 IFS_BITS = 3                 # interframe space: after delivery, before the bus is idle
-
-
-def _crc15_table() -> list[int]:
-    table = []
-    for byte in range(256):
-        crc = byte << 7
-        for _ in range(8):
-            crc = ((crc << 1) ^ CRC15_POLY) if crc & 0x4000 else (crc << 1)
-        table.append(crc & 0x7FFF)
-    return table
-
-
-_CRC_TABLE = _crc15_table()
 
 
 def crc15(value: int, nbits: int) -> int:
@@ -71,39 +55,8 @@ def crc15(value: int, nbits: int) -> int:
         if top ^ bit:
             crc ^= CRC15_POLY
     for shift in range(nbits - lead - 8, -1, -8):
-        crc = ((crc << 8) & 0x7FFF) ^ _CRC_TABLE[((crc >> 7) ^ (value >> shift)) & 0xFF]
+        crc = ((crc << 8) & 0x7FFF) ^ CRC_TABLE[((crc >> 7) ^ (value >> shift)) & 0xFF]
     return crc
-
-
-# Stuffing as a state machine over (last bit, run length 0..5), 8 bits at a time: state index
-# last * 6 + run; run 0 only before the first bit.  One table per chunk width 1..8.
-def _stuff_tables() -> list[list[tuple[int, int]]]:
-    tables: list[list[tuple[int, int]]] = [[]]
-    for width in range(1, 9):
-        table = []
-        for state in range(12):
-            for chunk in range(1 << width):
-                last, run = divmod(state, 6)
-                stuffs = 0
-                for i in range(width - 1, -1, -1):
-                    bit = (chunk >> i) & 1
-                    if run and bit == last:
-                        run += 1
-                    else:
-                        last, run = bit, 1
-                    if run == 5:            # five equal bits: a complement bit follows
-                        stuffs += 1
-                        last, run = 1 - last, 1
-                table.append((last * 6 + run, stuffs))
-        tables.append(table)
-    return tables
-
-
-_STUFF = _stuff_tables()
-# the tables as arrays, for compiled code (`_payload_bits`)
-_CRC_NP = np.array(_CRC_TABLE, dtype=np.int64)
-_STUFF8_STATE, _STUFF8_N = (np.array(col, dtype=np.int64) for col in zip(*_STUFF[8], strict=True))
-_STUFF7_STATE, _STUFF7_N = (np.array(col, dtype=np.int64) for col in zip(*_STUFF[7], strict=True))
 
 
 def _stuff_run(state: int, value: int, nbits: int) -> tuple[int, int]:
@@ -112,8 +65,8 @@ def _stuff_run(state: int, value: int, nbits: int) -> tuple[int, int]:
     total = 0
     lead = nbits % 8
     if lead:
-        state, total = _STUFF[lead][(state << lead) | (value >> (nbits - lead))]
-    table = _STUFF[8]
+        state, total = STUFF_TABLES[lead][(state << lead) | (value >> (nbits - lead))]
+    table = STUFF_TABLES[8]
     for shift in range(nbits - lead - 8, -1, -8):
         state, n = table[(state << 8) | ((value >> shift) & 0xFF)]
         total += n
@@ -132,10 +85,16 @@ class FrameBits:
     and stuffing state are computed once; `bits(payload)` then runs the CRC-15 and the stuffing state
     machine over the payload a byte at a time, and over the 15 CRC bits.  The same bits as stuffing the
     whole frame at once (`exact_frame_bits`, which is built on this), in about a fifth of the time: the
-    lockstep bus sizes every frame this way (payloads rarely repeat: alive counters and MACs).
+    lockstep bus sizes every frame this way (payloads rarely repeat: alive counters and MACs), by
+    `hil.can.stuffing.payload_bits`, which numba compiles.
     """
 
     __slots__ = ("payload_bytes", "_crc", "_state", "_stuffs", "_fixed")
+    payload_bytes: int
+    _crc: int           # the CRC register after the head
+    _state: int         # the stuffing state after the head
+    _stuffs: int        # stuff bits in the head
+    _fixed: int         # the frame's bits without stuffing
 
     def __init__(self, frame_id: int, extended: bool, dlc: int, payload_bytes: int,
                  remote: bool = False) -> None:
@@ -150,26 +109,13 @@ class FrameBits:
             head = ((frame_id << 3 | rtr << 2) << 4) | (dlc & 0xF)
             head_bits = 1 + 11 + 3 + 4
         self.payload_bytes = payload_bytes
-        self._crc = crc15(head, head_bits)                      # the CRC register after the head
+        self._crc = crc15(head, head_bits)
         self._state, self._stuffs = _stuff_run(0, head, head_bits)
         self._fixed = head_bits + 8 * payload_bytes + 15 + UNSTUFFED_TAIL_BITS
 
     def bits(self, payload: bytes) -> int:
         """Bit times of the frame with this payload (`payload_bytes` long), interframe space included."""
-        return _payload_bits(self._crc, self._state, self._stuffs, self._fixed, payload)
-
-
-@numba.njit(cache=True)
-def _payload_bits(crc: int, state: int, total: int, fixed: int, payload: bytes) -> int:
-    """`FrameBits.bits` compiled (numba: ~0.3 µs a frame against ~2.5 µs interpreted): the CRC-15 and
-    the stuffing state machine over the payload a byte at a time, then over the 15 CRC bits (7, then 8)."""
-    for byte in payload:
-        crc = ((crc << 8) & 0x7FFF) ^ _CRC_NP[((crc >> 7) ^ byte) & 0xFF]
-        k = (state << 8) | byte
-        state, total = _STUFF8_STATE[k], total + _STUFF8_N[k]
-    k = (state << 7) | (crc >> 8)
-    state, total = _STUFF7_STATE[k], total + _STUFF7_N[k]
-    return fixed + total + _STUFF8_N[(state << 8) | (crc & 0xFF)]
+        return payload_bits(self._crc, self._state, self._stuffs, self._fixed, payload)
 
 
 def exact_frame_bits(frame_id: int, extended: bool, data: bytes, remote: bool = False,
@@ -201,7 +147,9 @@ class Pending:
     data: bytes
     released_ns: int          # entered the transmit queue
     window_ns: int            # start of its release window (nominal release - max early jitter)
-    item: object = None       # what the runner needs at delivery (the frame's codec)
+    # what the runner needs at delivery (the frame's codec); `object | None`, not `object`, which mypyc's
+    # dataclass support cannot name at import (KeyError: 'object', mypyc 2.4)
+    item: object | None = None
     key: int = 0
     overwritten: bool = False
 
@@ -219,53 +167,65 @@ class MessageBusStats:
     bits: int = 0
 
 
-@dataclass
 class BitTimedBus:
     """Transmit queues, arbitration and frame timing; `hil.runtime.lockstep` calls enqueue/arbitrate."""
 
     bitrate_bps: int
     n_nodes: int
-    stuffing: str = "exact"
-    deadlines_ns: dict[int, int] = field(default_factory=dict)   # frame id -> deadline (its cycle)
-    idle_at_ns: int = 0
-    busy_ns: int = 0
-    stats: dict[int, MessageBusStats] = field(default_factory=dict)
+    stuffing: str                                  # one of STUFFING_MODES (module docstring)
+    deadlines_ns: dict[int, int]                   # frame id -> deadline (its cycle)
+    idle_at_ns: int                                # the bus is busy until then
+    busy_ns: int                                   # time the bus has carried frames so far
+    stats: dict[int, MessageBusStats]              # frame id -> what the bus did to its frames
+    # Every node's queue is ordered by priority, so the head that wins arbitration is the lowest key among
+    # all waiting frames: one heap of them all (key, sequence, frame) gives the same winner in O(log n).
+    _heap: list[tuple[int, int, Pending]]
+    _waiting: dict[tuple[int, int, bool], Pending]  # (node, frame id, extended) -> its frame in the queue
+    _seq: int                                      # frames enqueued so far
+    _worst: dict[tuple[int, bool], int]            # (length, extended) -> bits, the "worst"/"none" models
+    _exact: dict[tuple[int, bool, int], FrameBits]  # (frame id, extended, length) -> its FrameBits
 
-    def __post_init__(self) -> None:
-        if self.stuffing not in STUFFING_MODES:
-            raise ValueError(f"stuffing must be one of {', '.join(STUFFING_MODES)}, got {self.stuffing!r}")
-        if self.bitrate_bps <= 0:
-            raise ValueError(f"bitrate must be positive, got {self.bitrate_bps}")
-        # Every node's queue is ordered by priority, so the head that wins arbitration is the lowest
-        # key among all waiting frames: one heap of them all gives the same winner in O(log n).
-        self._heap: list[tuple[int, int, Pending]] = []
-        self._waiting: dict[tuple[int, int, bool], Pending] = {}
+    def __init__(self, bitrate_bps: int, n_nodes: int, stuffing: str = "exact",
+                 deadlines_ns: dict[int, int] | None = None) -> None:
+        if stuffing not in STUFFING_MODES:
+            raise ValueError(f"stuffing must be one of {', '.join(STUFFING_MODES)}, got {stuffing!r}")
+        if bitrate_bps <= 0:
+            raise ValueError(f"bitrate must be positive, got {bitrate_bps}")
+        self.bitrate_bps = bitrate_bps
+        self.n_nodes = n_nodes
+        self.stuffing = stuffing
+        self.deadlines_ns = {} if deadlines_ns is None else deadlines_ns
+        self.idle_at_ns = 0
+        self.busy_ns = 0
+        self.stats = {}
+        self._heap = []
+        self._waiting = {}
         self._seq = 0
-        self._worst = {}          # (dlc, extended) -> bits, for the "worst"/"none" models
-        self._exact: dict[int, FrameBits] = {}   # (id, extended, length) -> its FrameBits
-        self._spans: dict[int, tuple[int, int]] = {}   # bits -> (until delivery, until idle) [ns]
-        if not getattr(_payload_bits, "signatures", True):   # its machine code loaded now, not in the run
-            _payload_bits(0, 0, 0, 0, b"")
+        self._worst = {}
+        self._exact = {}
+        load_payload_bits()
 
     def duration_ns(self, bits: int) -> int:
         """Bit times -> ns at the bitrate, rounded to the nearest ns."""
         return (bits * 1_000_000_000 + self.bitrate_bps // 2) // self.bitrate_bps
 
     def frame_bits(self, p: Pending) -> int:
+        """Bit times of the frame `p` by the bus's stuffing model, interframe space included; the exact
+        model keeps one FrameBits per (identifier, format, length) and runs only the payload through it."""
         data = p.data
-        if self.stuffing == "exact" and len(data) <= 8:
-            key = (p.frame_id << 5) | (p.extended << 4) | len(data)
-            plan = self._exact.get(key)
-            if plan is None:
-                plan = self._exact[key] = FrameBits(p.frame_id, p.extended, len(data), len(data))
-            return plan.bits(data)
-        if self.stuffing == "exact":
+        if self.stuffing != "exact":
+            size = (len(data), p.extended)
+            bits = self._worst.get(size)
+            if bits is None:
+                bits = self._worst[size] = frame_duration_bits(p.frame_id, p.extended, data, self.stuffing)
+            return bits
+        if len(data) > 8:
             return exact_frame_bits(p.frame_id, p.extended, data)
-        key = (len(data), p.extended)
-        bits = self._worst.get(key)
-        if bits is None:
-            bits = self._worst[key] = frame_duration_bits(p.frame_id, p.extended, data, self.stuffing)
-        return bits
+        shape = (p.frame_id, p.extended, len(data))
+        plan = self._exact.get(shape)
+        if plan is None:
+            plan = self._exact[shape] = FrameBits(p.frame_id, p.extended, len(data), len(data))
+        return plan.bits(data)
 
     def _stats(self, frame_id: int) -> MessageBusStats:
         s = self.stats.get(frame_id)
@@ -275,18 +235,15 @@ class BitTimedBus:
 
     def enqueue(self, p: Pending) -> None:
         """Put a released frame into its node's transmit queue (replacing a waiting older instance)."""
-        fid = p.frame_id
-        # arbitration_key(fid, p.extended), inlined: the lockstep bus enqueues every frame of a run
-        p.key = ((fid >> 18) << 19) | (1 << 18) | (fid & 0x3FFFF) if p.extended else fid << 19
-        slot = (p.node, fid, p.extended)
-        waiting = self._waiting
-        old = waiting.get(slot)
+        p.key = arbitration_key(p.frame_id, p.extended)
+        slot = (p.node, p.frame_id, p.extended)
+        old = self._waiting.get(slot)
         if old is not None:
             old.overwritten = True          # lazily dropped from the queue heap
-            s = self._stats(fid)
+            s = self._stats(p.frame_id)
             s.overwritten += 1
             s.deadline_misses += 1
-        waiting[slot] = p
+        self._waiting[slot] = p
         self._seq += 1
         heapq.heappush(self._heap, (p.key, self._seq, p))
 
@@ -313,25 +270,17 @@ class BitTimedBus:
         best = heapq.heappop(heap)[2]
         del self._waiting[(best.node, best.frame_id, best.extended)]
         bits = self.frame_bits(best)
-        spans = self._spans.get(bits)
-        if spans is None:
-            spans = self._spans[bits] = (self.duration_ns(bits - IFS_BITS), self.duration_ns(bits))
-        deliver = now_ns + spans[0]
-        end = now_ns + spans[1]
+        deliver = now_ns + self.duration_ns(bits - IFS_BITS)
+        end = now_ns + self.duration_ns(bits)
         self.idle_at_ns = end
-        self.busy_ns += spans[1]
-        s = self.stats.get(best.frame_id)
-        if s is None:
-            s = self._stats(best.frame_id)
+        self.busy_ns += end - now_ns
+        s = self._stats(best.frame_id)
         s.frames += 1
         s.bits += bits
         response = end - best.window_ns
-        if response > s.response_max_ns:
-            s.response_max_ns = response
+        s.response_max_ns = max(s.response_max_ns, response)
         s.response_sum_ns += response
-        queued = now_ns - best.released_ns
-        if queued > s.queued_max_ns:
-            s.queued_max_ns = queued
+        s.queued_max_ns = max(s.queued_max_ns, now_ns - best.released_ns)
         deadline = self.deadlines_ns.get(best.frame_id)
         if deadline is not None and response > deadline:
             s.deadline_misses += 1

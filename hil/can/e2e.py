@@ -74,13 +74,13 @@ data id (P01 ALT: the counter's LSB; P02: any counter bit) where the data id cha
 changes can cancel: ``counter_flip_collisions`` lists where a P02 DataIDList lets that happen.
 
 Receivers never raise on received data: any ``bytes`` (any length, any content) or ``None`` gives
-a status.  Configurations are validated when built and raise ``E2EConfigError`` (one line).
+a status.  Configurations are validated when built and raise ``E2EConfigError`` (one line) for a value out
+of range, ``TypeError`` for a value of the wrong type.
 """
 
 from __future__ import annotations
 
 import enum
-import functools
 import importlib
 from dataclasses import dataclass, field
 from typing import NamedTuple, Protocol
@@ -157,10 +157,10 @@ class Status(enum.Enum):
     OKSOMELOST = "OKSOMELOST"        # valid, 1..MaxDeltaCounter-1 frames lost before it
     WRONGSEQUENCE = "WRONGSEQUENCE"  # valid CRC, but more frames lost than MaxDeltaCounter allows
 
-    # usable: bool -- True if the payload may be used: E2E_P0xMapStatusToSM (profileBehavior TRUE) gives
-    # E2E_P_OK.  A plain attribute of each member, set below once the mapping exists (every receiver
-    # asks it for every frame: an attribute is read 6x faster than a property that maps the status).
-    usable: bool
+    @property
+    def usable(self) -> bool:
+        """True if the payload may be used: E2E_P0xMapStatusToSM (profileBehavior TRUE) gives E2E_P_OK."""
+        return map_status_to_sm(self) is PCheckStatus.OK
 
 
 class PCheckStatus(enum.Enum):
@@ -186,11 +186,6 @@ def map_status_to_sm(status: Status, profile_behavior: bool = True) -> PCheckSta
     return (_SM_NEW if profile_behavior else _SM_LEGACY)[status]
 
 
-for _status in Status:
-    _status.usable = map_status_to_sm(_status) is PCheckStatus.OK
-del _status
-
-
 def crc8_sae_j1850(data: bytes, start: int = 0xFF, first_call: bool = True) -> int:
     """AUTOSAR Crc_CalculateCRC8: CRC-8 SAE J1850 (poly 0x1D, init 0xFF, final XOR 0xFF).
 
@@ -205,9 +200,16 @@ def crc8_h2f(data: bytes, start: int = 0xFF, first_call: bool = True) -> int:
     return _H2F(data) if first_call else _H2F(data, initial=start)
 
 
+# A value of the wrong type is a TypeError, as the compiled build's annotations make it before these checks
+# run (mypyc checks a native class's fields when they are set); a value out of range an E2EConfigError.  A
+# bool is an int, as to mypy (compiled, an int field holds True as 1).
+
 def _check_int(where: str, name: str, value: object, low: int, high: int, unit: str = "") -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        raise E2EConfigError(f"{where}: {name} = {value!r}, expected an integer {low}..{high}{unit}")
+    expected = f"{where}: {name} = {value!r}, expected an integer {low}..{high}{unit}"
+    if not isinstance(value, int):
+        raise TypeError(expected)
+    if not low <= value <= high:
+        raise E2EConfigError(expected)
     return value
 
 
@@ -238,8 +240,8 @@ class P01Config:
     def __post_init__(self) -> None:
         w = self.name
         if not isinstance(self.data_id_mode, DataIdMode):
-            raise E2EConfigError(f"{w}: data_id_mode = {self.data_id_mode!r}, expected one of "
-                                 f"{', '.join(m.name for m in DataIdMode)}")
+            raise TypeError(f"{w}: data_id_mode = {self.data_id_mode!r}, expected one of "
+                            f"{', '.join(m.name for m in DataIdMode)}")
         nibble = self.data_id_mode is DataIdMode.NIBBLE
         _check_int(w, "data_id", self.data_id, 0, 0x0FFF if nibble else 0xFFFF,
                    " (12 bits in NIBBLE mode)" if nibble else "")
@@ -299,11 +301,13 @@ class P02Config:
     def __post_init__(self) -> None:
         w = self.name
         ids = self.data_id_list
-        if isinstance(ids, (str, bytes)) or not hasattr(ids, "__len__") or len(ids) != 16:
-            raise E2EConfigError(f"{w}: data_id_list = {ids!r}, expected 16 data id bytes (one per counter)")
+        expected = f"{w}: data_id_list = {ids!r}, expected a tuple of 16 data id bytes (one per counter)"
+        if not isinstance(ids, tuple):
+            raise TypeError(expected)
+        if len(ids) != 16:
+            raise E2EConfigError(expected)
         for i, value in enumerate(ids):
             _check_int(w, f"data_id_list[{i}]", value, 0, 255)
-        object.__setattr__(self, "data_id_list", tuple(ids))
         _check_int(w, "length", self.length, 2, P02_MAX_LENGTH, " bytes")
         _check_int(w, "max_delta_counter_init", self.max_delta_counter_init, 1, P02_MAX_DELTA_CAP)
         _check_int(w, "max_no_new_or_repeated_data", self.max_no_new_or_repeated_data, 0, NO_NEW_COUNTER_CAP)
@@ -320,8 +324,15 @@ class ProtectionConfig(Protocol):
     hil.can.checksums.CounterChecksumConfig.  ``protect`` and ``check`` hand it any configuration
     but a P01Config or P02Config; its methods have their contracts."""
 
-    length: int                                    # bytes protected
-    name: str                                      # frame name, used in error messages only
+    @property
+    def length(self) -> int:
+        """Bytes protected."""
+        ...
+
+    @property
+    def name(self) -> str:
+        """The frame's name, used in error messages only."""
+        ...
 
     def protect(self, state: ProtectState, payload: bytes) -> bytes: ...
 
@@ -365,7 +376,7 @@ class CheckState(NamedTuple):
 
 # --- CRC over a payload -----------------------------------------------------------------------------
 
-def _p01_crc(cfg: P01Config, data: bytes, counter: int) -> int:
+def _p01_crc(cfg: P01Config, data: bytes | bytearray, counter: int) -> int:
     """E2E_P01Protect's CRC (PRS §6.3): over the data id (per mode), then the payload bytes before and
     after the CRC byte, each Crc_CalculateCRC8 call continuing the last (start 0xFF, not first call),
     and the result XORed with 0xFF.  The data id part depends only on the counter's parity: it is
@@ -379,13 +390,13 @@ def _p01_crc(cfg: P01Config, data: bytes, counter: int) -> int:
     return crc ^ 0xFF
 
 
-def _p02_crc(cfg: P02Config, data: bytes, counter: int) -> int:
+def _p02_crc(cfg: P02Config, data: bytes | bytearray, counter: int) -> int:
     """E2E_P02Protect's CRC (PRS §6.4): Crc_CalculateCRC8H2F over bytes 1..length-1 (first call), then over
     DataIDList[counter] continuing it."""
     return _H2F(data[1:cfg.length] + cfg._ids[counter])
 
 
-def _nibble(data: bytes, offset: int) -> int:
+def _nibble(data: bytes | bytearray, offset: int) -> int:
     return (data[offset >> 3] >> (offset & 4)) & 0x0F
 
 
@@ -408,19 +419,18 @@ def protect(config: Config, state: ProtectState, payload: bytes) -> bytes:
     n = len(payload)
     if n < config.length:
         raise E2EConfigError(f"{config.name}: payload of {n} bytes, expected {config.length}")
-    if config.__class__ is P01Config or isinstance(config, P01Config):
+    if isinstance(config, P01Config):
         data = bytearray(payload)
         counter = state.counter
         if not 0 <= counter < P01_COUNTER_MODULO:
             raise E2EConfigError(f"{config.name}: sender counter {counter!r}, expected 0..14")
-        i, shift = config.counter_offset >> 3, config.counter_offset & 4      # _with_nibble, inlined
-        data[i] = (data[i] & ~(0x0F << shift) & 0xFF) | (counter << shift)
-        if config.data_id_mode is _NIBBLE:
+        _with_nibble(data, config.counter_offset, counter)
+        if config.data_id_mode is DataIdMode.NIBBLE:
             _with_nibble(data, config.data_id_nibble_offset, config.data_id >> 8)
         data[config.crc_offset >> 3] = _p01_crc(config, data, counter)
         state.counter = (counter + 1) % P01_COUNTER_MODULO
         return bytes(data)
-    if config.__class__ is not P02Config and not isinstance(config, P02Config):
+    if not isinstance(config, P02Config):
         return config.protect(state, payload)
     data = bytearray(payload)
     if not 0 <= state.counter < P02_COUNTER_MODULO:
@@ -440,22 +450,18 @@ def check(config: Config, state: CheckState, payload: bytes | None) -> tuple[Che
     (the spec's NewDataAvailable = FALSE).  Never raises on the payload's length or contents.
     Any other configuration (``ProtectionConfig``) checks by its own ``config.check(state, payload)``.
     """
-    p01 = config.__class__ is P01Config or isinstance(config, P01Config)
-    if p01:
+    if isinstance(config, P01Config):
         cap = P01_MAX_DELTA_CAP
-    elif config.__class__ is P02Config or isinstance(config, P02Config):
+    elif isinstance(config, P02Config):
         cap = P02_MAX_DELTA_CAP
     else:
         return config.check(state, payload)
-    max_delta = state[1] + 1                     # min(state[1] + 1, cap), without the builtin's call
-    if max_delta > cap:
-        max_delta = cap
+    max_delta = min(state.max_delta_counter + 1, cap)
     if payload is not None and len(payload) == config.length:     # a frame of the right length: the usual
-        if p01:
-            offset = config.counter_offset
-            received = (payload[offset >> 3] >> (offset & 4)) & 0x0F          # _nibble, inlined
+        if isinstance(config, P01Config):
+            received = _nibble(payload, config.counter_offset)
             if received != 0x0F \
-                    and (config.data_id_mode is not _NIBBLE
+                    and (config.data_id_mode is not DataIdMode.NIBBLE
                          or _nibble(payload, config.data_id_nibble_offset) == config.data_id >> 8) \
                     and payload[config.crc_offset >> 3] == _p01_crc(config, payload, received):
                 return _sequence(config, state, max_delta, received, P01_COUNTER_MODULO)
@@ -465,41 +471,33 @@ def check(config: Config, state: CheckState, payload: bytes | None) -> tuple[Che
                 return _sequence(config, state, max_delta, received, P02_COUNTER_MODULO)
     last, _, wait, lost, no_new, sync = state
     if payload is None:
-        return _state((last, max_delta, wait, lost, min(no_new + 1, NO_NEW_COUNTER_CAP), sync)), _NONEWDATA
-    return _state((last, max_delta, wait, lost, no_new, sync)), _ERROR
+        return CheckState(last, max_delta, wait, lost, min(no_new + 1, NO_NEW_COUNTER_CAP), sync), \
+            Status.NONEWDATA
+    return CheckState(last, max_delta, wait, lost, no_new, sync), Status.ERROR
 
 
-# A CheckState from a tuple of its six fields: what CheckState(...) builds, without the NamedTuple's
-# Python-level __new__ (the receivers build one per frame).
-_state = functools.partial(tuple.__new__, CheckState)
-_NONEWDATA, _ERROR, _INITIAL, _REPEATED = Status.NONEWDATA, Status.ERROR, Status.INITIAL, Status.REPEATED
-_WRONGSEQUENCE, _SYNC, _OK, _OKSOMELOST = Status.WRONGSEQUENCE, Status.SYNC, Status.OK, Status.OKSOMELOST
-_NIBBLE = DataIdMode.NIBBLE
-
-
-def _sequence(config: Config, state: CheckState, max_delta: int, received: int,
+def _sequence(config: P01Config | P02Config, state: CheckState, max_delta: int, received: int,
               modulo: int) -> tuple[CheckState, Status]:
     """The counter part of the check, for a frame whose CRC (and data-id nibble) is right."""
     last, _, wait, lost_before, no_new, sync_counter = state
+    init = config.max_delta_counter_init
     if wait:
-        return _state((received, config.max_delta_counter_init, False, lost_before, no_new, sync_counter)), \
-            _INITIAL
+        return CheckState(received, init, False, lost_before, no_new, sync_counter), Status.INITIAL
     delta = (received - last) % modulo
     if delta == 0:
-        return _state((last, max_delta, False, lost_before, min(no_new + 1, NO_NEW_COUNTER_CAP),
-                       sync_counter)), _REPEATED
+        return CheckState(last, max_delta, False, lost_before, min(no_new + 1, NO_NEW_COUNTER_CAP),
+                          sync_counter), Status.REPEATED
     if delta > max_delta:
         sync = config.sync_counter_init
         if sync > 0:
-            return _state((received, config.max_delta_counter_init, False, lost_before, 0, sync)), \
-                _WRONGSEQUENCE
-        return _state((last, max_delta, False, lost_before, 0, sync)), _WRONGSEQUENCE
-    init, lost = config.max_delta_counter_init, delta - 1
+            return CheckState(received, init, False, lost_before, 0, sync), Status.WRONGSEQUENCE
+        return CheckState(last, max_delta, False, lost_before, 0, sync), Status.WRONGSEQUENCE
+    lost = delta - 1
     if no_new > config.max_no_new_or_repeated_data:
-        return _state((received, init, False, lost, 0, config.sync_counter_init)), _SYNC
+        return CheckState(received, init, False, lost, 0, config.sync_counter_init), Status.SYNC
     if sync_counter > 0:
-        return _state((received, init, False, lost, 0, sync_counter - 1)), _SYNC
-    return _state((received, init, False, lost, 0, 0)), _OK if delta == 1 else _OKSOMELOST
+        return CheckState(received, init, False, lost, 0, sync_counter - 1), Status.SYNC
+    return CheckState(received, init, False, lost, 0, 0), Status.OK if delta == 1 else Status.OKSOMELOST
 
 
 def counter_flip_collisions(config: P02Config) -> tuple[tuple[int, int], ...]:
@@ -543,17 +541,17 @@ def counter_check(state: CheckState, received: int, modulo: int,
     either way it is not used, and it anchors the count; the E2E state machine above the check
     (E2E_SMCheck) does not count a start-up's first frame as an error either.
     """
-    last = modulo - 1 if state[2] else state[0]
+    last = modulo - 1 if state.wait_for_first_data else state.last_valid_counter
     delta = (received - last) % modulo
     if delta == 1:
-        return _state((received, 0, False, 0, 0, 0)), _OK
+        return CheckState(received, 0, False, 0, 0, 0), Status.OK
     if 0 < delta <= max_delta_counter:
-        return _state((received, 0, False, delta - 1, 0, 0)), _OKSOMELOST
-    if state[2]:
-        return _state((received, 0, False, 0, 0, 0)), _INITIAL
+        return CheckState(received, 0, False, delta - 1, 0, 0), Status.OKSOMELOST
+    if state.wait_for_first_data:
+        return CheckState(received, 0, False, 0, 0, 0), Status.INITIAL
     if delta == 0:
-        return _state((received, 0, False, state[3], 0, 0)), _REPEATED
-    return _state((received, 0, False, state[3], 0, 0)), _WRONGSEQUENCE
+        return CheckState(received, 0, False, state.lost_data, 0, 0), Status.REPEATED
+    return CheckState(received, 0, False, state.lost_data, 0, 0), Status.WRONGSEQUENCE
 
 
 def _sender_copy(config: ProtectionConfig, payload: bytes) -> bytearray:
@@ -610,10 +608,10 @@ class P05Config:
         """E2E_P05Check as a pure function, as ``check``: NONEWDATA for ``None``; ERROR for a wrong
         length or CRC (the state unchanged); else ``counter_check``.  Never raises on the payload."""
         if payload is None:
-            return state, _NONEWDATA
+            return state, Status.NONEWDATA
         if len(payload) != self.length or not _autosar_p05.e2e_p05_check(
                 payload, self.data_id, length=self.length, offset=self._header):
-            return state, _ERROR
+            return state, Status.ERROR
         return counter_check(state, payload[self._header + 2], P05_COUNTER_MODULO, self.max_delta_counter)
 
 
@@ -643,7 +641,9 @@ class P11Config:
 
     def __post_init__(self) -> None:
         w = self.name
-        if not isinstance(self.data_id_mode, DataIdMode) or self.data_id_mode not in _P11_MODES:
+        if not isinstance(self.data_id_mode, DataIdMode):
+            raise TypeError(f"{w}: data_id_mode = {self.data_id_mode!r}, expected BOTH or NIBBLE")
+        if self.data_id_mode not in _P11_MODES:
             raise E2EConfigError(f"{w}: data_id_mode = {self.data_id_mode!r}, expected BOTH or NIBBLE")
         nibble = self.data_id_mode is DataIdMode.NIBBLE
         _check_int(w, "data_id", self.data_id, 0, 0x0FFF if nibble else 0xFFFF,
@@ -680,13 +680,13 @@ class P11Config:
         length, CRC or data-id nibble or a counter of 15 (the state unchanged); else
         ``counter_check``.  Never raises on the payload."""
         if payload is None:
-            return state, _NONEWDATA
+            return state, Status.NONEWDATA
         if len(payload) != self.length:
-            return state, _ERROR
+            return state, Status.ERROR
         received = payload[self._header + 1] & 0x0F
         # e2e.p11's check asks for a writable buffer (it writes nothing): hence the copy
         if received == 0x0F or not _autosar_p11.e2e_p11_check(
                 bytearray(payload), self.data_id, data_id_mode=self._mode, length=self.length,
                 offset=self._header):
-            return state, _ERROR
+            return state, Status.ERROR
         return counter_check(state, received, P11_COUNTER_MODULO, self.max_delta_counter)

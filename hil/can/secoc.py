@@ -32,7 +32,6 @@ Resynchronising a sender whose counter was reset is out of scope: counters persi
 from __future__ import annotations
 
 import enum
-import functools
 import hmac
 import re
 from typing import NamedTuple
@@ -75,23 +74,33 @@ class SecOcError(RailhilError, ValueError):
     """A SecOC key, data id, freshness value or window that is not allowed (one line, names it)."""
 
 
-def _key(key: object, where: str) -> bytes:
-    if not isinstance(key, (bytes, bytearray)) or len(key) != KEY_BYTES:
-        got = f"{len(key)} bytes" if isinstance(key, (bytes, bytearray)) else type(key).__name__
-        raise SecOcError(f"{where}: AES-128 key must be {KEY_BYTES} bytes, got {got}")
+# A value of the wrong type is a TypeError, as the compiled build's annotations make it before these checks
+# run (mypyc checks them on every call); a value out of range a SecOcError.  A bool is an int, as to mypy
+# (compiled, an int argument takes True as 1).
+
+def _key(key: bytes | bytearray, where: str) -> bytes:
+    if not isinstance(key, (bytes, bytearray)):
+        raise TypeError(f"{where}: AES-128 key must be {KEY_BYTES} bytes, got {type(key).__name__}")
+    if len(key) != KEY_BYTES:
+        raise SecOcError(f"{where}: AES-128 key must be {KEY_BYTES} bytes, got {len(key)} bytes")
     return bytes(key)
 
 
-def _data_id(data_id: object, where: str) -> int:
-    if isinstance(data_id, bool) or not isinstance(data_id, int) or not 0 <= data_id <= DATA_ID_MAX:
-        raise SecOcError(f"{where}: data id {data_id!r}, expected an integer 0..{DATA_ID_MAX}")
-    return data_id
-
-
-def _freshness(value: object, where: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= FV_MAX:
-        raise SecOcError(f"{where}: freshness value {value!r}, expected an integer 0..2**64-1")
+def _in_range(value: int, low: int, high: int, message: str) -> int:
+    if not isinstance(value, int):
+        raise TypeError(message)
+    if not low <= value <= high:
+        raise SecOcError(message)
     return value
+
+
+def _data_id(data_id: int, where: str) -> int:
+    return _in_range(data_id, 0, DATA_ID_MAX,
+                     f"{where}: data id {data_id!r}, expected an integer 0..{DATA_ID_MAX}")
+
+
+def _freshness(value: int, where: str) -> int:
+    return _in_range(value, 0, FV_MAX, f"{where}: freshness value {value!r}, expected an integer 0..2**64-1")
 
 
 def key_from_hex(text: object, where: str = "key") -> bytes:
@@ -103,7 +112,7 @@ def key_from_hex(text: object, where: str = "key") -> bytes:
     return bytes.fromhex(text.strip())
 
 
-def cmac_aes128(key: bytes, message: bytes, where: str = "CMAC") -> bytes:
+def cmac_aes128(key: bytes | bytearray, message: bytes, where: str = "CMAC") -> bytes:
     """The full 16-byte AES-128 CMAC of ``message`` (NIST SP 800-38B), via ``cryptography``;
     ``where`` names the key in the error for a key that is not 16 bytes."""
     mac = cmac.CMAC(algorithms.AES(_key(key, where)))
@@ -113,10 +122,10 @@ def cmac_aes128(key: bytes, message: bytes, where: str = "CMAC") -> bytes:
 
 def data_to_authenticate(data_id: int, freshness: int, payload: bytes) -> bytes:
     """``data_id`` (2 bytes) || ``payload`` || ``freshness`` (8 bytes), both numbers big-endian."""
-    return data_id.to_bytes(2, "big") + bytes(payload) + freshness.to_bytes(8, "big")
+    return data_id.to_bytes(2, "big") + payload + freshness.to_bytes(8, "big")
 
 
-def authenticate(key: bytes, data_id: int, freshness: int, payload: bytes) -> bytes:
+def authenticate(key: bytes | bytearray, data_id: int, freshness: int, payload: bytes) -> bytes:
     """The 4 bytes a sender appends to ``payload``: freshness & 0xFF, then the 24 MSB of the CMAC
     over ``data_to_authenticate(data_id, freshness, payload)``."""
     data_id = _data_id(data_id, "authenticate")
@@ -147,10 +156,12 @@ class _SharedCmac:
     copied per computation (no AES key schedule per frame; a new CMAC object costs 4x a copy, measured)."""
 
     __slots__ = ("_proto", "sent")
+    _proto: cmac.CMAC
+    sent: tuple[bytes, int, bytes]          # the sender's last frame, its freshness, its payload
 
     def __init__(self, key: bytes) -> None:
         self._proto = cmac.CMAC(algorithms.AES(key))
-        self.sent: tuple[bytes, int, bytes] = (b"", -1, b"")
+        self.sent = (b"", -1, b"")
 
     def tag(self, message: bytes) -> bytes:
         """The 16-byte CMAC of ``message``."""
@@ -177,8 +188,12 @@ class SecOcSender:
     """
 
     __slots__ = ("data_id", "freshness", "_mac", "_id_bytes")
+    data_id: int
+    freshness: int                       # the last value used
+    _mac: _SharedCmac
+    _id_bytes: bytes                     # the data id as it enters the MAC
 
-    def __init__(self, key: bytes, data_id: int, freshness: int = 0) -> None:
+    def __init__(self, key: bytes | bytearray, data_id: int, freshness: int = 0) -> None:
         self.data_id = _data_id(data_id, "SecOC sender")
         self.freshness = _freshness(freshness, "SecOC sender")
         self._mac = _shared_cmac(_key(key, f"SecOC sender of data id {data_id}"), self.data_id)
@@ -190,15 +205,10 @@ class SecOcSender:
         if freshness > FV_MAX:
             raise SecOcError(f"SecOC sender of data id {self.data_id}: freshness counter exhausted")
         self.freshness = freshness
-        payload = bytes(payload)
-        mac = self._mac
-        tag = mac.tag(self._id_bytes + payload + freshness.to_bytes(8, "big"))   # data_to_authenticate
-        frame = payload + _FV_BYTE[freshness & FV_TX_MASK] + tag[:MAC_TX_BYTES]
-        mac.sent = (frame, freshness, payload)
+        tag = self._mac.tag(self._id_bytes + payload + freshness.to_bytes(8, "big"))   # data_to_authenticate
+        frame = payload + bytes((freshness & FV_TX_MASK,)) + tag[:MAC_TX_BYTES]
+        self._mac.sent = (frame, freshness, payload)
         return frame
-
-
-_FV_BYTE = tuple(bytes((i,)) for i in range(FV_TX_MASK + 1))     # the transmitted freshness byte
 
 
 class Reason(enum.Enum):
@@ -219,12 +229,6 @@ class Verdict(NamedTuple):
     payload: bytes | None = None
 
 
-_ACCEPTED = Reason.ACCEPTED
-# A Verdict from a tuple of its four fields: what Verdict(...) builds, without the NamedTuple's
-# Python-level __new__ (every receiver builds one per frame).
-_verdict = functools.partial(tuple.__new__, Verdict)
-
-
 class SecOcReceiver:
     """One receiving frame type: key, data id, acceptance window, last accepted freshness, counts.
 
@@ -233,15 +237,20 @@ class SecOcReceiver:
     """
 
     __slots__ = ("data_id", "window", "last", "counts", "_mac", "_id_bytes")
+    data_id: int
+    window: int                          # frames: the acceptance window
+    last: int                            # the last accepted freshness value
+    counts: dict[Reason, int]            # frames per Reason
+    _mac: _SharedCmac
+    _id_bytes: bytes                     # the data id as it enters the MAC
 
-    def __init__(self, key: bytes, data_id: int, window: int = DEFAULT_WINDOW, last: int = 0) -> None:
+    def __init__(self, key: bytes | bytearray, data_id: int, window: int = DEFAULT_WINDOW,
+                 last: int = 0) -> None:
         self.data_id = _data_id(data_id, "SecOC receiver")
-        if isinstance(window, bool) or not isinstance(window, int) or not 1 <= window <= FV_TX_MASK:
-            raise SecOcError(f"SecOC receiver of data id {data_id}: acceptance window {window!r}, "
-                             f"expected an integer 1..{FV_TX_MASK} frames")
-        self.window = window
+        self.window = _in_range(window, 1, FV_TX_MASK, f"SecOC receiver of data id {data_id}: acceptance "
+                                f"window {window!r}, expected an integer 1..{FV_TX_MASK} frames")
         self.last = _freshness(last, "SecOC receiver")
-        self.counts: dict[Reason, int] = dict.fromkeys(Reason, 0)
+        self.counts = dict.fromkeys(Reason, 0)
         self._mac = _shared_cmac(_key(key, f"SecOC receiver of data id {data_id}"), self.data_id)
         self._id_bytes = self.data_id.to_bytes(2, "big")
 
@@ -250,15 +259,13 @@ class SecOcReceiver:
         """Frames dropped so far, all reasons."""
         return sum(n for reason, n in self.counts.items() if reason is not Reason.ACCEPTED)
 
-    def verify(self, frame: bytes) -> Verdict:
+    def verify(self, frame: bytes | bytearray) -> Verdict:
         """Check a secured frame; on success the freshness value is remembered as the last accepted."""
         if len(frame) < AUTH_BYTES:
             return self._drop(Reason.MALFORMED, None)
         end = len(frame) - AUTH_BYTES
-        last = self.last
-        received = frame[end]                      # rebuild_freshness(last, received), inlined
-        freshness = ((last >> FV_TX_BITS) + (received <= last & FV_TX_MASK)) << FV_TX_BITS | received
-        if freshness - last > self.window or freshness > FV_MAX:
+        freshness = rebuild_freshness(self.last, frame[end])
+        if freshness - self.last > self.window or freshness > FV_MAX:
             return self._drop(Reason.STALE_FRESHNESS, freshness)
         sent, sent_freshness, payload = self._mac.sent
         if freshness != sent_freshness or frame != sent:     # not the sender's own frame: check its MAC
@@ -267,8 +274,8 @@ class SecOcReceiver:
             if not hmac.compare_digest(self._mac.tag(message)[:MAC_TX_BYTES], bytes(frame[end + 1:])):
                 return self._drop(Reason.MAC_MISMATCH, freshness)
         self.last = freshness
-        self.counts[_ACCEPTED] += 1
-        return _verdict((True, _ACCEPTED, freshness, payload))
+        self.counts[Reason.ACCEPTED] += 1
+        return Verdict(True, Reason.ACCEPTED, freshness, payload)
 
     def _drop(self, reason: Reason, freshness: int | None) -> Verdict:
         self.counts[reason] += 1

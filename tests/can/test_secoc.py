@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from hil.can import secoc
 from hil.can.secoc import (
     AUTH_BYTES,
     Reason,
@@ -37,6 +38,7 @@ RFC4493_EXAMPLES = [   # (message length in bytes, AES-CMAC)
     (64, "51f0bebf7e3b9d92fc49741779363cfe"),
 ]
 
+COMPILED = not secoc.__file__.endswith(".py")          # hil.can.secoc built by mypyc
 KEY = bytes(range(16))
 OTHER_KEY = bytes(range(1, 17))
 DEMAND, RELEASE = 0x0028, 0x0029            # two data ids, as two frame types would have
@@ -229,7 +231,6 @@ def test_verify_never_raises(frame):
 @pytest.mark.parametrize(("build", "words"), [
     (lambda: SecOcSender(bytes(15), DEMAND), "must be 16 bytes, got 15 bytes"),
     (lambda: SecOcReceiver(bytes(17), DEMAND), "must be 16 bytes, got 17 bytes"),
-    (lambda: SecOcSender("00" * 16, DEMAND), "got str"),
     (lambda: authenticate(bytes(8), DEMAND, 1, b""), "authenticate data id 40"),
     (lambda: cmac_aes128(b"", b""), "must be 16 bytes"),
     (lambda: SecOcSender(KEY, 0x10000), "data id"),
@@ -245,6 +246,20 @@ def test_bad_keys_and_settings_are_one_line_errors(build, words):
         build()
     assert isinstance(info.value, RailhilError) and info.value.exit_code == 2
     assert words in str(info.value) and "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(("build", "words"), [
+    (lambda: SecOcSender("00" * 16, DEMAND), "got str"),
+    (lambda: SecOcReceiver(bytes(16), "40"), "data id '40'"),
+    (lambda: SecOcReceiver(bytes(16), DEMAND, window=1.0), "acceptance window 1.0"),
+    (lambda: authenticate(bytes(16), DEMAND, 1.0, b""), "freshness value 1.0"),
+])
+def test_a_value_of_the_wrong_type_is_a_type_error(build, words):
+    """A programming error, not a configuration's: compiled, the annotations refuse it (mypyc checks them on
+    every call, in its own words); interpreted, the module's own checks, in words that name it."""
+    with pytest.raises(TypeError) as info:
+        build()
+    assert COMPILED or words in str(info.value)
 
 
 def test_key_from_hex():
