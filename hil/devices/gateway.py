@@ -331,4 +331,4 @@ class Gateway:
                               "unmapped": dict(self.to_device.stats.unmapped)},
                 "to_bench": {"stale": dict(self.to_bench.stats.stale),
                              "unmapped": dict(self.to_bench.stats.unmapped)},
-                "device_side": vars(self.device_side.stats).copy()}
+                "device_side": self.device_side.stats.as_dict()}

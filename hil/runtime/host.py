@@ -238,7 +238,7 @@ class CycleTiming:
 
     def stats(self, node) -> dict:
         """The node's stats with its real-time figures."""
-        stats = vars(node.stats).copy()
+        stats = node.stats.as_dict()
         stats["late_cycles"] = self.late          # started after their deadline
         stats["missed_cycles"] = self.missed      # skipped after falling more than CATCH_UP_CYCLES behind
         stats["max_lag_us"] = self.max_lag        # the latest a cycle was due when the one before ended

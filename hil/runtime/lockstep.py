@@ -214,7 +214,7 @@ class DeviceBus:
                 "bus": None if self.bus is None else bus_report(self.bus, self.gateway.device.db,
                                                                 self.end_ns),
                 "gateway": self.gateway.stats(),
-                "model": vars(self.model.stats).copy()}
+                "model": self.model.stats.as_dict()}
 
 
 class DeviceOnBench:
@@ -231,7 +231,7 @@ class DeviceOnBench:
 
     def report(self) -> dict:
         return {**self.gateway.describe(), "mode": "model", "bus_mode": "bench", "bus": None,
-                "gateway": self.gateway.stats(), "model": vars(self.model.stats).copy()}
+                "gateway": self.gateway.stats(), "model": self.model.stats.as_dict()}
 
 
 class DeviceLink:
@@ -280,7 +280,7 @@ class DeviceLink:
 
     def report(self) -> dict:
         return {**self.gateway.describe(), "mode": "model", "bus_mode": "opcua", "bus": None,
-                "gateway": self.gateway.stats(), "model": vars(self.model.stats).copy(),
+                "gateway": self.gateway.stats(), "model": self.model.stats.as_dict(),
                 "opcua": self.meter.record("none: lockstep, the model without a link", 0.0,
                                            self.end_ns / 1e9)}
 
@@ -548,7 +548,7 @@ def run_lockstep(scenario: Scenario, db: Database, codec: Codec, writer: can.Lis
     overwritten = sum(s.overwritten for s in bus.stats.values()) if bus else 0
     return RunOutcome(mode="lockstep", end_us=now // 1000, reason=reason, truth=plant.truth,
                       frames_by_node={n.name: n.stats.frames_sent for n in nodes},
-                      node_stats={n.name: vars(n.stats).copy() for n in nodes},
+                      node_stats={n.name: n.stats.as_dict() for n in nodes},
                       wall_s=time.perf_counter() - wall0,
                       bus=None if bus is None else bus_report(
                           bus, db, now, tuple(d.gateway.device.db for d in devices if d.bus_mode == "bench")),

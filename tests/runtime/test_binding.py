@@ -1,5 +1,6 @@
 """Node bindings: every signal name a node uses is checked against the DBC at start."""
 
+import dataclasses
 from decimal import Decimal
 from fractions import Fraction
 
@@ -9,7 +10,7 @@ import pytest
 from hil.can.codec import Codec
 from hil.can.dbc import load_dbc
 from hil.errors import BindingError
-from hil.runtime.node import Binding, Node
+from hil.runtime.node import Binding, Node, NodeStats
 
 DB = load_dbc()
 
@@ -106,3 +107,12 @@ def test_the_quick_output_check_decides_as_the_check_value_by_value(outputs):
     for key in outputs:
         got, want = quick.outputs[key], one_by_one.outputs[key]
         assert got is want or (got == want and type(got) is type(want)), (key, got, want)
+
+
+def test_node_stats_as_dict_names_every_counter_in_order():
+    """NodeStats.as_dict (a compiled class has no __dict__ for vars()) lists every field, with its value."""
+    stats = NodeStats(cycles=3, e2e_status={"OK": 1}, e2e_events=[], last_error="x")
+    fields = [f.name for f in dataclasses.fields(NodeStats)]
+    assert list(stats.as_dict()) == fields
+    assert stats.as_dict() == {name: getattr(stats, name) for name in fields}
+    assert stats.as_dict()["e2e_status"] is stats.e2e_status
