@@ -130,15 +130,9 @@ class GatewaySide(Node):
         super().__init__(*args, **kwargs)
         self._on_frame, self._on_cycle = on_frame, on_cycle
 
-    def receive_frame(self, frame_id: int, data: bytes, t_us: int) -> None:
+    def receive(self, frame_id: int, data: bytes, t_us: int) -> None:
         version = self.rx.version
-        super().receive_frame(frame_id, data, t_us)
-        if self.rx.version != version:
-            self._on_frame(frame_id, t_us)
-
-    def receive_values(self, frame_id: int, values, t_us: int, data: bytes | None = None) -> None:
-        version = self.rx.version
-        super().receive_values(frame_id, values, t_us, data)
+        super().receive(frame_id, data, t_us)
         if self.rx.version != version:
             self._on_frame(frame_id, t_us)
 

@@ -90,7 +90,7 @@ class RawFrame(NamedTuple):
 
 
 class LockstepBus:
-    """In-process delivery: hands each frame to every subscribed node (Node.receive_frame)."""
+    """In-process delivery: hands each frame to every subscribed node (Node.receive)."""
 
     def __init__(self, nodes: list[Node], writer: can.Listener | None) -> None:
         self.writer = writer
@@ -114,7 +114,7 @@ class LockstepBus:
         if subs:
             t_us = t_ns // 1000
             for node in subs:                    # each decodes the signals it reads, once its checks pass
-                node.receive_frame(fc.frame_id, data, t_us)
+                node.receive(fc.frame_id, data, t_us)
 
 
 def bus_bitrate(scenario: Scenario, db: Database) -> int:

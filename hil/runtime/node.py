@@ -10,6 +10,12 @@ controller each cycle (`RxTable.e2e`).  The same Node runs in lockstep (driven b
 discrete-event runner) and in real time (driven by a process loop on a python-can bus): only the
 clock and the bus differ.
 
+One receive path.  Every frame reaches a node through `Node.receive(frame_id, data, t_us)`: the lockstep
+bus, a real-time host, a gateway's sides and an FMU node alike.  It counts the frame, checks it (SecOC,
+then E2E), decodes the signals the node reads straight into its table, and then tells the node's
+`receive_watch` (a `ReceiveWatch`, set before the run; hil.safety.threat_matrix watches with it what the
+receivers accepted), if it has one.
+
 Signal names.  A controller declares `inputs` and `outputs`.  A name is either a bare DBC signal name
 (`AxleSpeed`), resolved among the messages the binding lists for the node, or a qualified
 `MESSAGE.Signal`.  Every name is checked against the DBC when the node is built; an unknown one is a
@@ -21,7 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 from cantools.database.can import Database
 
@@ -35,6 +41,14 @@ from hil.errors import BindingError
 NEVER_US = 1 << 62               # µs: a frame that is never due on the schedule
 _E2E_OK = e2e.Status.OK
 E2E_COUNTER_MODULO = 15          # AUTOSAR E2E profile 1 alive counter runs 0..14
+MAX_E2E_EVENTS = 10_000          # NodeStats.e2e_events keeps the first this many
+
+
+class ReceiveWatch(Protocol):
+    """An observer of what a node takes (`Node.receive_watch`, set before a run): `accepted` is called for
+    each frame whose checks passed and whose signals entered the node's table, after they did."""
+
+    def accepted(self, node: Node, frame_id: int, data: bytes, t_us: int) -> None: ...
 
 
 @dataclass
@@ -113,6 +127,17 @@ class RxCheck:
 
     def __post_init__(self) -> None:
         self.grace_us = (3 * self.cycle_us + 1) // 2
+
+
+@dataclass
+class RxRoute:
+    """How a node takes the frames of one identifier it receives: their checks, then their signals."""
+
+    name: str                                  # the message
+    length: int                                # its length [bytes]: a shorter frame is malformed
+    store: Callable[[bytes, dict, dict, int], None]   # the signals the node reads, decoded into its table
+    verifier: secoc.SecOcReceiver | None       # SecOC, for an authenticated message
+    check: RxCheck | None                      # E2E, for a protected one
 
 
 @dataclass
@@ -222,10 +247,7 @@ class Node:
         self.period_us = period_us
         self.offset_us = offset_us
         self.rx = RxTable(binding.inputs)
-        self._rx_map = binding.rx
-        self._rx_codecs = {fid: codec[fid] for fid in binding.rx}
-        # fid -> the codec's decoder of the signals this node reads, into its table (receive_frame)
-        self._rx_stores = {fid: fc.storer(binding.rx[fid]) for fid, fc in self._rx_codecs.items()}
+        self.receive_watch: ReceiveWatch | None = None
         self.safe = dict(safe_outputs or {})
         self.outputs: dict[str, float] = {}
         self.tx: list[TxFrame] = []
@@ -251,14 +273,12 @@ class Node:
                 cycle_us = int(msg.cycle_time or 0) * 1000 or period_us
                 self._checks[fid] = RxCheck(msg.name, config, e2e.CheckState(), cycle_us, offset_us)
         self.stats = NodeStats(e2e_status={} if self._checks else None, e2e_events=[])
-        # fid -> (rx pairs, SecOC verifier or None, E2E check or None, grace µs, decoder into the table):
-        # one lookup per frame
-        self._rx_plan: dict[int, tuple] = {}
+        # frame id -> its checks and decoder (use_keys): one lookup per frame
+        self._routes: dict[int, RxRoute] = {}
         # a lower bound of the earliest time a cycle without a frame is due to an E2E check (so that
         # cycle() skips the checks until then; a 1 ms plant cycle would otherwise look at six of them)
         self._e2e_due_us = min((c.last_us + c.grace_us for c in self._checks.values()), default=1 << 62)
         self._db = db
-        self._verifiers: dict[int, secoc.SecOcReceiver] = {}
         self.use_keys({})
 
     def use_keys(self, keys: Mapping[str, bytes], window: int = secoc.DEFAULT_WINDOW) -> None:
@@ -270,19 +290,17 @@ class Node:
             if data_id is not None:
                 tx.secoc = secoc.SecOcSender(keys.get(tx.codec.name, default), data_id)
                 tx.authentic = tx.codec.message.length - secoc.AUTH_BYTES
-        self._verifiers = {}
-        for fid in self._rx_map:
+        self._routes = {}
+        for fid, pairs in self.binding.rx.items():
             msg = self._db.get_message_by_frame_id(fid)
             data_id = secoc_data_id(msg)
-            if data_id is not None:
-                self._verifiers[fid] = secoc.SecOcReceiver(keys.get(msg.name, default), data_id, window)
-        if self._verifiers and self.stats.secoc_rejected is None:
-            self.stats.secoc_rejected = {}
-        self._rx_plan = {}
-        for fid, pairs in self._rx_map.items():
-            chk = self._checks.get(fid)
-            self._rx_plan[fid] = (pairs, self._verifiers.get(fid), chk, 0 if chk is None else chk.grace_us,
-                                  self._rx_stores[fid])
+            verifier = (None if data_id is None
+                        else secoc.SecOcReceiver(keys.get(msg.name, default), data_id, window))
+            if verifier is not None and self.stats.secoc_rejected is None:
+                self.stats.secoc_rejected = {}
+            fc = self.codec[fid]
+            self._routes[fid] = RxRoute(msg.name, fc.length, fc.storer(pairs), verifier,
+                                        self._checks.get(fid))
         self._next_due_us = min((tx.next_due_us for tx in self.tx), default=NEVER_US)
 
     def stick(self, message: str, stuck: StuckSignal) -> bool:
@@ -311,56 +329,53 @@ class Node:
 
     @property
     def rx_ids(self) -> frozenset[int]:
-        return frozenset(self._rx_map)
+        return frozenset(self.binding.rx)
 
     def receive(self, frame_id: int, data: bytes, t_us: int) -> None:
-        fc = self._rx_codecs.get(frame_id)
-        if fc is None:
+        """A frame received at `t_us` [µs, the node's clock], as it was on the bus: counted, checked (SecOC,
+        then E2E) and, when usable, the signals this node reads decoded into its table; then the
+        `receive_watch` is told.  A frame of an identifier the node does not read is ignored (counted when
+        the DBC does not define it); a malformed one (shorter than its message, an undefined multiplexer
+        value) is counted, not raised."""
+        route = self._routes.get(frame_id)
+        if route is None:
             if frame_id not in self.codec:     # not a frame of this bus at all: counted, ignored
                 self.stats.unknown_frames += 1
             return
-        try:
-            values = fc.decode(data)
-        except FrameError:           # short or malformed frame on a real bus: counted, not raised
+        if len(data) < route.length:           # short or malformed frame on a real bus: counted, not raised
             self.stats.bad_frames += 1
             return
-        self.receive_values(frame_id, values, t_us, data)
+        if not self._passes(route, data, t_us):
+            return
+        try:
+            self.rx.take(route.store, data, t_us)
+        except FrameError:                      # a multiplexer value the DBC does not define
+            self.stats.bad_frames += 1
+            return
+        if self.receive_watch is not None:
+            self.receive_watch.accepted(self, frame_id, data, t_us)
 
-    def receive_values(self, frame_id: int, values: Mapping[str, float], t_us: int,
-                       data: bytes | None = None) -> None:
-        """A frame received, decoded (`values`, every signal of it) by the caller: its checks, then the
-        signals this node reads into its table."""
-        plan = self._rx_plan.get(frame_id)
-        if plan is not None and self._passes(frame_id, plan, b"" if data is None else data, t_us):
-            self.rx.update(plan[0], values, t_us)
-
-    def receive_frame(self, frame_id: int, data: bytes, t_us: int) -> None:
-        """A frame received as it is on the bus (the lockstep bus: its length is its message's): its
-        checks, then the signals this node reads decoded straight into its table."""
-        plan = self._rx_plan.get(frame_id)
-        if plan is not None and self._passes(frame_id, plan, data, t_us):
-            self.rx.take(plan[4], data, t_us)
-
-    def _passes(self, frame_id: int, plan: tuple, data: bytes, t_us: int) -> bool:
+    def _passes(self, route: RxRoute, data: bytes, t_us: int) -> bool:
         """A received frame's SecOC and E2E checks, counted: may its signals be used?"""
-        _, verifier, chk, grace_us, _ = plan
         stats = self.stats
         stats.frames_received += 1
+        verifier = route.verifier
         if verifier is not None:                 # authentication first: a forged frame is dropped
             verdict = verifier.verify(data)
             if not verdict.accepted:
                 counts = stats.secoc_rejected
                 counts[verdict.reason.value] = counts.get(verdict.reason.value, 0) + 1
                 events = stats.e2e_events
-                if events is not None and len(events) < 10_000:
-                    events.append((t_us, msg_name_of(self._db, frame_id), "SECOC_" + verdict.reason.name))
+                if events is not None and len(events) < MAX_E2E_EVENTS:
+                    events.append((t_us, route.name, "SECOC_" + verdict.reason.name))
                 return False
             data = verdict.payload
+        chk = route.check
         if chk is not None:
             chk.state, status = e2e.check(chk.config, chk.state, data)
             chk.last_us = t_us
-            if t_us + grace_us < self._e2e_due_us:
-                self._e2e_due_us = t_us + grace_us
+            if t_us + chk.grace_us < self._e2e_due_us:
+                self._e2e_due_us = t_us + chk.grace_us
             self._count_e2e(chk, status, t_us)
             if not status.usable:
                 stats.e2e_discarded += 1
@@ -372,7 +387,7 @@ class Node:
         counts = self.stats.e2e_status
         value = status._value_                   # Enum.value is a descriptor: 8x slower to read
         counts[value] = counts.get(value, 0) + 1
-        if status is not _E2E_OK and len(self.stats.e2e_events) < 10_000:
+        if status is not _E2E_OK and len(self.stats.e2e_events) < MAX_E2E_EVENTS:
             self.stats.e2e_events.append((t_us, chk.name, value))
 
     def _check_missing(self, now_us: int) -> None:

@@ -101,7 +101,7 @@ def record_run(scenario, db: Database | None = None) -> tuple[dict[str, Recordin
     recordings: dict[str, Recording] = {}
     bindings: dict[str, tuple] = {}
     for node in setup.nodes:
-        bindings[node.name] = (dict(node._rx_map), [(tx.codec.name, list(tx.fields)) for tx in node.tx])
+        bindings[node.name] = (dict(node.binding.rx), [(tx.codec.name, list(tx.fields)) for tx in node.tx])
         if node.name != PLANT:
             recordings[node.name] = rec = Recording(node.name)
             node.controller = _Recorder(node.controller, rec)
