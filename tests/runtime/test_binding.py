@@ -75,38 +75,43 @@ def test_node_cycle_encodes_due_frames_and_counts_bad_outputs():
     assert fc.decode(data)["COUNTER"] == 1
 
 
-AWKWARD_OUTPUTS = [
-    {"ValveCmd": 0.5, "CylPressureSet": 2e5},                               # all finite: the quick path
-    {"ValveCmd": float("nan"), "CylPressureSet": 2e5},
-    {"ValveCmd": float("inf"), "CylPressureSet": float("-inf")},            # their sum is NaN
-    {"ValveCmd": 1e308, "CylPressureSet": 1e308},                           # finite, their sum is not
-    {"ValveCmd": 10 ** 400, "CylPressureSet": 1.0},                          # int + float overflows
-    {"ValveCmd": True, "CylPressureSet": 3},                                 # bool and int: finite
-    {"ValveCmd": 1j, "CylPressureSet": 0.0},                                 # complex: not a number here
-    {"ValveCmd": "0.5", "CylPressureSet": None},
-    {"ValveCmd": np.float64("nan"), "CylPressureSet": np.float64(2.0)},
-    {"ValveCmd": Decimal("0.5"), "CylPressureSet": Fraction(1, 3)},
-    {"ValveCmd": Decimal("NaN"), "CylPressureSet": Decimal("sNaN")},      # sNaN: float() raises
+NAN = float("nan")
+AWKWARD_OUTPUTS = [     # a step's outputs -> what the node keeps of them (None: the safe value, counted)
+    ({"ValveCmd": 0.5, "CylPressureSet": 2e5}, {"ValveCmd": 0.5, "CylPressureSet": 2e5}),
+    ({"ValveCmd": NAN, "CylPressureSet": 2e5}, {"ValveCmd": None, "CylPressureSet": 2e5}),
+    ({"ValveCmd": float("inf"), "CylPressureSet": float("-inf")}, {"ValveCmd": None, "CylPressureSet": None}),
+    ({"ValveCmd": 1e308, "CylPressureSet": 1e308}, {"ValveCmd": 1e308, "CylPressureSet": 1e308}),
+    ({"ValveCmd": 10 ** 400, "CylPressureSet": 1.0}, {"ValveCmd": 10 ** 400, "CylPressureSet": 1.0}),
+    ({"ValveCmd": True, "CylPressureSet": 3}, {"ValveCmd": True, "CylPressureSet": 3}),   # ints as they are
+    ({"ValveCmd": 1j, "CylPressureSet": 0.0}, {"ValveCmd": None, "CylPressureSet": 0.0}),  # complex: none
+    ({"ValveCmd": "0.5", "CylPressureSet": None}, {"ValveCmd": None, "CylPressureSet": None}),
+    ({"ValveCmd": np.float64("nan"), "CylPressureSet": np.float64(2.0)}, {"ValveCmd": None,
+                                                                          "CylPressureSet": 2.0}),
+    ({"ValveCmd": Decimal("0.5"), "CylPressureSet": Fraction(1, 3)}, {"ValveCmd": 0.5,    # other numbers:
+                                                                      "CylPressureSet": 1 / 3}),   # floats
+    ({"ValveCmd": np.int64(7), "CylPressureSet": np.float32(0.5)}, {"ValveCmd": 7.0, "CylPressureSet": 0.5}),
+    ({"ValveCmd": Decimal("NaN"), "CylPressureSet": Decimal("sNaN")}, {"ValveCmd": None,     # sNaN: float()
+                                                                       "CylPressureSet": None}),   # raises
 ]
 
 
-@pytest.mark.parametrize("outputs", AWKWARD_OUTPUTS, ids=range(len(AWKWARD_OUTPUTS)))
-def test_the_quick_output_check_decides_as_the_check_value_by_value(outputs):
-    """Node.cycle takes a step's outputs as they are when one sum of them is a finite int or float, and
-    checks them one by one otherwise: both decide alike, on values a controller should never return too."""
+@pytest.mark.parametrize(("outputs", "kept"), AWKWARD_OUTPUTS, ids=range(len(AWKWARD_OUTPUTS)))
+def test_a_step_output_that_is_no_finite_number_is_replaced_by_the_safe_value_and_counted(outputs, kept):
+    """Node.cycle keeps an int as it is and another finite number as a float; NaN, an infinity or a value
+    that is no number is counted (NodeStats.bad_outputs) and replaced by the node's safe value."""
     class Ctrl:
         def step(self, now_us, rx):
             return dict(outputs)
 
     b = build(outputs=("ValveCmd", "CylPressureSet"))
-    quick = Node("BECU3", Ctrl(), b, Codec(DB), DB, period_us=10_000)
-    quick.cycle(0)
-    one_by_one = Node("BECU3", Ctrl(), b, Codec(DB), DB, period_us=10_000)
-    one_by_one._check_outputs(outputs)
-    assert quick.stats.bad_outputs == one_by_one.stats.bad_outputs
-    for key in outputs:
-        got, want = quick.outputs[key], one_by_one.outputs[key]
-        assert got is want or (got == want and type(got) is type(want)), (key, got, want)
+    safe = {"ValveCmd": -1.0, "CylPressureSet": -2.0}
+    node = Node("BECU3", Ctrl(), b, Codec(DB), DB, period_us=10_000, safe_outputs=safe)
+    node.cycle(0)
+    assert node.stats.bad_outputs == sum(v is None for v in kept.values())
+    for key, want in kept.items():
+        got = node.outputs[key]
+        want = safe[key] if want is None else want
+        assert got == want and isinstance(got, type(want)), (key, got, want)
 
 
 def test_node_stats_as_dict_names_every_counter_in_order():
