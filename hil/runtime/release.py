@@ -21,6 +21,7 @@ between].  CANoe re-arms its timers on each expiry, so there the jitter accumula
 from __future__ import annotations
 
 import random
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol, TypeVar
 
@@ -146,7 +147,7 @@ def _first(given: T | None, dbc: T | None, default: T) -> T:
     return given if given is not None else dbc if dbc is not None else default
 
 
-def node_releases(scenario: Scenario, db: Database, nodes: list[Scheduled]) -> list[NodeRelease]:
+def node_releases(scenario: Scenario, db: Database, nodes: Sequence[Scheduled]) -> list[NodeRelease]:
     """One NodeRelease per node (same order); a scenario key naming no node is an error."""
     names = [n.name for n in nodes]
     unknown = sorted(set(scenario.nodes) - set(names))

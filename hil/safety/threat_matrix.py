@@ -560,8 +560,8 @@ def baseline_job(scenario_json: str, window_s: float = WINDOW_S) -> Baseline | s
 
 def cell_job(scenario_json: str, spec: CellSpec, baseline: Baseline, frames: dict[str, Frame]) -> Cell:
     """A worker's job: one cell; an error is recorded in the cell, the others go on (never raises).
-    (A finished lockstep run is freed at once: run_lockstep breaks its `release` closure's cycle, which
-    once grew a worker by 25 MB per precise_stop cell, to 3.5 GB.)"""
+    (A finished lockstep run is freed at once: it holds no reference cycle, tests/runtime/test_lockstep_run;
+    one once grew a worker by 25 MB per precise_stop cell, to 3.5 GB.)"""
     try:
         return run_cell(Scenario.model_validate_json(scenario_json), spec, baseline, frames)
     except Exception as exc:
