@@ -229,17 +229,20 @@ class NodeStats:
     secoc_rejected: dict[str, int] | None = None   # authenticated frames dropped: reason -> count
     step_errors: int = 0           # exceptions inside step(), caught: the node sends safe values
     last_error: str = ""
+    # a study's own figures of the node by name (the ACD's GPS line: hil/studies/anticollision/nodes.py),
+    # reported with the counters
+    extra: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
-        """The counters by name, for a run's outcome (RunOutcome.node_stats, run.json): a new dict, whose
-        e2e_status, e2e_events and secoc_rejected are the stats' own."""
+        """The counters by name, then the `extra` figures, for a run's outcome (RunOutcome.node_stats,
+        run.json): a new dict, whose e2e_status, e2e_events and secoc_rejected are the stats' own."""
         return {"cycles": self.cycles, "frames_sent": self.frames_sent,
                 "frames_received": self.frames_received, "bad_frames": self.bad_frames,
                 "bad_outputs": self.bad_outputs,
                 "clamped_outputs": self.clamped_outputs, "unknown_frames": self.unknown_frames,
                 "e2e_discarded": self.e2e_discarded, "e2e_status": self.e2e_status,
                 "e2e_events": self.e2e_events, "secoc_rejected": self.secoc_rejected,
-                "step_errors": self.step_errors, "last_error": self.last_error}
+                "step_errors": self.step_errors, "last_error": self.last_error, **self.extra}
 
 
 def finite_number(value: object) -> int | float | None:

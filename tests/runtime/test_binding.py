@@ -114,10 +114,13 @@ def test_a_step_output_that_is_no_finite_number_is_replaced_by_the_safe_value_an
         assert got == want and isinstance(got, type(want)), (key, got, want)
 
 
-def test_node_stats_as_dict_names_every_counter_in_order():
-    """NodeStats.as_dict (a compiled class has no __dict__ for vars()) lists every field, with its value."""
+def test_node_stats_as_dict_names_every_counter_in_order_then_the_extra_figures():
+    """NodeStats.as_dict (a compiled class has no __dict__ for vars()) lists every field with its value, and
+    then a study's extra figures of the node."""
     stats = NodeStats(cycles=3, e2e_status={"OK": 1}, e2e_events=[], last_error="x")
-    fields = [f.name for f in dataclasses.fields(NodeStats)]
-    assert list(stats.as_dict()) == fields
-    assert stats.as_dict() == {name: getattr(stats, name) for name in fields}
+    stats.extra["gps_line"] = {"sentences": 5}
+    counters = [f.name for f in dataclasses.fields(NodeStats) if f.name != "extra"]
+    assert list(stats.as_dict()) == [*counters, "gps_line"]
+    assert stats.as_dict() == {**{name: getattr(stats, name) for name in counters},
+                               "gps_line": {"sentences": 5}}
     assert stats.as_dict()["e2e_status"] is stats.e2e_status
