@@ -36,7 +36,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import Any, ClassVar, Protocol
 
 import can
 import numpy as np
@@ -53,8 +53,9 @@ from hil.runtime.assembly import build_node, check_devices, node_names
 from hil.runtime.gctune import loop_gc
 from hil.runtime.node import Node
 from hil.runtime.outcome import RunOutcome
-from hil.runtime.plant_node import SteppedPlant, Truth
+from hil.runtime.plant_node import SteppedPlant
 from hil.runtime.release import MessageDelay, NodeRelease, message_delays, node_releases
+from hil.runtime.truth import PlantView
 from hil.scenario import Scenario
 from hil.scenario.params import secoc_keys
 
@@ -111,19 +112,6 @@ class FaultHook(Protocol):
 
     def babble_windows(self) -> list[tuple[int, int, int, int]]:
         """(start ns, end ns, node index, frame id) of each babbling node."""
-
-
-@runtime_checkable
-class PlantView(Protocol):
-    """What a lockstep run reads of its plant node's controller (hil.runtime.plant_node.PlantController, a
-    study's): whether the train stands, its truth, a glance for progress reports."""
-
-    standstill: bool
-
-    @property
-    def truth(self) -> Truth: ...
-
-    def glance(self) -> dict[str, np.ndarray]: ...
 
 
 class LockstepBus:
@@ -236,7 +224,7 @@ class Babble(Event):
 
     def run(self, loop: LockstepLoop, now: int) -> None:
         if not self.bus.is_waiting(self.node, self.frame_id, self.extended):
-            payload = bytes(self.injector.babble_rng.getrandbits(8) for _ in range(8))
+            payload = bytes([self.injector.babble_rng.getrandbits(8) for _ in range(8)])
             loop.enqueue(now, self.node, self.frame_id, self.extended, payload, now)
             self.injector.log.add(now, "babbling", loop.nodes[self.node].name)
             loop.faulted += 1

@@ -6,7 +6,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hil.runtime.plant_node import Truth
 from hil.runtime.probe import (
     HOST_SEEN,
     behind_cycles,
@@ -15,6 +14,7 @@ from hil.runtime.probe import (
     merge_intervals,
     stall_intervals,
 )
+from hil.runtime.truth import Truth
 
 
 @dataclass

@@ -10,6 +10,7 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 from cantools.database.can import Database, Message
+from mypy_extensions import mypyc_attr
 
 from firmware_py.rx import RxTable
 from hil.errors import BindingError
@@ -88,12 +89,6 @@ class SteppedPlant(Protocol):
     def truth_series(self, snaps: Sequence[Any]) -> dict[str, np.ndarray]: ...   # its own samples
 
 
-class Truth(Protocol):
-    """A run's ground truth (TruthLog, a study's own): flat columns, t_s first."""
-
-    def columns(self) -> dict[str, np.ndarray]: ...
-
-
 #: resolution of each sensor in plant_sim.params.SensorParams, and whether it reads ≥ 0 only
 SENSOR_QUANTUM = {"AxleSpeed": ("axle_speed_quantum_rad_s", True),
                   "CylPressure": ("pressure_quantum_Pa", True),
@@ -113,6 +108,7 @@ def faulty_reading(reading: float, fault: SensorFault, quantum: float, non_negat
     return max(out, 0.0) if non_negative else out
 
 
+@mypyc_attr(serializable=True)     # a real-time plant host sends it to the runner (pickled)
 class TruthLog:
     """Ground truth sampled at a fixed period: cheap raw snapshots during the run, derived quantities
     (adhesion, optimal slip, forces) computed once when the columns are asked for."""
@@ -224,6 +220,7 @@ class BaliseReader:
             out["PLANT_BTM.BaliseValid"] = 1
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)   # a study's plant extends it (hil/studies/*/nodes.py)
 class PlantController:
     """step(now_us, rx): sense (when the sensor frames are due), record truth, then integrate one step.
 
