@@ -247,10 +247,10 @@ class NodeStats:
 
 
 def finite_number(value: object) -> int | float | None:
-    """A controller's output as a node sends it: an int as it is, another number as a float; None when it
-    is NaN, infinite or no number at all."""
-    if isinstance(value, int):                      # bool included
-        return value
+    """A controller's output as a node sends it: an int as an int (a bool as 0 or 1), another number as a
+    float; None when it is NaN, infinite or no number at all."""
+    if isinstance(value, int):
+        return int(value)
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, (SupportsFloat, SupportsIndex)):   # numpy's scalars, Fraction, Decimal

@@ -82,7 +82,7 @@ AWKWARD_OUTPUTS = [     # a step's outputs -> what the node keeps of them (None:
     ({"ValveCmd": float("inf"), "CylPressureSet": float("-inf")}, {"ValveCmd": None, "CylPressureSet": None}),
     ({"ValveCmd": 1e308, "CylPressureSet": 1e308}, {"ValveCmd": 1e308, "CylPressureSet": 1e308}),
     ({"ValveCmd": 10 ** 400, "CylPressureSet": 1.0}, {"ValveCmd": 10 ** 400, "CylPressureSet": 1.0}),
-    ({"ValveCmd": True, "CylPressureSet": 3}, {"ValveCmd": True, "CylPressureSet": 3}),   # ints as they are
+    ({"ValveCmd": True, "CylPressureSet": 3}, {"ValveCmd": 1, "CylPressureSet": 3}),      # ints as ints
     ({"ValveCmd": 1j, "CylPressureSet": 0.0}, {"ValveCmd": None, "CylPressureSet": 0.0}),  # complex: none
     ({"ValveCmd": "0.5", "CylPressureSet": None}, {"ValveCmd": None, "CylPressureSet": None}),
     ({"ValveCmd": np.float64("nan"), "CylPressureSet": np.float64(2.0)}, {"ValveCmd": None,
@@ -97,8 +97,9 @@ AWKWARD_OUTPUTS = [     # a step's outputs -> what the node keeps of them (None:
 
 @pytest.mark.parametrize(("outputs", "kept"), AWKWARD_OUTPUTS, ids=range(len(AWKWARD_OUTPUTS)))
 def test_a_step_output_that_is_no_finite_number_is_replaced_by_the_safe_value_and_counted(outputs, kept):
-    """Node.cycle keeps an int as it is and another finite number as a float; NaN, an infinity or a value
-    that is no number is counted (NodeStats.bad_outputs) and replaced by the node's safe value."""
+    """Node.cycle keeps an int as an int (a bool as 0 or 1, compiled or not) and another finite number as a
+    float; NaN, an infinity or a value that is no number is counted (NodeStats.bad_outputs) and replaced by
+    the node's safe value."""
     class Ctrl:
         def step(self, now_us, rx):
             return dict(outputs)
@@ -111,7 +112,7 @@ def test_a_step_output_that_is_no_finite_number_is_replaced_by_the_safe_value_an
     for key, want in kept.items():
         got = node.outputs[key]
         want = safe[key] if want is None else want
-        assert got == want and isinstance(got, type(want)), (key, got, want)
+        assert got == want and isinstance(got, type(want)) and type(got) is not bool, (key, got, want)
 
 
 def test_node_stats_as_dict_names_every_counter_in_order_then_the_extra_figures():
