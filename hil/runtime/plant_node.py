@@ -108,7 +108,6 @@ def faulty_reading(reading: float, fault: SensorFault, quantum: float, non_negat
     return max(out, 0.0) if non_negative else out
 
 
-@mypyc_attr(serializable=True)     # a real-time plant host sends it to the runner (pickled)
 class TruthLog:
     """Ground truth sampled at a fixed period: cheap raw snapshots during the run, derived quantities
     (adhesion, optimal slip, forces) computed once when the columns are asked for."""
@@ -120,7 +119,7 @@ class TruthLog:
     rt_lag_us: list[int] | None
     _series: dict[str, np.ndarray]
 
-    def __init__(self, plant: SteppedPlant) -> None:
+    def __init__(self, plant: SteppedPlant | None) -> None:
         self.plant = plant
         self.t_us = []
         self.snaps = []
@@ -137,17 +136,10 @@ class TruthLog:
         self.t_us.append(t_us)
         self.snaps.append(snap)
 
-    def __getstate__(self) -> dict[str, Any]:
+    def __reduce__(self) -> tuple[Callable[..., TruthLog], tuple[Any, ...]]:
         """Crosses process boundaries as its series, without the plant or the raw snapshots (pickling those
         lists of floats took a real-time plant host ~0.4 CPU s at the end of a 30 s run)."""
-        return {"t_us": self.t_us, "series": self.series(), "max_slip_mps": self.max_slip_mps,
-                "rt_lag_us": self.rt_lag_us}
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.plant, self.t_us, self.snaps = None, state["t_us"], []
-        self._series = state["series"]
-        self.max_slip_mps = state.get("max_slip_mps")
-        self.rt_lag_us = state.get("rt_lag_us")
+        return _truth_copy, (self.t_us, self.series(), self.max_slip_mps, self.rt_lag_us)
 
     def series(self) -> dict[str, np.ndarray]:
         if self.plant is None:
@@ -165,6 +157,14 @@ class TruthLog:
         if self.rt_lag_us is not None and len(self.rt_lag_us) == len(self.t_us):
             cols["rt_lag_s"] = np.asarray(self.rt_lag_us, dtype=np.int64) / 1e6
         return cols
+
+
+def _truth_copy(t_us: list[int], series: dict[str, np.ndarray], max_slip_mps: np.ndarray | None,
+                rt_lag_us: list[int] | None) -> TruthLog:
+    """A TruthLog from another process (TruthLog.__reduce__): its samples' times and series, no plant."""
+    log = TruthLog(None)
+    log.t_us, log._series, log.max_slip_mps, log.rt_lag_us = t_us, series, max_slip_mps, rt_lag_us
+    return log
 
 
 def _message(db: Database, name: str, dbc_name: str) -> Message:

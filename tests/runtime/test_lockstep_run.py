@@ -177,3 +177,17 @@ def test_a_finished_lockstep_run_holds_no_reference_cycle():
         assert not [o for o in gc.get_objects() if isinstance(o, LockstepLoop)]
     finally:
         gc.enable()
+
+
+def test_the_truth_log_crosses_a_process_boundary_as_its_columns(default_lockstep):
+    """A real-time plant host sends its TruthLog to the runner pickled: the copy has the same columns and
+    no plant (TruthLog.__reduce__; a compiled class pickles only through it)."""
+    import pickle
+
+    import numpy as np
+
+    truth = default_lockstep.outcome.truth
+    copy = pickle.loads(pickle.dumps(truth))
+    assert copy.plant is None and copy.t_us == truth.t_us
+    want, got = truth.columns(), copy.columns()
+    assert list(got) == list(want) and all(np.array_equal(got[k], want[k]) for k in want)
