@@ -32,7 +32,7 @@ def test_profile_counts_each_sample_for_its_innermost_component():
           "_once (bench/bench_lockstep.py:38);run_lockstep (hil/runtime/lockstep.py:263)"
     raw = [
         f"{run};Node.cycle (hil/runtime/node.py:465);Becu.step (firmware_py/becu.py:917) 5",
-        f"{run};LockstepBus.send (hil/runtime/lockstep.py:83);Node.receive_frame (hil/runtime/node.py:406);"
+        f"{run};LockstepBus.send (hil/runtime/lockstep.py:83);Node.receive (hil/runtime/node.py:406);"
         "<lambda> (<railhil codec BCU_DEMAND, store>:1) 3",
         f"{run};Node.cycle (hil/runtime/node.py:465) 2",
         f"{run};prepare_lockstep (hil/runtime/lockstep.py:122);Becu.__init__ (firmware_py/becu.py:620) 4",

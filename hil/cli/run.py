@@ -50,7 +50,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="with --realtime: if the bus cannot be opened here, say so and run lockstep instead")
     p.add_argument("--hosting", choices=("grouped", "per-node"), default=None,
                    help="with --realtime: grouped = every simulated ECU in one process with one bus "
-                        "connection, each frame received and decoded once, the plant in its own (the "
+                        "connection, each frame received once, the plant in its own (the "
                         "default, [realtime] hosting; [realtime] plant_process = \"shared\" puts it there "
                         "too); per-node = one OS process per node (isolation tests, kill -9 of one ECU)")
     p.add_argument("--external", action="append", default=[], metavar="NODE",

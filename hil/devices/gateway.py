@@ -130,15 +130,9 @@ class GatewaySide(Node):
         super().__init__(*args, **kwargs)
         self._on_frame, self._on_cycle = on_frame, on_cycle
 
-    def receive_frame(self, frame_id: int, data: bytes, t_us: int) -> None:
+    def receive(self, frame_id: int, data: bytes, t_us: int) -> None:
         version = self.rx.version
-        super().receive_frame(frame_id, data, t_us)
-        if self.rx.version != version:
-            self._on_frame(frame_id, t_us)
-
-    def receive_values(self, frame_id: int, values, t_us: int, data: bytes | None = None) -> None:
-        version = self.rx.version
-        super().receive_values(frame_id, values, t_us, data)
+        super().receive(frame_id, data, t_us)
         if self.rx.version != version:
             self._on_frame(frame_id, t_us)
 
@@ -211,7 +205,8 @@ class Gateway:
         self.device = device
         self.to_bench = Translator(device.to_bench)
         self.to_device = Translator(device.to_device, truth)
-        self.outbox: list[tuple[str, FrameCodec, bytes]] = []     # ("bench" | "device", codec, payload)
+        # ("bench" | "device", codec, payload); to a device on OPC UA: (.., its object, its values)
+        self.outbox: list[tuple[str, FrameCodec | ObjectRef, bytes | dict[str, float]]] = []
         self.routed = {"bench": 0, "device": 0}                   # frames sent at once, by the side sent on
         source_messages = list(dict.fromkeys(s.split(".")[0] for s in device.bench_sources))
         bench_rx = list(dict.fromkeys([*replaced.rx_messages, *source_messages]))
@@ -228,6 +223,7 @@ class Gateway:
             on_cycle=self._bench_cycle)
         ddb = device.db
         cycles = [ddb.get_message_by_name(n).cycle_time for n in (*device.sends, *device.receives)]
+        self.device_side: GatewaySide | VariableSide
         if device.codec is None:                   # OPC UA: variables, not frames
             cycles += [r.cycle_ms for r in device.to_device]
             self.device_side = VariableSide(f"{replaced.name}.gateway", device,
@@ -302,8 +298,9 @@ class Gateway:
         if routes:
             self._route(routes, self.to_bench, self.bench, "bench", t_us)
 
-    def take(self) -> list[tuple[str, FrameCodec, bytes]]:
-        """The frames routed since the last call, in order: ("bench" | "device", codec, payload)."""
+    def take(self) -> list[tuple[str, FrameCodec | ObjectRef, bytes | dict[str, float]]]:
+        """The frames routed since the last call, in order: ("bench" | "device", codec, payload); to a device
+        on OPC UA: (.., its object, its values)."""
         out, self.outbox = self.outbox, []
         return out
 
@@ -331,4 +328,4 @@ class Gateway:
                               "unmapped": dict(self.to_device.stats.unmapped)},
                 "to_bench": {"stale": dict(self.to_bench.stats.stale),
                              "unmapped": dict(self.to_bench.stats.unmapped)},
-                "device_side": vars(self.device_side.stats).copy()}
+                "device_side": self.device_side.stats.as_dict()}

@@ -17,9 +17,10 @@ cycles skipped.
 Receiving. A host does not wake for each frame: frames wait in the socket (its receive buffer enlarged)
 until the host wakes for its next deadline, then they are taken (hil.can.frame_io: on udp_multicast
 without a select or a can.Message per frame, python-can's wire format either way; frames are sent the
-same way), and each is decoded once and kept for the hosted nodes that receive it (`Delivery`, as the
-lockstep bus does), stamped with its reception time — the kernel's timestamp that python-can gives the
-message, where that is a plausible time of this run, else the time it was taken from the socket.  A node
+same way), and each is kept for the hosted nodes that receive it (`Delivery`; each node checks it and
+decodes the signals it reads, as on the lockstep bus), stamped with its reception time — the kernel's
+timestamp that python-can gives the message, where that is a plausible time of this run, else the time
+it was taken from the socket.  A node
 takes its frames at its own release, as an ECU's cycle task reads its mailboxes: each cycle checks
 (SecOC, E2E) its own frames, not those of the nodes due after it.
 
@@ -49,7 +50,6 @@ from collections.abc import Callable
 import can
 import numpy as np
 
-from hil.can.codec import FrameError
 from hil.can.frame_io import FrameIO
 from hil.runtime.clock import RunClock
 
@@ -82,14 +82,15 @@ def orphaned() -> bool:
 
 
 class Delivery:
-    """The frames a host receives, each decoded once and handed to the hosted nodes that take it.  Its
-    own nodes' frames are handed over as they are sent (`sent`), since not every bus returns a socket's own
-    frames (SocketCAN does not; udp_multicast on one host does, unless the host's FrameIO drops them); one
-    that does comes back, is recognised among the last ECHO_DEPTH frames sent with its id, and is not
-    delivered twice.  A node in `batched` gets its frames later, in time order: all of them at its release
-    (`replay_all`), or up to a time (`replay`: the plant woken on its frames).  The nodes' counts are what
-    one process per node would count: a frame the DBC does not define is unknown to every node, a
-    malformed one bad for each node that takes its id."""
+    """The frames a host receives, each taken from the bus once and handed to the hosted nodes that take it
+    (Node.receive: each checks it and decodes the signals it reads).  Its own nodes' frames are handed over
+    as they are sent (`sent`), since not every bus returns a socket's own frames (SocketCAN does not;
+    udp_multicast on one host does, unless the host's FrameIO drops them); one that does comes back, is
+    recognised among the last ECHO_DEPTH frames sent with its id, and is not delivered twice.  A node in
+    `batched` gets its frames later, in time order: all of them at its release (`replay_all`), or up to a
+    time (`replay`: the plant woken on its frames).  The nodes' counts are what one process per node would
+    count: a frame the DBC does not define is unknown to every node, a malformed one bad for each node that
+    takes its id (Node.receive counts it)."""
 
     def __init__(self, nodes: list, codec, batched: frozenset = frozenset(), echoes: bool = True) -> None:
         self.nodes = nodes
@@ -101,7 +102,9 @@ class Delivery:
                 self.subscribers.setdefault(fid, []).append(node)
         self._echo: dict[int, list[bytes]] = {}      # id -> its last frames sent from here, oldest first
         self.batched = batched
-        self.inbox: dict[object, list] = {node: [] for node in nodes if node.name in batched}
+        # a batched node's frames until it takes them: (reception time [µs], frame id, data)
+        self.inbox: dict[object, list[tuple[int, int, bytes]]] = {node: [] for node in nodes
+                                                                   if node.name in batched}
         self.received = 0                # frames from the bus that were not this host's own
 
     def sent(self, node, frame_id: int, data: bytes, t_us: int) -> None:
@@ -130,29 +133,21 @@ class Delivery:
                 for node in self.nodes:
                     node.stats.unknown_frames += 1
             return
-        try:
-            values = self.codec[frame_id].decode(data)
-        except FrameError:           # short or malformed frame on a real bus: counted, not raised
-            for node in subs:
-                if node is not sender:
-                    node.stats.bad_frames += 1
-            return
         inbox = self.inbox
         for node in subs:
             if node is sender:
                 continue
             if inbox and node in inbox:
-                inbox[node].append((t_us, frame_id, values, data))
+                inbox[node].append((t_us, frame_id, data))
             else:
-                node.receive_values(frame_id, values, t_us, data)
+                node.receive(frame_id, data, t_us)
 
     def replay_all(self, node) -> None:
         """Hand a batched node every frame it has received, oldest first."""
         box = self.inbox[node]
         if box:
-            receive = node.receive_values
-            for t_us, frame_id, values, data in box:
-                receive(frame_id, values, t_us, data)
+            for t_us, frame_id, data in box:
+                node.receive(frame_id, data, t_us)
             box.clear()
 
     def replay(self, node, until_us: int, offset_us: int = 0) -> None:
@@ -162,10 +157,10 @@ class Delivery:
         if not box:
             return
         k = 0
-        for t_us, frame_id, values, data in box:
+        for t_us, frame_id, data in box:
             if t_us - offset_us > until_us:
                 break
-            node.receive_values(frame_id, values, t_us - offset_us, data)
+            node.receive(frame_id, data, t_us - offset_us)
             k += 1
         if k:
             del box[:k]
@@ -238,7 +233,7 @@ class CycleTiming:
 
     def stats(self, node) -> dict:
         """The node's stats with its real-time figures."""
-        stats = vars(node.stats).copy()
+        stats = node.stats.as_dict()
         stats["late_cycles"] = self.late          # started after their deadline
         stats["missed_cycles"] = self.missed      # skipped after falling more than CATCH_UP_CYCLES behind
         stats["max_lag_us"] = self.max_lag        # the latest a cycle was due when the one before ended

@@ -10,6 +10,12 @@ controller each cycle (`RxTable.e2e`).  The same Node runs in lockstep (driven b
 discrete-event runner) and in real time (driven by a process loop on a python-can bus): only the
 clock and the bus differ.
 
+One receive path.  Every frame reaches a node through `Node.receive(frame_id, data, t_us)`: the lockstep
+bus, a real-time host, a gateway's sides and an FMU node alike.  It counts the frame, checks it (SecOC,
+then E2E), decodes the signals the node reads straight into its table, and then tells the node's
+`receive_watch` (a `ReceiveWatch`, set before the run; hil.safety.threat_matrix watches with it what the
+receivers accepted), if it has one.
+
 Signal names.  A controller declares `inputs` and `outputs`.  A name is either a bare DBC signal name
 (`AxleSpeed`), resolved among the messages the binding lists for the node, or a qualified
 `MESSAGE.Signal`.  Every name is checked against the DBC when the node is built; an unknown one is a
@@ -21,8 +27,10 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import Any, Protocol, SupportsFloat, SupportsIndex
 
-from cantools.database.can import Database
+from cantools.database.can import Database, Message
+from mypy_extensions import mypyc_attr
 
 from firmware_py.rx import RxTable
 from hil.can import e2e, secoc
@@ -32,8 +40,26 @@ from hil.can.dbc import closest
 from hil.errors import BindingError
 
 NEVER_US = 1 << 62               # µs: a frame that is never due on the schedule
-_E2E_OK = e2e.Status.OK
 E2E_COUNTER_MODULO = 15          # AUTOSAR E2E profile 1 alive counter runs 0..14
+MAX_E2E_EVENTS = 10_000          # NodeStats.e2e_events keeps the first this many
+
+#: a receiving node's decoder of one message into its table (FrameCodec.storer): (data, values, times, t_us)
+Store = Callable[[bytes, dict[str, float], dict[str, int], int], None]
+
+
+class Controller(Protocol):
+    """What a node runs each cycle: a firmware_py controller, the plant, a study's or a device's model.
+    `step` returns the output signals by name (a mapping of numbers); anything else is a bug the node
+    counts (NodeStats.step_errors) and answers with its safe values."""
+
+    def step(self, now_us: int, rx: RxTable) -> object: ...
+
+
+class ReceiveWatch(Protocol):
+    """An observer of what a node takes (`Node.receive_watch`, set before a run): `accepted` is called for
+    each frame whose checks passed and whose signals entered the node's table, after they did."""
+
+    def accepted(self, node: Node, frame_id: int, data: bytes, t_us: int) -> None: ...
 
 
 @dataclass
@@ -57,9 +83,12 @@ class StuckSignal:
             return
         if now_us >= self.end_us:
             return
-        if self.value is None and self.last is None:      # nothing sent before: frozen from now on
-            self.last = values.get(self.signal, 0.0)
-        values[self.signal] = self.last if self.value is None else self.value
+        if self.value is not None:
+            values[self.signal] = self.value
+        else:
+            if self.last is None:                 # nothing sent before: frozen from now on
+                self.last = values.get(self.signal, 0.0)
+            values[self.signal] = self.last
         if self.on_apply is not None:
             self.on_apply(now_us)
 
@@ -70,23 +99,19 @@ class TxFrame:
     cycle_us: int
     fields: list[tuple[str, str]]          # (DBC signal, controller output key)
     counter: bool                          # the runtime fills the E2E alive counter
+    # encode(outputs, count): the codec's encode of {signal: outputs.get(key, 0.0) for fields} and the
+    # counter, reading the outputs directly (FrameCodec.encoder)
+    encode: Callable[[Mapping[str, float], int], bytes]
     next_due_us: int = 0
     count: int = 0
-    e2e: e2e.P01Config | e2e.P02Config | None = None
-    e2e_state: e2e.ProtectState | None = None
+    protection: e2e.Config | None = None   # E2E
+    protect_state: e2e.ProtectState = field(default_factory=e2e.ProtectState)
     secoc: secoc.SecOcSender | None = None
     authentic: int = 8                     # bytes before the SecOC trailer
     stuck: list[StuckSignal] = field(default_factory=list)   # injected sender faults (hil.safety.injection)
     # a multiplexed message whose multiplexer no output sets: (multiplexer signal, its values), one page a
     # frame in turn (multiplexer_pages)
     mux: tuple[str, tuple[int, ...]] | None = None
-    # encode(outputs, count): the codec's encode of {signal: outputs.get(key, 0.0) for fields} and the
-    # counter, reading the outputs directly (FrameCodec.encoder)
-    encode: Callable[[Mapping[str, float], int], bytes] | None = None
-
-    def __post_init__(self) -> None:
-        if self.encode is None:
-            self.encode = self.codec.encoder(self.fields, E2E_COUNTER if self.counter else None)
 
 
 #: the key every authenticated message uses unless the scenario gives one ([secoc]): a test-bench
@@ -95,7 +120,8 @@ DEV_SECOC_KEY = bytes.fromhex("2b7e151628aed2a6abf7158809cf4f3c")
 
 
 def msg_name_of(db: Database, frame_id: int) -> str:
-    return db.get_message_by_frame_id(frame_id).name
+    name: str = db.get_message_by_frame_id(frame_id).name
+    return name
 
 
 @dataclass
@@ -103,7 +129,7 @@ class RxCheck:
     """Receiver side of one E2E-protected message."""
 
     name: str
-    config: e2e.P01Config | e2e.P02Config
+    config: e2e.Config
     state: e2e.CheckState
     cycle_us: int              # the message's DBC cycle time: one check per cycle of the message
     last_us: int = 0           # time of the last check (a frame, or a cycle without one)
@@ -112,6 +138,17 @@ class RxCheck:
 
     def __post_init__(self) -> None:
         self.grace_us = (3 * self.cycle_us + 1) // 2
+
+
+@dataclass
+class RxRoute:
+    """How a node takes the frames of one identifier it receives: their checks, then their signals."""
+
+    name: str                                  # the message
+    length: int                                # its length [bytes]: a shorter frame is malformed
+    store: Store                               # the signals the node reads, decoded into its table
+    verifier: secoc.SecOcReceiver | None       # SecOC, for an authenticated message
+    check: RxCheck | None                      # E2E, for a protected one
 
 
 @dataclass
@@ -126,11 +163,11 @@ class Binding:
     @classmethod
     def build(cls, db: Database, node: str, inputs: Iterable[str], outputs: Iterable[str],
               rx_messages: Iterable[str], tx_messages: Iterable[str], dbc_name: str = "DBC") -> Binding:
-        names = {m.name: m for m in db.messages}
+        names: dict[str, Message] = {m.name: m for m in db.messages}
         every_signal = sorted({s.name for m in db.messages for s in m.signals}
                               | {f"{m.name}.{s.name}" for m in db.messages for s in m.signals})
 
-        def message(name: str, role: str, user: str):
+        def message(name: str, role: str, user: str) -> Message:
             if name not in names:
                 raise BindingError(f"node {node}: {role} {user!r}: no message {name!r} in {dbc_name}; "
                                    f"closest: {closest(name, list(names))}")
@@ -139,7 +176,7 @@ class Binding:
         rx_msgs = [message(n, "receives", n) for n in rx_messages]
         tx_msgs = [message(n, "sends", n) for n in tx_messages]
 
-        def resolve(key: str, role: str, pool) -> list[tuple[object, str]]:
+        def resolve(key: str, role: str, pool: list[Message]) -> list[tuple[Message, str]]:
             if "." in key:
                 msg_name, sig = key.split(".", 1)
                 msg = message(msg_name, role, key)
@@ -157,8 +194,8 @@ class Binding:
             return hits
 
         rx: dict[int, list[tuple[str, str]]] = {}
-        inputs = tuple(inputs)
-        for key in inputs:
+        input_keys = tuple(inputs)
+        for key in input_keys:
             hits = resolve(key, "input", rx_msgs)
             if len(hits) > 1:
                 raise BindingError(f"node {node}: input {key!r} is in several messages "
@@ -173,7 +210,7 @@ class Binding:
                     raise BindingError(f"node {node}: output {key!r} goes to {msg.name}, "
                                        f"which the node does not send")
                 tx_fields[msg.name].append((sig, key))
-        return cls(node=node, rx=rx, tx=list(tx_fields.items()), inputs=inputs)
+        return cls(node=node, rx=rx, tx=list(tx_fields.items()), inputs=input_keys)
 
 
 @dataclass
@@ -186,20 +223,66 @@ class NodeStats:
     clamped_outputs: int = 0       # outputs outside their DBC range, sent saturated to it
     unknown_frames: int = 0        # received frames whose identifier the DBC does not define (ignored)
     e2e_discarded: int = 0         # protected frames not given to the controller (status not usable)
-    e2e_status: dict | None = None  # E2E status -> count (frames and cycles without a frame)
-    e2e_events: list | None = None  # (t_us, message, status): every E2E status but OK and every SecOC
-    #                                 rejection (SECOC_MAC_MISMATCH, SECOC_STALE_FRESHNESS, ...), first 10,000
-    secoc_rejected: dict | None = None  # authenticated frames dropped: reason -> count
+    e2e_status: dict[str, int] | None = None   # E2E status -> count (frames and cycles without a frame)
+    # (t_us, message, status): every E2E status but OK and every SecOC rejection (SECOC_MAC_MISMATCH,
+    # SECOC_STALE_FRESHNESS, ...), the first MAX_E2E_EVENTS
+    e2e_events: list[tuple[int, str, str]] | None = None
+    secoc_rejected: dict[str, int] | None = None   # authenticated frames dropped: reason -> count
     step_errors: int = 0           # exceptions inside step(), caught: the node sends safe values
     last_error: str = ""
+    # a study's own figures of the node by name (the ACD's GPS line: hil/studies/anticollision/nodes.py),
+    # reported with the counters
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The counters by name, then the `extra` figures, for a run's outcome (RunOutcome.node_stats,
+        run.json): a new dict, whose e2e_status, e2e_events and secoc_rejected are the stats' own."""
+        return {"cycles": self.cycles, "frames_sent": self.frames_sent,
+                "frames_received": self.frames_received, "bad_frames": self.bad_frames,
+                "bad_outputs": self.bad_outputs,
+                "clamped_outputs": self.clamped_outputs, "unknown_frames": self.unknown_frames,
+                "e2e_discarded": self.e2e_discarded, "e2e_status": self.e2e_status,
+                "e2e_events": self.e2e_events, "secoc_rejected": self.secoc_rejected,
+                "step_errors": self.step_errors, "last_error": self.last_error, **self.extra}
 
 
+def finite_number(value: object) -> int | float | None:
+    """A controller's output as a node sends it: an int as an int (a bool as 0 or 1), another number as a
+    float; None when it is NaN, infinite or no number at all."""
+    if isinstance(value, int):
+        return int(value)
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, (SupportsFloat, SupportsIndex)):   # numpy's scalars, Fraction, Decimal
+        try:
+            number = float(value)
+        except (ValueError, OverflowError):         # a signalling NaN; a number no float holds
+            return None
+        return number if math.isfinite(number) else None
+    return None
+
+
+@mypyc_attr(allow_interpreted_subclasses=True)   # hil.devices.gateway.GatewaySide is a Node
 class Node:
     """A controller bound to the DBC: `receive()` frames, `cycle(now_us)` returns frames to send."""
 
-    def __init__(self, name: str, controller, binding: Binding, codec: Codec, db: Database,
+    name: str
+    binding: Binding
+    controller: Controller
+    codec: Codec
+    period_us: int
+    offset_us: int
+    rx: RxTable
+    safe: dict[str, float]
+    outputs: dict[str, float]
+    tx: list[TxFrame]
+    stats: NodeStats
+    receive_watch: ReceiveWatch | None
+
+    def __init__(self, name: str, controller: Controller, binding: Binding, codec: Codec, db: Database,
                  period_us: int, offset_us: int = 0, safe_outputs: Mapping[str, float] | None = None,
-                 protection: Callable = e2e_config, routed: Iterable[str] = ()) -> None:
+                 protection: Callable[[Message], e2e.Config | None] = e2e_config,
+                 routed: Iterable[str] = ()) -> None:
         """`protection(message)`: the E2E configuration of a message (default: the DBC's E2EProfile
         attributes; a device's own DBC: hil.devices); `routed`: messages sent only when `send_now` is
         called (a gateway's, at once on the frame they translate), not on the cyclic schedule."""
@@ -210,26 +293,24 @@ class Node:
         self.period_us = period_us
         self.offset_us = offset_us
         self.rx = RxTable(binding.inputs)
-        self._rx_map = binding.rx
-        self._rx_codecs = {fid: codec[fid] for fid in binding.rx}
-        # fid -> the codec's decoder of the signals this node reads, into its table (receive_frame)
-        self._rx_stores = {fid: fc.storer(binding.rx[fid]) for fid, fc in self._rx_codecs.items()}
         self.safe = dict(safe_outputs or {})
-        self.outputs: dict[str, float] = {}
-        self.tx: list[TxFrame] = []
-        routed = frozenset(routed)
+        self.outputs = {}
+        self.receive_watch = None
+        self.tx = []
+        routed_names = frozenset(routed)
         for msg_name, fields in binding.tx:
             msg = db.get_message_by_name(msg_name)
             cycle_us = int(msg.cycle_time or 0) * 1000
-            if cycle_us <= 0 and msg_name not in routed:
+            if cycle_us <= 0 and msg_name not in routed_names:
                 continue                  # event frames are not sent cyclically by v1 nodes
             config = protection(msg)
             has_counter = config is None and any(s.name == E2E_COUNTER for s in msg.signals) and \
                 all(sig != E2E_COUNTER for sig, _ in fields)
-            self.tx.append(TxFrame(codec.by_name(msg_name), cycle_us, fields, has_counter,
-                                   next_due_us=NEVER_US if msg_name in routed else offset_us, e2e=config,
-                                   e2e_state=e2e.ProtectState() if config else None,
-                                   mux=multiplexer_pages(msg, fields)))
+            fc = codec.by_name(msg_name)
+            self.tx.append(TxFrame(fc, cycle_us, fields, has_counter,
+                                   fc.encoder(fields, E2E_COUNTER if has_counter else None),
+                                   next_due_us=NEVER_US if msg_name in routed_names else offset_us,
+                                   protection=config, mux=multiplexer_pages(msg, fields)))
         self._tx_by_name = {tx.codec.name: tx for tx in self.tx}
         self._checks: dict[int, RxCheck] = {}
         for fid in binding.rx:
@@ -238,15 +319,18 @@ class Node:
             if config is not None:
                 cycle_us = int(msg.cycle_time or 0) * 1000 or period_us
                 self._checks[fid] = RxCheck(msg.name, config, e2e.CheckState(), cycle_us, offset_us)
-        self.stats = NodeStats(e2e_status={} if self._checks else None, e2e_events=[])
-        # fid -> (rx pairs, SecOC verifier or None, E2E check or None, grace µs, decoder into the table):
-        # one lookup per frame
-        self._rx_plan: dict[int, tuple] = {}
+        self._e2e_counts: dict[str, int] = {}          # NodeStats.e2e_status, when the node checks E2E
+        self._e2e_events: list[tuple[int, str, str]] = []
+        self._secoc_counts: dict[str, int] = {}        # NodeStats.secoc_rejected, when it verifies SecOC
+        self.stats = NodeStats(e2e_status=self._e2e_counts if self._checks else None,
+                               e2e_events=self._e2e_events)
+        # frame id -> its checks and decoder (use_keys): one lookup per frame
+        self._routes: dict[int, RxRoute] = {}
         # a lower bound of the earliest time a cycle without a frame is due to an E2E check (so that
         # cycle() skips the checks until then; a 1 ms plant cycle would otherwise look at six of them)
-        self._e2e_due_us = min((c.last_us + c.grace_us for c in self._checks.values()), default=1 << 62)
+        self._e2e_due_us = min((c.last_us + c.grace_us for c in self._checks.values()), default=NEVER_US)
         self._db = db
-        self._verifiers: dict[int, secoc.SecOcReceiver] = {}
+        self._next_due_us = NEVER_US
         self.use_keys({})
 
     def use_keys(self, keys: Mapping[str, bytes], window: int = secoc.DEFAULT_WINDOW) -> None:
@@ -258,19 +342,17 @@ class Node:
             if data_id is not None:
                 tx.secoc = secoc.SecOcSender(keys.get(tx.codec.name, default), data_id)
                 tx.authentic = tx.codec.message.length - secoc.AUTH_BYTES
-        self._verifiers = {}
-        for fid in self._rx_map:
+        self._routes = {}
+        for fid, pairs in self.binding.rx.items():
             msg = self._db.get_message_by_frame_id(fid)
             data_id = secoc_data_id(msg)
-            if data_id is not None:
-                self._verifiers[fid] = secoc.SecOcReceiver(keys.get(msg.name, default), data_id, window)
-        if self._verifiers and self.stats.secoc_rejected is None:
-            self.stats.secoc_rejected = {}
-        self._rx_plan = {}
-        for fid, pairs in self._rx_map.items():
-            chk = self._checks.get(fid)
-            self._rx_plan[fid] = (pairs, self._verifiers.get(fid), chk, 0 if chk is None else chk.grace_us,
-                                  self._rx_stores[fid])
+            verifier = (None if data_id is None
+                        else secoc.SecOcReceiver(keys.get(msg.name, default), data_id, window))
+            if verifier is not None:
+                self.stats.secoc_rejected = self._secoc_counts
+            fc = self.codec[fid]
+            self._routes[fid] = RxRoute(msg.name, fc.length, fc.storer(pairs), verifier,
+                                        self._checks.get(fid))
         self._next_due_us = min((tx.next_due_us for tx in self.tx), default=NEVER_US)
 
     def stick(self, message: str, stuck: StuckSignal) -> bool:
@@ -299,56 +381,52 @@ class Node:
 
     @property
     def rx_ids(self) -> frozenset[int]:
-        return frozenset(self._rx_map)
+        return frozenset(self.binding.rx)
 
     def receive(self, frame_id: int, data: bytes, t_us: int) -> None:
-        fc = self._rx_codecs.get(frame_id)
-        if fc is None:
+        """A frame received at `t_us` [µs, the node's clock], as it was on the bus: counted, checked (SecOC,
+        then E2E) and, when usable, the signals this node reads decoded into its table; then the
+        `receive_watch` is told.  A frame of an identifier the node does not read is ignored (counted when
+        the DBC does not define it); a malformed one (shorter than its message, an undefined multiplexer
+        value) is counted, not raised."""
+        route = self._routes.get(frame_id)
+        if route is None:
             if frame_id not in self.codec:     # not a frame of this bus at all: counted, ignored
                 self.stats.unknown_frames += 1
             return
-        try:
-            values = fc.decode(data)
-        except FrameError:           # short or malformed frame on a real bus: counted, not raised
+        if len(data) < route.length:           # short or malformed frame on a real bus: counted, not raised
             self.stats.bad_frames += 1
             return
-        self.receive_values(frame_id, values, t_us, data)
+        if not self._passes(route, data, t_us):
+            return
+        try:
+            self.rx.take(route.store, data, t_us)
+        except FrameError:                      # a multiplexer value the DBC does not define
+            self.stats.bad_frames += 1
+            return
+        if self.receive_watch is not None:
+            self.receive_watch.accepted(self, frame_id, data, t_us)
 
-    def receive_values(self, frame_id: int, values: Mapping[str, float], t_us: int,
-                       data: bytes | None = None) -> None:
-        """A frame received, decoded (`values`, every signal of it) by the caller: its checks, then the
-        signals this node reads into its table."""
-        plan = self._rx_plan.get(frame_id)
-        if plan is not None and self._passes(frame_id, plan, b"" if data is None else data, t_us):
-            self.rx.update(plan[0], values, t_us)
-
-    def receive_frame(self, frame_id: int, data: bytes, t_us: int) -> None:
-        """A frame received as it is on the bus (the lockstep bus: its length is its message's): its
-        checks, then the signals this node reads decoded straight into its table."""
-        plan = self._rx_plan.get(frame_id)
-        if plan is not None and self._passes(frame_id, plan, data, t_us):
-            self.rx.take(plan[4], data, t_us)
-
-    def _passes(self, frame_id: int, plan: tuple, data: bytes, t_us: int) -> bool:
+    def _passes(self, route: RxRoute, data: bytes, t_us: int) -> bool:
         """A received frame's SecOC and E2E checks, counted: may its signals be used?"""
-        _, verifier, chk, grace_us, _ = plan
         stats = self.stats
         stats.frames_received += 1
+        verifier = route.verifier
         if verifier is not None:                 # authentication first: a forged frame is dropped
             verdict = verifier.verify(data)
-            if not verdict.accepted:
-                counts = stats.secoc_rejected
-                counts[verdict.reason.value] = counts.get(verdict.reason.value, 0) + 1
-                events = stats.e2e_events
-                if events is not None and len(events) < 10_000:
-                    events.append((t_us, msg_name_of(self._db, frame_id), "SECOC_" + verdict.reason.name))
+            if verdict.payload is None:          # not accepted (the authentic payload comes only with that)
+                reason = verdict.reason
+                self._secoc_counts[reason.value] = self._secoc_counts.get(reason.value, 0) + 1
+                if len(self._e2e_events) < MAX_E2E_EVENTS:
+                    self._e2e_events.append((t_us, route.name, "SECOC_" + reason.name))
                 return False
             data = verdict.payload
+        chk = route.check
         if chk is not None:
             chk.state, status = e2e.check(chk.config, chk.state, data)
             chk.last_us = t_us
-            if t_us + grace_us < self._e2e_due_us:
-                self._e2e_due_us = t_us + grace_us
+            if t_us + chk.grace_us < self._e2e_due_us:
+                self._e2e_due_us = t_us + chk.grace_us
             self._count_e2e(chk, status, t_us)
             if not status.usable:
                 stats.e2e_discarded += 1
@@ -357,15 +435,14 @@ class Node:
 
     def _count_e2e(self, chk: RxCheck, status: e2e.Status, t_us: int) -> None:
         self.rx.e2e[chk.name] = status
-        counts = self.stats.e2e_status
-        value = status._value_                   # Enum.value is a descriptor: 8x slower to read
-        counts[value] = counts.get(value, 0) + 1
-        if status is not _E2E_OK and len(self.stats.e2e_events) < 10_000:
-            self.stats.e2e_events.append((t_us, chk.name, value))
+        value = status.value
+        self._e2e_counts[value] = self._e2e_counts.get(value, 0) + 1
+        if status is not e2e.Status.OK and len(self._e2e_events) < MAX_E2E_EVENTS:
+            self._e2e_events.append((t_us, chk.name, value))
 
     def _check_missing(self, now_us: int) -> None:
         """E2E: each message cycle without a frame is NONEWDATA (checked once 1.5 cycles have passed)."""
-        due_us = 1 << 62
+        due_us = NEVER_US
         for chk in self._checks.values():
             if now_us >= chk.last_us + chk.grace_us:       # 2 (now - last) >= 3 cycle, in integers
                 chk.state, status = e2e.check(chk.config, chk.state, None)
@@ -389,32 +466,20 @@ class Node:
         except Exception as exc:  # a controller bug must not take the bus down: send safe values
             stats.step_errors += 1
             stats.last_error = f"{type(exc).__name__}: {exc}"
-            result = dict(self.safe)
-        if result.__class__ is not dict and not isinstance(result, Mapping):   # no outputs: a bug too
+            result = self.safe
+        if not isinstance(result, Mapping):     # no outputs: a bug too
             stats.step_errors += 1
             stats.last_error = f"step() returned {type(result).__name__}, expected a dict of output signals"
-            result = dict(self.safe)
-        outputs = self.outputs
-        # Every value a finite number?  One sum in C says so: a sum that is an int or a float is finite
-        # if every value is (a NaN or an inf makes it non-finite; finite ones that overflow it, or values
-        # that are not numbers, take the check one by one, which decides)
-        try:
-            total = sum(result.values())
-        except Exception:                        # noqa: BLE001 - a value that is not a number
-            total = None
-        cls = total.__class__
-        if (cls is float or cls is int) and total - total == 0:
-            outputs.update(result)
-        else:
-            self._check_outputs(result)
+            result = self.safe
+        self._take_outputs(result)
         slot_us = now_us if nominal_us is None else nominal_us
         if slot_us < self._next_due_us:         # the plant steps at 1 ms, its frames are due every 10
             return []
         frames = []
-        next_due_us = 1 << 62
+        next_due_us = NEVER_US
         for tx in self.tx:
             if slot_us >= tx.next_due_us:
-                frames.append((tx.codec, self._frame(tx, outputs, now_us)))
+                frames.append((tx.codec, self._frame(tx, self.outputs, now_us)))
                 tx.count += 1
                 tx.next_due_us += tx.cycle_us
                 if tx.next_due_us <= slot_us:         # overrun: skip missed slots, keep the phase
@@ -426,25 +491,17 @@ class Node:
         self._next_due_us = next_due_us
         return frames
 
-    def _check_outputs(self, result: Mapping[str, object]) -> None:
-        """Outputs one of which is not a finite number: each such value is counted and replaced by the
+    def _take_outputs(self, result: Mapping[Any, Any]) -> None:
+        """The controller's outputs (a step's result as it came: nothing about them checked yet) into
+        `outputs` (finite_number); one that is NaN, infinite or no number is counted and replaced by the
         node's safe value (0.0 where it has none)."""
-        stats, outputs = self.stats, self.outputs
+        outputs = self.outputs
         for key, value in result.items():
-            cls = value.__class__
-            if cls is float:
-                if value - value != 0.0:         # inf or NaN: math.isfinite without the call
-                    stats.bad_outputs += 1
-                    value = self.safe.get(key, 0.0)
-            elif cls is not int:
-                try:
-                    finite = math.isfinite(value)
-                except (TypeError, ValueError):  # not a number at all (or a signalling NaN)
-                    finite = False
-                if not finite:
-                    stats.bad_outputs += 1
-                    value = self.safe.get(key, 0.0)
-            outputs[key] = value
+            number = finite_number(value)
+            if number is None:
+                self.stats.bad_outputs += 1
+                number = self.safe.get(key, 0.0)
+            outputs[key] = number
 
     def _frame(self, tx: TxFrame, outputs: Mapping[str, float], now_us: int) -> bytes:
         """The payload of one due frame: the outputs encoded, then E2E-protected and secured."""
@@ -466,8 +523,8 @@ class Node:
             self.stats.clamped_outputs += codec.clamped - clamped
         if tx.secoc is not None:
             data = data[:tx.authentic]
-        if tx.e2e is not None:
-            data = e2e.protect(tx.e2e, tx.e2e_state, data)
+        if tx.protection is not None:
+            data = e2e.protect(tx.protection, tx.protect_state, data)
         if tx.secoc is not None:
             data = tx.secoc.secure(data)
         return data

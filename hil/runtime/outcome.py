@@ -6,7 +6,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hil.runtime.plant_node import TruthLog
 from hil.runtime.probe import (
     HOST_SEEN,
     behind_cycles,
@@ -15,6 +14,7 @@ from hil.runtime.probe import (
     merge_intervals,
     stall_intervals,
 )
+from hil.runtime.truth import Truth
 
 
 @dataclass
@@ -24,7 +24,7 @@ class RunOutcome:
     mode: str
     end_us: int
     reason: str                               # "standstill" | "max_duration" | "interrupted"
-    truth: TruthLog
+    truth: Truth                              # TruthLog, or a study's own
     frames_by_node: dict[str, int]
     node_stats: dict[str, dict] = field(default_factory=dict)
     wall_s: float = 0.0

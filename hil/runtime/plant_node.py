@@ -4,19 +4,20 @@ the plant's ground truth, from which the KPIs are computed."""
 from __future__ import annotations
 
 import math
-import operator
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
-from cantools.database.can import Database
+from cantools.database.can import Database, Message
+from mypy_extensions import mypyc_attr
 
 from firmware_py.rx import RxTable
 from hil.errors import BindingError
 from hil.runtime.truth import STANDSTILL_MPS
 from plant_sim.brake import WSP_FILL, WSP_HOLD
-from plant_sim.plant import Plant, TruthSnapshot
-from plant_sim.sensors import quantise
+from plant_sim.params import PlantParams
+from plant_sim.sensors import Sensors, quantise
 
 TRUTH_PERIOD_US = 10_000         # ground truth is sampled every 10 ms
 SENSOR_FIELDS = (("AxleSpeed", "axle_speed_rad_s"), ("CylPressure", "cyl_pressure_Pa"),
@@ -42,6 +43,52 @@ class SensorFault:
     last: float | None = None      # the reading before start_us
 
 
+class PlantState(Protocol):
+    """A plant's state now, per car (plant_sim's TruthSnapshot, an FMU plant's FmuSnapshot)."""
+
+    @property
+    def x(self) -> list[float]: ...        # position [m]
+
+    @property
+    def v(self) -> list[float]: ...        # speed [m/s]
+
+
+class TruthSample(Protocol):
+    """One sample of a plant's truth as the truth log keeps it (plant_sim's TruthSnapshot of numpy rows,
+    an FMU plant's FmuRecord): the node reads its cars' speeds."""
+
+    @property
+    def v(self) -> list[float] | np.ndarray: ...
+
+
+class SteppedPlant(Protocol):
+    """The plant a PlantController steps and reads: plant_sim.plant.Plant, or an FMU
+    (hil.fmi.plant.FmuPlant)."""
+
+    @property
+    def params(self) -> PlantParams: ...
+
+    @property
+    def t_us(self) -> int: ...
+
+    @property
+    def lead_position_m(self) -> float: ...
+
+    @property
+    def max_slip_mps(self) -> np.ndarray: ...
+
+    def step(self, valve_cmd: np.ndarray, wsp_valve: np.ndarray,
+             pressure_set: np.ndarray | None = None) -> None: ...
+
+    def sense(self) -> Sensors: ...
+
+    def snapshot(self) -> PlantState: ...
+
+    def truth_record(self) -> TruthSample: ...
+
+    def truth_series(self, snaps: Sequence[Any]) -> dict[str, np.ndarray]: ...   # its own samples
+
+
 #: resolution of each sensor in plant_sim.params.SensorParams, and whether it reads ≥ 0 only
 SENSOR_QUANTUM = {"AxleSpeed": ("axle_speed_quantum_rad_s", True),
                   "CylPressure": ("pressure_quantum_Pa", True),
@@ -49,10 +96,15 @@ SENSOR_QUANTUM = {"AxleSpeed": ("axle_speed_quantum_rad_s", True),
 
 
 def faulty_reading(reading: float, fault: SensorFault, quantum: float, non_negative: bool) -> float:
-    """What a failed sensor reports instead of `reading` while its fault is active (pure)."""
+    """What a failed sensor reports instead of `reading` while its fault is active (pure): stuck, its value,
+    else the last reading before the fault (this one when there was none); biased, the reading plus its
+    bias, quantised again."""
     if fault.mode == "stuck":
-        return fault.last if fault.value is None else fault.value
-    out = float(quantise(np.asarray(reading + fault.value), quantum))
+        if fault.value is not None:
+            return fault.value
+        return reading if fault.last is None else fault.last
+    bias = 0.0 if fault.value is None else fault.value      # a bias fault has its value (FaultSpec checks)
+    out = float(quantise(np.asarray(reading + bias), quantum))
     return max(out, 0.0) if non_negative else out
 
 
@@ -60,33 +112,34 @@ class TruthLog:
     """Ground truth sampled at a fixed period: cheap raw snapshots during the run, derived quantities
     (adhesion, optimal slip, forces) computed once when the columns are asked for."""
 
-    def __init__(self, plant: Plant) -> None:
+    plant: SteppedPlant | None          # None in a copy from another process (its series are kept)
+    t_us: list[int]
+    snaps: list[TruthSample]
+    max_slip_mps: np.ndarray | None
+    rt_lag_us: list[int] | None
+    _series: dict[str, np.ndarray]
+
+    def __init__(self, plant: SteppedPlant | None) -> None:
         self.plant = plant
-        self.t_us: list[int] = []
-        self.snaps: list[TruthSnapshot] = []
+        self.t_us = []
+        self.snaps = []
         # largest slip speed over EVERY plant step, per car [m/s]; kept for "lag" plants (seed 001 runs,
         # whose acceptance is s ≤ s̄ at every step), None otherwise (the 10 ms samples are all there is);
         # the plant's own running max, copied when the log crosses a process boundary
-        self.max_slip_mps: np.ndarray | None = None
+        self.max_slip_mps = None
         # real time: how far the plant's outputs of each sample's step were behind their schedule [µs]
         # (its wake's lateness + its clock's slip, hil.runtime.host); None in lockstep
-        self.rt_lag_us: list[int] | None = None
+        self.rt_lag_us = None
+        self._series = {}
 
-    def record(self, t_us: int, snap: TruthSnapshot) -> None:
+    def record(self, t_us: int, snap: TruthSample) -> None:
         self.t_us.append(t_us)
         self.snaps.append(snap)
 
-    def __getstate__(self) -> dict:
+    def __reduce__(self) -> tuple[Callable[..., TruthLog], tuple[Any, ...]]:
         """Crosses process boundaries as its series, without the plant or the raw snapshots (pickling those
         lists of floats took a real-time plant host ~0.4 CPU s at the end of a 30 s run)."""
-        return {"t_us": self.t_us, "series": self.series(), "max_slip_mps": self.max_slip_mps,
-                "rt_lag_us": self.rt_lag_us}
-
-    def __setstate__(self, state: dict) -> None:
-        self.plant, self.t_us, self.snaps = None, state["t_us"], []
-        self._series = state["series"]
-        self.max_slip_mps = state.get("max_slip_mps")
-        self.rt_lag_us = state.get("rt_lag_us")
+        return _truth_copy, (self.t_us, self.series(), self.max_slip_mps, self.rt_lag_us)
 
     def series(self) -> dict[str, np.ndarray]:
         if self.plant is None:
@@ -106,7 +159,15 @@ class TruthLog:
         return cols
 
 
-def _message(db: Database, name: str, dbc_name: str):
+def _truth_copy(t_us: list[int], series: dict[str, np.ndarray], max_slip_mps: np.ndarray | None,
+                rt_lag_us: list[int] | None) -> TruthLog:
+    """A TruthLog from another process (TruthLog.__reduce__): its samples' times and series, no plant."""
+    log = TruthLog(None)
+    log.t_us, log._series, log.max_slip_mps, log.rt_lag_us = t_us, series, max_slip_mps, rt_lag_us
+    return log
+
+
+def _message(db: Database, name: str, dbc_name: str) -> Message:
     """The DBC message the plant needs, or a BindingError naming it (a DBC of another bus)."""
     try:
         return db.get_message_by_name(name)
@@ -121,6 +182,7 @@ FAILSAFE_CYCLES = 3        # pressure-command cycles without a usable frame befo
 # electronic fault may keep a cylinder below the demand before the brake applies regardless.  Scenario key
 # [plant] failsafe_hold_s; 0 fills at once
 FAILSAFE_HOLD_S = 5.0
+NEVER_STALE_US = 1 << 62   # µs: no command can go stale before it (no car commanded yet)
 
 
 class BaliseReader:
@@ -129,14 +191,16 @@ class BaliseReader:
     is interpolated inside the plant step in which the front crossed the balise; balises behind the start
     position are not reported."""
 
-    OUTPUTS = ("PLANT_BTM.BalisePos", "PLANT_BTM.PassageAge", "PLANT_BTM.BaliseCount",
-               "PLANT_BTM.BaliseValid")
+    OUTPUTS: ClassVar[tuple[str, ...]] = ("PLANT_BTM.BalisePos", "PLANT_BTM.PassageAge",
+                                          "PLANT_BTM.BaliseCount", "PLANT_BTM.BaliseValid")
+
+    passed_us: float | None                                    # plant time of the last passage [µs]
 
     def __init__(self, positions: tuple[float, ...], x0_m: float) -> None:
         self.positions = positions
         self.next = sum(1 for b in positions if b <= x0_m)     # index of the next balise ahead
         self.count = 0
-        self.passed_us: float | None = None                    # plant time of the last passage [µs]
+        self.passed_us = None
         self.x_prev = x0_m
 
     def after_step(self, t0_us: int, dt_us: int, x_m: float, out: dict[str, float]) -> None:
@@ -156,6 +220,7 @@ class BaliseReader:
             out["PLANT_BTM.BaliseValid"] = 1
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)   # a study's plant extends it (hil/studies/*/nodes.py)
 class PlantController:
     """step(now_us, rx): sense (when the sensor frames are due), record truth, then integrate one step.
 
@@ -169,7 +234,16 @@ class PlantController:
     where a fill without WSP locks it within 1.5 s; a BECU that stays silent still brakes after the hold
     (`failsafe_us`: time in the fail-safe per car, `failsafe_fill_us`: of which filling)."""
 
-    def __init__(self, plant: Plant, n_cars: int, db: Database, dbc_name: str = "the DBC",
+    plant: SteppedPlant
+    n: int
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    truth: TruthLog
+    standstill: bool             # every car below STANDSTILL_MPS at the last truth sample
+    sensor_faults: list[SensorFault]
+    btm: BaliseReader | None
+
+    def __init__(self, plant: SteppedPlant, n_cars: int, db: Database, dbc_name: str = "the DBC",
                  balises: Sequence[float] = (), failsafe_hold_s: float = FAILSAFE_HOLD_S) -> None:
         self.plant = plant
         self.n = n_cars
@@ -179,7 +253,6 @@ class PlantController:
         self.set_keys = ([f"BECU{i}_PRESS_CMD.CylPressureSet" for i in range(1, n_cars + 1)] if self.lag
                          else [])
         self.inputs = tuple(self.valve_keys + self.wsp_keys + self.set_keys)
-        self._commands = operator.itemgetter(*self.inputs)      # every command of a table, in one call
         self._pset = np.zeros(n_cars)
         self.outputs = tuple(f"PLANT_CAR{i}_SENSORS.{sig}" for i in range(1, n_cars + 1)
                              for sig, _ in SENSOR_FIELDS + (("SensorCounter", ""),))
@@ -194,22 +267,24 @@ class PlantController:
         self.failsafe_us = np.zeros(n_cars, dtype=np.int64)        # time in the fail-safe, per car [µs]
         self.failsafe_fill_us = np.zeros(n_cars, dtype=np.int64)   # ... of which filling [µs]
         self._p_max = plant.params.brake.p_max_Pa
-        self._last_us = None
+        self._last_us: int | None = None         # the time of the last step [µs]
         self.next_sense_us = 0
         self.next_truth_us = 0
         self.sense_count = 0
         self.truth = TruthLog(plant)
         if self.lag:
             self.truth.max_slip_mps = plant.max_slip_mps     # the plant's running max (a live view)
-        self._rx_version = -1
+        self._rx_version = -1                    # the table's version the actuators last followed
         # _failsafe: until _quiet_until_us [µs] no command can be stale, while rx is the same table and has
         # not changed since (version _quiet_version).  Once every car has been commanded (_quiet_version
         # None) a change cannot make it wrong: a command received only makes its car's command fresher
-        self._quiet_until_us, self._quiet_rx, self._quiet_version = -1, None, -1
+        self._quiet_until_us = -1
+        self._quiet_rx: RxTable | None = None
+        self._quiet_version: int | None = -1
         self._valve = np.zeros(n_cars)
         self._wsp = np.zeros(n_cars, dtype=np.int64)
-        self.standstill = False     # every car below STANDSTILL_MPS at the last truth sample
-        self.sensor_faults: list[SensorFault] = []
+        self.standstill = False
+        self.sensor_faults = []
         self._sensor_keys = [tuple(f"PLANT_CAR{i}_SENSORS.{sig}" for sig, _ in SENSOR_FIELDS)
                              for i in range(1, n_cars + 1)]
         self._counter_keys = [f"PLANT_CAR{i}_SENSORS.SensorCounter" for i in range(1, n_cars + 1)]
@@ -241,26 +316,16 @@ class PlantController:
         return {"v_mps": np.array(snap.v), "x_m": np.array(snap.x)}
 
     def _actuators(self, rx: RxTable) -> None:
+        """Each car's valve, dump valve (and set-point) as its last command in `rx` has them; a command not
+        received yet (NaN) or not finite leaves the valve closed, the dump valve in FILL, the set-point 0."""
         if rx.version == self._rx_version:
             return
         self._rx_version = rx.version
-        latest = rx.latest                        # the table's dict: many names read at once
-        commands = self._commands(latest)
-        total = sum(commands)
-        if total - total == 0.0:                  # every command received and finite: as they are
-            n = self.n
-            self._valve[:] = commands[:n]
-            self._wsp[:] = commands[n:2 * n]      # a WSP state's float (0..3, a 2-bit signal) to its int
-            if self.set_keys:
-                self._pset[:] = commands[2 * n:]
-            return
-        isfinite = math.isfinite
-        valve = [latest[vk] for vk in self.valve_keys]
-        wsp = [latest[wk] for wk in self.wsp_keys]
-        self._valve[:] = [v if isfinite(v) else 0.0 for v in valve]        # nothing received yet: closed
-        self._wsp[:] = [int(w) if isfinite(w) else 0 for w in wsp]
-        if self.set_keys:
-            self._pset[:] = [ps if isfinite(ps) else 0.0 for ps in (latest[key] for key in self.set_keys)]
+        latest = rx.latest
+        self._valve[:] = [_finite_or(latest[key], 0.0) for key in self.valve_keys]
+        self._wsp[:] = [int(_finite_or(latest[key], 0.0)) for key in self.wsp_keys]   # a 2-bit state's float
+        if self.lag:
+            self._pset[:] = [_finite_or(latest[key], 0.0) for key in self.set_keys]
 
     def _failsafe(self, now_us: int, rx: RxTable) -> None:
         """Cars whose command went stale hold their cylinder, then apply the brake (class docstring)."""
@@ -268,14 +333,15 @@ class PlantController:
         self._last_us = now_us
         if self._quiet(now_us, rx):
             return                            # none can be stale yet
-        quiet_until_us = 1 << 62
+        quiet_until_us = NEVER_STALE_US
         commanded = 0
         for k, key in enumerate(self.valve_keys):
             age = rx.age_us(key, now_us)
-            if age is not None:               # stale once age > failsafe_after_us
-                quiet_until_us = min(quiet_until_us, now_us - age + self.failsafe_after_us)
-                commanded += 1
-            if age is not None and age > self.failsafe_after_us:
+            if age is None:                   # never commanded: nothing to hold
+                continue
+            quiet_until_us = min(quiet_until_us, now_us - age + self.failsafe_after_us)   # stale after it
+            commanded += 1
+            if age > self.failsafe_after_us:
                 if age > self.fill_after_us:     # held as long as allowed: the brake applies
                     self._valve[k] = 1.0
                     self._wsp[k] = WSP_FILL
@@ -300,13 +366,13 @@ class PlantController:
         if now_us >= self.next_sense_us:
             s = self.plant.sense()
             counter = self.sense_count % 256
-            # the same floats as float(array[i]) per car, read from each array once (tolist)
-            readings = [[float(v) for v in getattr(s, attr).tolist()] for _, attr in SENSOR_FIELDS]
-            for keys, counter_key, values in zip(self._sensor_keys, self._counter_keys,
-                                                 zip(*readings, strict=True), strict=True):
-                for key, value in zip(keys, values, strict=True):
-                    out[key] = value
-                out[counter_key] = counter
+            speeds, pressures, accels = (s.axle_speed_rad_s.tolist(), s.cyl_pressure_Pa.tolist(),
+                                         s.accel_mps2.tolist())
+            for k, (speed_key, pressure_key, accel_key) in enumerate(self._sensor_keys):
+                out[speed_key] = speeds[k]
+                out[pressure_key] = pressures[k]
+                out[accel_key] = accels[k]
+                out[self._counter_keys[k]] = counter
             if self.sensor_faults:
                 self._apply_sensor_faults(now_us, out)
             self.sense_count += 1
@@ -314,15 +380,10 @@ class PlantController:
         if now_us >= self.next_truth_us:
             snap = self.plant.truth_record()
             self.truth.record(now_us, snap)
-            self.standstill = max(snap.v.tolist()) < STANDSTILL_MPS    # 6 floats: faster than ndarray.max
+            self.standstill = float(np.max(snap.v)) < STANDSTILL_MPS
             self.next_truth_us += TRUTH_PERIOD_US
-        if rx.version != self._rx_version:
-            self._actuators(rx)
-        if now_us <= self._quiet_until_us and rx is self._quiet_rx and (
-                self._quiet_version is None or rx.version == self._quiet_version):
-            self._last_us = now_us               # _failsafe's quick case (_quiet), inlined
-        else:
-            self._failsafe(now_us, rx)
+        self._actuators(rx)
+        self._failsafe(now_us, rx)
         if self.lag:
             self.plant.step(self._valve, self._wsp, self._pset)
         else:
@@ -330,3 +391,8 @@ class PlantController:
         if self.btm is not None:
             self.btm.after_step(now_us, self.plant.t_us - now_us, self.plant.lead_position_m, out)
         return out
+
+
+def _finite_or(value: float, default: float) -> float:
+    """`value` if it is finite, else `default` (a command not received yet reads NaN)."""
+    return value if math.isfinite(value) else default

@@ -3,7 +3,7 @@ trace and a probe measuring the machine, all on one python-can bus — `udp_mult
 module, no root), `socketcan` on vcan0 where the kernel has it, or any python-can interface.
 
 Hosting ([realtime] hosting, `--hosting`): "grouped" (the default) runs every simulated ECU in one
-process with one bus connection (each frame received and decoded once, hil.runtime.host) and the plant in
+process with one bus connection (each frame received once, hil.runtime.host) and the plant in
 its own (plant_process = "shared": in that one too); "per-node" runs one process per node (isolation
 tests: kill -9 of one ECU; nodes spread over hosts). A node marked external ([nodes.NAME] external,
 `--external NAME`) is not simulated: a device under test, another process or another host sends its

@@ -21,9 +21,12 @@ between].  CANoe re-arms its timers on each expiry, so there the jitter accumula
 from __future__ import annotations
 
 import random
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Protocol, TypeVar
 
 from cantools.database.can import Database
+from cantools.database.can import Node as DbcNode
 
 from hil.can.dbc import closest
 from hil.errors import ScenarioError
@@ -34,9 +37,23 @@ __all__ = ["MessageDelay", "NodeRelease", "dbc_node_timing", "message_delays", "
 
 #: nodes whose clock is the simulation's own: the plant integrates physics at a fixed step
 FIXED_CLOCK_NODES = ("PLANT",)
+T = TypeVar("T")
 
 
-def _attr(db: Database, node, name: str) -> float | None:
+class Scheduled(Protocol):
+    """What the releases of a node are computed from: a runtime Node, or a device's side or model."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def period_us(self) -> int: ...
+
+    @property
+    def offset_us(self) -> int: ...
+
+
+def _attr(db: Database, node: DbcNode, name: str) -> float | None:
     """A node attribute: its BA_ value, else the BA_DEF_DEF_ default, else None (not defined)."""
     attrs = getattr(getattr(node, "dbc", None), "attributes", None) or {}
     a = attrs.get(name)
@@ -62,30 +79,32 @@ def dbc_node_timing(db: Database, name: str, period_us: int) -> NodeTiming:
     )
 
 
-@dataclass
 class NodeRelease:
     """Release times of one node's cycles, in ns; `next()` gives (release, nominal µs, window start)."""
 
     name: str
     period_us: int
     offset_us: int
-    start_delay_us: int = 0
-    drift_ppm: float = 0.0
-    jitter_min_us: int = 0
-    jitter_max_us: int = 0
-    seed: int = 0
+    start_delay_us: int
+    drift_ppm: float
+    jitter_min_us: int
+    jitter_max_us: int
+    seed: int
+    k: int                      # cycles released so far
+    jittered: bool              # a release jitter is drawn for every cycle
 
-    def __post_init__(self) -> None:
+    def __init__(self, name: str, period_us: int, offset_us: int, start_delay_us: int = 0,
+                 drift_ppm: float = 0.0, jitter_min_us: int = 0, jitter_max_us: int = 0,
+                 seed: int = 0) -> None:
+        self.name, self.period_us, self.offset_us = name, period_us, offset_us
+        self.start_delay_us, self.drift_ppm, self.seed = start_delay_us, drift_ppm, seed
+        self.jitter_min_us, self.jitter_max_us = jitter_min_us, jitter_max_us
         self.k = 0
-        self._rng = random.Random(f"{self.seed}/node/{self.name}")
-        self._scale = self.period_us * 1000 * (1.0 + self.drift_ppm * 1e-6)
-        self._base_ns = (self.start_delay_us + self.offset_us) * 1000
-        self.jittered = self.jitter_min_us != self.jitter_max_us or self.jitter_min_us != 0
-        # Without drift k·T·(1 + 0) in floats is the integer k·T while that stays below 2**53 ns (104 days):
-        # next() then computes it in integers, the same number without the float product and round().
-        self._period_ns = self.period_us * 1000
-        self._k_int = (1 << 53) // max(self._period_ns, 1) if self.drift_ppm == 0 else 0
-        self._window_ns = self.jitter_min_us * 1000
+        self._rng = random.Random(f"{seed}/node/{name}")
+        self._scale = period_us * 1000 * (1.0 + drift_ppm * 1e-6)     # ns per cycle on the node's clock
+        self._base_ns = (start_delay_us + offset_us) * 1000
+        self.jittered = jitter_min_us != jitter_max_us or jitter_min_us != 0
+        self._window_ns = jitter_min_us * 1000
 
     @property
     def exact(self) -> bool:
@@ -96,17 +115,14 @@ class NodeRelease:
         k = self.k
         self.k += 1
         nominal_us = self.offset_us + k * self.period_us
-        if k < self._k_int:
-            clock_ns = self._base_ns + k * self._period_ns
-        else:
-            clock_ns = self._base_ns + round(k * self._scale)
+        clock_ns = self._base_ns + round(k * self._scale)
         if not self.jittered:
             return max(0, clock_ns), nominal_us, max(0, clock_ns + self._window_ns)
         jitter_ns = round(self._rng.uniform(self.jitter_min_us, self.jitter_max_us) * 1000)
         return max(0, clock_ns + jitter_ns), nominal_us, max(0, clock_ns + self._window_ns)
 
 
-def node_release(scenario: Scenario, db: Database, node) -> NodeRelease:
+def node_release(scenario: Scenario, db: Database, node: Scheduled) -> NodeRelease:
     """The NodeRelease of one node: scenario values over DBC attributes over zero."""
     given = scenario.nodes.get(node.name, NodeTiming()).model_copy(update={"external": False})
     fixed = node.name in FIXED_CLOCK_NODES
@@ -114,22 +130,24 @@ def node_release(scenario: Scenario, db: Database, node) -> NodeRelease:
         raise ScenarioError(f"scenario key 'nodes.{node.name}': the plant steps the physics on a fixed "
                             f"clock and cannot jitter; delay its frames under [messages.NAME] instead")
     dbc = NodeTiming() if fixed else dbc_node_timing(db, node.name, node.period_us)
-
-    def pick(key: str):
-        value = getattr(given, key)
-        return value if value is not None else getattr(dbc, key)
-
-    jmin, jmax = pick("jitter_min_us") or 0, pick("jitter_max_us") or 0
+    jmin = _first(given.jitter_min_us, dbc.jitter_min_us, 0)
+    jmax = _first(given.jitter_max_us, dbc.jitter_max_us, 0)
     if jmax < jmin:
         raise ScenarioError(f"node {node.name}: jitter_max_us {jmax} is below jitter_min_us {jmin}")
     if jmax - jmin >= node.period_us:
         raise ScenarioError(f"scenario key 'nodes.{node.name}': jitter range {jmax - jmin} us must be "
                             f"shorter than the node's period {node.period_us} us")
-    return NodeRelease(node.name, node.period_us, node.offset_us, int(pick("start_delay_us") or 0),
-                       float(pick("drift_ppm") or 0.0), int(jmin), int(jmax), scenario.seed)
+    return NodeRelease(node.name, node.period_us, node.offset_us,
+                       _first(given.start_delay_us, dbc.start_delay_us, 0),
+                       float(_first(given.drift_ppm, dbc.drift_ppm, 0.0)), jmin, jmax, scenario.seed)
 
 
-def node_releases(scenario: Scenario, db: Database, nodes: list) -> list[NodeRelease]:
+def _first(given: T | None, dbc: T | None, default: T) -> T:
+    """The scenario's value, else the DBC's, else `default`."""
+    return given if given is not None else dbc if dbc is not None else default
+
+
+def node_releases(scenario: Scenario, db: Database, nodes: Sequence[Scheduled]) -> list[NodeRelease]:
     """One NodeRelease per node (same order); a scenario key naming no node is an error."""
     names = [n.name for n in nodes]
     unknown = sorted(set(scenario.nodes) - set(names))
@@ -147,6 +165,7 @@ class MessageDelay:
     delay_min_us: int
     delay_max_us: int
     seed: int = 0
+    _rng: random.Random = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self._rng = random.Random(f"{self.seed}/message/{self.name}")

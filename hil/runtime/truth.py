@@ -1,9 +1,9 @@
 """The plant's ground truth as a run keeps it: when the train stands, and truth.csv in the run folder.
 
-The plant node records the truth (hil.runtime.plant_node.TruthLog); the run writes it to truth.csv
-(`write_truth_csv`); the report and a run folder read in Python read it back (`read_truth_csv`).  A train
-stands when every car is slower than STANDSTILL_MPS: the lockstep and real-time runs end on it, the KPIs
-find the stop by it.
+The plant node records the truth (hil.runtime.plant_node.TruthLog, or a study's own: `Truth`); the run
+writes it to truth.csv (`write_truth_csv`); the report and a run folder read in Python read it back
+(`read_truth_csv`).  A train stands when every car is slower than STANDSTILL_MPS: the lockstep and
+real-time runs end on it (`PlantView.standstill`), the KPIs find the stop by it.
 """
 
 from __future__ import annotations
@@ -11,12 +11,34 @@ from __future__ import annotations
 import csv
 import warnings
 from pathlib import Path
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from hil.errors import RailhilError
 
 STANDSTILL_MPS = 0.01            # every car slower than this counts as standing still (chosen)
+
+
+class Truth(Protocol):
+    """A run's ground truth (hil.runtime.plant_node.TruthLog, a study's own): flat columns, t_s first."""
+
+    def columns(self) -> dict[str, np.ndarray]: ...
+
+
+# runtime-checkable: a run checks its plant node's controller with isinstance, which a protocol that mypyc
+# compiles does not allow; this module is not compiled
+@runtime_checkable
+class PlantView(Protocol):
+    """What a run reads of its plant node's controller (hil.runtime.plant_node.PlantController, a study's):
+    whether the train stands, its truth, a glance at speeds and positions for progress reports."""
+
+    standstill: bool
+
+    @property
+    def truth(self) -> Truth: ...
+
+    def glance(self) -> dict[str, np.ndarray]: ...
 
 
 def write_truth_csv(columns: dict[str, np.ndarray], path: Path) -> None:

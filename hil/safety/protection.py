@@ -27,7 +27,6 @@ test (tests/safety/test_protection.py) requires it empty for every scenario fami
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
@@ -52,7 +51,7 @@ class Recording:
     """One node's cycles: (now_us, receive table as given) and the outputs it returned."""
 
     name: str
-    rx_cycles: list[tuple[int, object]] = field(default_factory=list)
+    rx_cycles: list[tuple[int, RxTable]] = field(default_factory=list)
     outputs: list[dict[str, float]] = field(default_factory=list)
 
 
@@ -65,7 +64,7 @@ class _Recorder:
 
     def step(self, now_us: int, rx: RxTable):
         out = self._controller.step(now_us, rx)
-        self._recording.rx_cycles.append((now_us, _snapshot(rx)))
+        self._recording.rx_cycles.append((now_us, rx.copy()))   # as the controller saw it
         self._recording.outputs.append(dict(out))
         return out
 
@@ -73,11 +72,6 @@ class _Recorder:
         return getattr(self._controller, name)
 
 
-def _snapshot(rx: RxTable) -> RxTable:
-    """A copy of a receive table (RxTable or a study's subclass) as the controller saw it."""
-    snap = object.__new__(type(rx))
-    snap.__dict__.update({k: (dict(v) if isinstance(v, dict) else copy.copy(v)) for k, v in vars(rx).items()})
-    return snap
 
 
 @dataclass(frozen=True)
@@ -107,7 +101,7 @@ def record_run(scenario, db: Database | None = None) -> tuple[dict[str, Recordin
     recordings: dict[str, Recording] = {}
     bindings: dict[str, tuple] = {}
     for node in setup.nodes:
-        bindings[node.name] = (dict(node._rx_map), [(tx.codec.name, list(tx.fields)) for tx in node.tx])
+        bindings[node.name] = (dict(node.binding.rx), [(tx.codec.name, list(tx.fields)) for tx in node.tx])
         if node.name != PLANT:
             recordings[node.name] = rec = Recording(node.name)
             node.controller = _Recorder(node.controller, rec)
@@ -131,7 +125,7 @@ def _replay(build, recording: Recording, key: str | None, value: float) -> Itera
     (None: as recorded)."""
     ctrl = build()
     for now_us, snap in recording.rx_cycles:
-        rx = _snapshot(snap)
+        rx = snap.copy()
         if key is None:
             rx.version += 1
         else:

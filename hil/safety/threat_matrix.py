@@ -98,7 +98,8 @@ from hil.report.kpis import RunView
 from hil.runtime.assembly import build_node, node_names
 from hil.runtime.desk import DeskScript
 from hil.runtime.lockstep import prepare_lockstep, run_lockstep
-from hil.safety.injection import build_injector
+from hil.runtime.node import Node
+from hil.safety.injection import FaultInjector, build_injector
 from hil.scenario import Scenario, parse_scenario, registry
 from hil.scenario.faults import MESSAGE_THREATS, NODE_FAULTS
 from hil.scenario.params import run_params
@@ -426,12 +427,11 @@ def content_signals(msg) -> tuple[str, ...]:
 
 
 class _Watch:
-    """Hooks on one lockstep setup: the legitimate releases of the watched frames (before the injector
-    acts on them) and what each receiving node accepted of them (its latest-value table changed).  The
-    hooks are instance attributes that refer back to their objects; `detach` removes them, so that a
-    finished run is freed at once rather than by a later full garbage collection."""
+    """What one cell's run does to the frames it watches: their legitimate releases, before the injector acts
+    on them (`released`, told by `_WatchedInjector`), and what each receiving node accepted of them
+    (`accepted`: the node's receive watch, hil.runtime.node.ReceiveWatch, set by `attach`)."""
 
-    def __init__(self, setup, db: Database, codec: Codec, frames: Sequence[str], from_s: float) -> None:
+    def __init__(self, db: Database, codec: Codec, frames: Sequence[str], from_s: float) -> None:
         self.from_ns = round(from_s * 1e9)
         self.msgs = {db.get_message_by_name(m).frame_id: db.get_message_by_name(m) for m in frames}
         self.sigs = {fid: content_signals(msg) for fid, msg in self.msgs.items()}
@@ -441,60 +441,53 @@ class _Watch:
         self.first_ns: dict[str, int] = {}                 # message -> first release in the window
         self.legit: dict[int, deque] = {fid: deque() for fid in self.msgs}
         self.moved: list[tuple[float, str, str]] = []      # (t [s], node, message) of spoofed content
-        injector = setup.injector
-        release = injector.on_release
 
-        def on_release(t_ns: int, node: int, frame_id: int, data: bytes):
-            if frame_id in self.msgs:
-                name = self.msgs[frame_id].name
-                if t_ns >= self.from_ns and name not in self.first_ns:
-                    self.first_ns[name] = t_ns
-                values = self.codec[frame_id].decode(data)
-                self.legit[frame_id].append((t_ns, tuple(values[s] for s in self.sigs[frame_id])))
-            return release(t_ns, node, frame_id, data)
-
-        injector.on_release = on_release
-        self.hooked = [injector]
-        for node in setup.nodes:
+    def attach(self, nodes: Iterable[Node]) -> None:
+        """Watch what each node that receives a watched message accepts."""
+        for node in nodes:
             if node.rx_ids & self.msgs.keys():
-                self._wrap(node)
-                self.hooked.append(node)
+                node.receive_watch = self
 
-    def detach(self) -> None:
-        for obj in self.hooked:
-            vars(obj).pop("on_release", None)
-            vars(obj).pop("receive_values", None)
-            vars(obj).pop("receive_frame", None)
-        self.hooked = []
+    def released(self, t_ns: int, frame_id: int, data: bytes) -> None:
+        """A node released this frame at `t_ns` (before the injector acts on it)."""
+        if frame_id in self.msgs:
+            name = self.msgs[frame_id].name
+            if t_ns >= self.from_ns and name not in self.first_ns:
+                self.first_ns[name] = t_ns
+            values = self.codec[frame_id].decode(data)
+            self.legit[frame_id].append((t_ns, tuple(values[s] for s in self.sigs[frame_id])))
 
-    def _wrap(self, node) -> None:
-        """Watch what `node` accepts of the watched messages, by either way a frame reaches it
-        (the lockstep bus: receive_frame; a decoded frame: receive_values)."""
-        receive, receive_frame = node.receive_values, node.receive_frame
-
-        def receive_values(frame_id, values, t_us, data=None):
-            before = node.rx.version
-            receive(frame_id, values, t_us, data)
-            if frame_id in self.msgs and node.rx.version != before:
-                self._accepted(node.name, frame_id, values, t_us)
-
-        def receive_frame_watched(frame_id, data, t_us):
-            before = node.rx.version
-            receive_frame(frame_id, data, t_us)
-            if frame_id in self.msgs and node.rx.version != before:
-                self._accepted(node.name, frame_id, self.codec[frame_id].decode(data), t_us)
-
-        node.receive_values = receive_values
-        node.receive_frame = receive_frame_watched
-
-    def _accepted(self, node: str, frame_id: int, values, t_us: int) -> None:
+    def accepted(self, node: Node, frame_id: int, data: bytes, t_us: int) -> None:
+        """`node` took this frame's signals into its table (hil.runtime.node.ReceiveWatch)."""
+        if frame_id not in self.msgs:
+            return
         t_ns = t_us * 1000
         legit = self.legit[frame_id]
         while len(legit) > 1 and legit[1][0] <= t_ns - self.stale_ns[frame_id]:
             legit.popleft()             # keep the last release at or before the stale limit, and after it
+        values = self.codec[frame_id].decode(data)
         content = tuple(values[s] for s in self.sigs[frame_id])
         if not any(c == content for t, c in legit if t_ns - self.stale_ns[frame_id] <= t <= t_ns):
-            self.moved.append((t_us / 1e6, node, self.msgs[frame_id].name))
+            self.moved.append((t_us / 1e6, node.name, self.msgs[frame_id].name))
+
+
+class _WatchedInjector:
+    """A cell's fault injector as the lockstep runner asks it (hil.runtime.lockstep.FaultHook), which first
+    tells the watch of each frame a node releases."""
+
+    def __init__(self, injector: FaultInjector, watch: _Watch) -> None:
+        self.injector, self.watch = injector, watch
+        self.log, self.babble_rng = injector.log, injector.babble_rng
+
+    def attach(self, nodes: list[Node]) -> None:
+        self.injector.attach(nodes)
+
+    def on_release(self, t_ns: int, node: int, frame_id: int, data: bytes) -> list[tuple[int, bytes, int]]:
+        self.watch.released(t_ns, frame_id, data)
+        return self.injector.on_release(t_ns, node, frame_id, data)
+
+    def babble_windows(self) -> list[tuple[int, int, int, int]]:
+        return self.injector.babble_windows()
 
 
 def _detection(outcome, frames: dict[str, Frame], hit: Sequence[str], first_ns: dict[str, int]):
@@ -526,12 +519,11 @@ def run_cell(scenario: Scenario, spec: CellSpec, baseline: Baseline,
     fault = fault_for(scenario, db, spec, baseline.window)
     data = {**scenario.model_dump(), "max_duration_s": baseline.horizon_s, "faults": [fault]}
     faulty = parse_scenario(data, f"{scenario.name} + {spec.threat} on {spec.target}")
-    setup = prepare_lockstep(faulty, db, codec, injector=build_injector(faulty, db, codec))
-    watch = _Watch(setup, db, codec, spec.frames, fault["from_s"])
-    try:
-        outcome = run_lockstep(faulty, db, codec, writer=None, setup=setup)
-    finally:
-        watch.detach()
+    watch = _Watch(db, codec, spec.frames, fault["from_s"])
+    injector = build_injector(faulty, db, codec)          # never None: the cell's scenario has its fault
+    setup = prepare_lockstep(faulty, db, codec, injector=_WatchedInjector(injector, watch))
+    watch.attach(setup.nodes)
+    outcome = run_lockstep(faulty, db, codec, writer=None, setup=setup)
     injected = sum(outcome.faults["counts"].values()) if outcome.faults else 0
     detected, worst, first_status = _detection(outcome, frames, spec.frames, watch.first_ns)
     detected = detected and injected > 0 and bool(watch.first_ns)
@@ -568,8 +560,8 @@ def baseline_job(scenario_json: str, window_s: float = WINDOW_S) -> Baseline | s
 
 def cell_job(scenario_json: str, spec: CellSpec, baseline: Baseline, frames: dict[str, Frame]) -> Cell:
     """A worker's job: one cell; an error is recorded in the cell, the others go on (never raises).
-    (A finished lockstep run is freed at once: run_lockstep breaks its `release` closure's cycle, which
-    once grew a worker by 25 MB per precise_stop cell, to 3.5 GB.)"""
+    (A finished lockstep run is freed at once: it holds no reference cycle, tests/runtime/test_lockstep_run;
+    one once grew a worker by 25 MB per precise_stop cell, to 3.5 GB.)"""
     try:
         return run_cell(Scenario.model_validate_json(scenario_json), spec, baseline, frames)
     except Exception as exc:

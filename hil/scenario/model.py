@@ -139,7 +139,7 @@ class RealtimeSpec(_Strict):
     channel: str | None = None        # None: a channel of this run's own (udp_multicast group/port)
     # simulated seconds per wall second: 1.0 = real time, 0.5 = half speed (for slow or loaded hosts)
     speed: Annotated[float, Field(gt=0, le=1)] = 1.0
-    # "grouped": every simulated ECU in one process with one bus connection, each frame decoded once, the
+    # "grouped": every simulated ECU in one process with one bus connection, each frame received once, the
     # plant in its own (plant_process = "shared": in the ECUs' process too); "per-node": one OS process per
     # node (isolation: kill -9 of one ECU; nodes spread over hosts)
     hosting: Literal["grouped", "per-node"] = "grouped"

@@ -592,14 +592,14 @@ def test_a_node_protects_what_it_sends_and_drops_what_fails(monkeypatch, kind):
     assert seen == [S.OK] * 4                            # counter 0 first: OK, and usable (no INITIAL here)
 
     for k, data in enumerate(frames[:3]):
-        receiver.receive_frame(msg.frame_id, data, 10_000 * k + 500)
+        receiver.receive(msg.frame_id, data, 10_000 * k + 500)
         assert receiver.rx.e2e["DEV_STATUS"] is S.OK
         assert receiver.rx["Pressure"] == pytest.approx(1.0 + 0.01 * k)
     corrupt = _flip(frames[3], 3 * 8)                    # one bit of Pressure
-    receiver.receive_frame(msg.frame_id, corrupt, 30_500)
+    receiver.receive(msg.frame_id, corrupt, 30_500)
     assert receiver.rx.e2e["DEV_STATUS"] is S.ERROR
     assert receiver.rx["Pressure"] == pytest.approx(1.02)                   # kept the last good value
-    receiver.receive(msg.frame_id, frames[1], 31_000)    # a replayed old frame, through the decoding path
+    receiver.receive(msg.frame_id, frames[1], 31_000)    # a replayed old frame
     assert receiver.rx.e2e["DEV_STATUS"] is S.WRONGSEQUENCE
     receiver.receive(msg.frame_id, frames[2], 32_000)    # re-anchored on frame 1: frame 2 is the next one
     assert receiver.rx.e2e["DEV_STATUS"] is S.OK

@@ -3,7 +3,8 @@ the same frame bytes (codec, E2E, SecOC) for the same values and counters, the s
 frames, the same control, and in lockstep the same stop; and docs/external-ecu.md against the DBC.
 
 Not real time: the closed loop runs in lockstep, with railhil's BECU3 node replaced frame for frame by the
-example's BecuNode (its receive() and cycle()); the two runs' frames are the same, byte for byte.
+example's BecuNode (a Node whose receive() and cycle() are the program's); the two runs' frames are the
+same, byte for byte.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from hil.can.attributes import e2e_config, secoc_data_id
 from hil.can.codec import Codec
 from hil.can.dbc import load_dbc
 from hil.runtime.assembly import build_node, node_names
-from hil.runtime.node import DEV_SECOC_KEY
+from hil.runtime.node import DEV_SECOC_KEY, Node
 from hil.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -462,26 +463,35 @@ class Frames(can.Listener):
         self.frames.append((msg.timestamp, msg.arbitration_id, bytes(msg.data)))
 
 
+class ExampleBecuNode(Node):
+    """railhil's node of BECU{CAR} whose frames are the example program's: what the bus brings it goes to the
+    program's receive(), and its cycles send what the program's cycle() returns."""
+
+    def __init__(self, node: Node, program, codec: Codec, db) -> None:
+        super().__init__(node.name, node.controller, node.binding, codec, db, node.period_us, node.offset_us)
+        self.program = program
+
+    def receive(self, frame_id: int, data: bytes, t_us: int) -> None:
+        self.program.receive(frame_id, data, t_us)
+
+    def cycle(self, now_us: int, nominal_us: int | None = None) -> list:
+        frames = self.program.cycle(now_us)
+        self.stats.frames_sent += len(frames)
+        return [(self.codec[fid], data) for fid, data in frames]
+
+
 def run_train(rail, scenario, ext=None, writer=None):
     """A lockstep run of `scenario`: (setup, outcome, the example's BecuNode as BECU3 or None); `writer`
     gets every frame."""
     from hil.runtime.lockstep import prepare_lockstep, run_lockstep
 
     setup = prepare_lockstep(scenario, rail.db, rail.codec)
-    node = next(n for n in setup.nodes if n.name == f"BECU{CAR}")
+    k = next(k for k, n in enumerate(setup.nodes) if n.name == f"BECU{CAR}")
     ours = None
     if ext is not None:                            # railhil's BECU3, frame for frame the example's
+        node = setup.nodes[k]
         ours = ext.becu.BecuNode(rail.ext_db, CAR, window=scenario.secoc.window, start_us=node.offset_us)
-        codec = rail.codec
-
-        def cycle(now_us, nominal_us=None):
-            frames = ours.cycle(now_us)
-            node.stats.frames_sent += len(frames)
-            return [(codec[fid], data) for fid, data in frames]
-
-        node.receive_values = lambda frame_id, values, t_us, data=None: ours.receive(frame_id, data, t_us)
-        node.receive_frame = lambda frame_id, data, t_us: ours.receive(frame_id, data, t_us)
-        node.cycle = cycle
+        setup.nodes[k] = ExampleBecuNode(node, ours, rail.codec, rail.db)
     return setup, run_lockstep(scenario, rail.db, rail.codec, writer, setup=setup), ours
 
 

@@ -1,5 +1,6 @@
 """Node bindings: every signal name a node uses is checked against the DBC at start."""
 
+import dataclasses
 from decimal import Decimal
 from fractions import Fraction
 
@@ -9,7 +10,7 @@ import pytest
 from hil.can.codec import Codec
 from hil.can.dbc import load_dbc
 from hil.errors import BindingError
-from hil.runtime.node import Binding, Node
+from hil.runtime.node import Binding, Node, NodeStats
 
 DB = load_dbc()
 
@@ -74,35 +75,53 @@ def test_node_cycle_encodes_due_frames_and_counts_bad_outputs():
     assert fc.decode(data)["COUNTER"] == 1
 
 
-AWKWARD_OUTPUTS = [
-    {"ValveCmd": 0.5, "CylPressureSet": 2e5},                               # all finite: the quick path
-    {"ValveCmd": float("nan"), "CylPressureSet": 2e5},
-    {"ValveCmd": float("inf"), "CylPressureSet": float("-inf")},            # their sum is NaN
-    {"ValveCmd": 1e308, "CylPressureSet": 1e308},                           # finite, their sum is not
-    {"ValveCmd": 10 ** 400, "CylPressureSet": 1.0},                          # int + float overflows
-    {"ValveCmd": True, "CylPressureSet": 3},                                 # bool and int: finite
-    {"ValveCmd": 1j, "CylPressureSet": 0.0},                                 # complex: not a number here
-    {"ValveCmd": "0.5", "CylPressureSet": None},
-    {"ValveCmd": np.float64("nan"), "CylPressureSet": np.float64(2.0)},
-    {"ValveCmd": Decimal("0.5"), "CylPressureSet": Fraction(1, 3)},
-    {"ValveCmd": Decimal("NaN"), "CylPressureSet": Decimal("sNaN")},      # sNaN: float() raises
+NAN = float("nan")
+AWKWARD_OUTPUTS = [     # a step's outputs -> what the node keeps of them (None: the safe value, counted)
+    ({"ValveCmd": 0.5, "CylPressureSet": 2e5}, {"ValveCmd": 0.5, "CylPressureSet": 2e5}),
+    ({"ValveCmd": NAN, "CylPressureSet": 2e5}, {"ValveCmd": None, "CylPressureSet": 2e5}),
+    ({"ValveCmd": float("inf"), "CylPressureSet": float("-inf")}, {"ValveCmd": None, "CylPressureSet": None}),
+    ({"ValveCmd": 1e308, "CylPressureSet": 1e308}, {"ValveCmd": 1e308, "CylPressureSet": 1e308}),
+    ({"ValveCmd": 10 ** 400, "CylPressureSet": 1.0}, {"ValveCmd": 10 ** 400, "CylPressureSet": 1.0}),
+    ({"ValveCmd": True, "CylPressureSet": 3}, {"ValveCmd": 1, "CylPressureSet": 3}),      # ints as ints
+    ({"ValveCmd": 1j, "CylPressureSet": 0.0}, {"ValveCmd": None, "CylPressureSet": 0.0}),  # complex: none
+    ({"ValveCmd": "0.5", "CylPressureSet": None}, {"ValveCmd": None, "CylPressureSet": None}),
+    ({"ValveCmd": np.float64("nan"), "CylPressureSet": np.float64(2.0)}, {"ValveCmd": None,
+                                                                          "CylPressureSet": 2.0}),
+    ({"ValveCmd": Decimal("0.5"), "CylPressureSet": Fraction(1, 3)}, {"ValveCmd": 0.5,    # other numbers:
+                                                                      "CylPressureSet": 1 / 3}),   # floats
+    ({"ValveCmd": np.int64(7), "CylPressureSet": np.float32(0.5)}, {"ValveCmd": 7.0, "CylPressureSet": 0.5}),
+    ({"ValveCmd": Decimal("NaN"), "CylPressureSet": Decimal("sNaN")}, {"ValveCmd": None,     # sNaN: float()
+                                                                       "CylPressureSet": None}),   # raises
 ]
 
 
-@pytest.mark.parametrize("outputs", AWKWARD_OUTPUTS, ids=range(len(AWKWARD_OUTPUTS)))
-def test_the_quick_output_check_decides_as_the_check_value_by_value(outputs):
-    """Node.cycle takes a step's outputs as they are when one sum of them is a finite int or float, and
-    checks them one by one otherwise: both decide alike, on values a controller should never return too."""
+@pytest.mark.parametrize(("outputs", "kept"), AWKWARD_OUTPUTS, ids=range(len(AWKWARD_OUTPUTS)))
+def test_a_step_output_that_is_no_finite_number_is_replaced_by_the_safe_value_and_counted(outputs, kept):
+    """Node.cycle keeps an int as an int (a bool as 0 or 1, compiled or not) and another finite number as a
+    float; NaN, an infinity or a value that is no number is counted (NodeStats.bad_outputs) and replaced by
+    the node's safe value."""
     class Ctrl:
         def step(self, now_us, rx):
             return dict(outputs)
 
     b = build(outputs=("ValveCmd", "CylPressureSet"))
-    quick = Node("BECU3", Ctrl(), b, Codec(DB), DB, period_us=10_000)
-    quick.cycle(0)
-    one_by_one = Node("BECU3", Ctrl(), b, Codec(DB), DB, period_us=10_000)
-    one_by_one._check_outputs(outputs)
-    assert quick.stats.bad_outputs == one_by_one.stats.bad_outputs
-    for key in outputs:
-        got, want = quick.outputs[key], one_by_one.outputs[key]
-        assert got is want or (got == want and type(got) is type(want)), (key, got, want)
+    safe = {"ValveCmd": -1.0, "CylPressureSet": -2.0}
+    node = Node("BECU3", Ctrl(), b, Codec(DB), DB, period_us=10_000, safe_outputs=safe)
+    node.cycle(0)
+    assert node.stats.bad_outputs == sum(v is None for v in kept.values())
+    for key, want in kept.items():
+        got = node.outputs[key]
+        want = safe[key] if want is None else want
+        assert got == want and isinstance(got, type(want)) and type(got) is not bool, (key, got, want)
+
+
+def test_node_stats_as_dict_names_every_counter_in_order_then_the_extra_figures():
+    """NodeStats.as_dict (a compiled class has no __dict__ for vars()) lists every field with its value, and
+    then a study's extra figures of the node."""
+    stats = NodeStats(cycles=3, e2e_status={"OK": 1}, e2e_events=[], last_error="x")
+    stats.extra["gps_line"] = {"sentences": 5}
+    counters = [f.name for f in dataclasses.fields(NodeStats) if f.name != "extra"]
+    assert list(stats.as_dict()) == [*counters, "gps_line"]
+    assert stats.as_dict() == {**{name: getattr(stats, name) for name in counters},
+                               "gps_line": {"sentences": 5}}
+    assert stats.as_dict()["e2e_status"] is stats.e2e_status

@@ -709,9 +709,9 @@ def build_node(name: str, scenario: Scenario, db: Database, codec: Codec,
     node = Node(name, ctrl, binding, codec, db, period_us=period, offset_us=offset,
                 safe_outputs=assembly.safe_outputs(ctrl))
     if isinstance(ctrl, AcdDevice):
-        node.stats.gps_line = ctrl.report        # lands in RunOutcome.node_stats and run.json
+        node.stats.extra["gps_line"] = ctrl.report        # lands in RunOutcome.node_stats and run.json
     elif ctrl.gps is not None:
-        node.stats.gps_line = ctrl.gps.report    # the external ACD's line, as the plant wrote it
+        node.stats.extra["gps_line"] = ctrl.gps.report    # the external ACD's line, as the plant wrote it
     return node
 
 
