@@ -109,13 +109,3 @@ class RxTable(Mapping[str, float]):
         table."""
         store(data, self._values, self._times, t_us)
         self.version += 1
-
-    def copy(self) -> "RxTable":
-        """A table of its own with this one's values, reception times, version and E2E statuses: later
-        receptions into this table do not change the copy (nor the other way round)."""
-        table = RxTable(())
-        table._values = dict(self._values)
-        table._times = dict(self._times)
-        table.version = self.version
-        table.e2e = dict(self.e2e)
-        return table

@@ -114,7 +114,8 @@ def test_a_stale_build_warns_once_and_the_run_still_works(tmp_path):
     code = ("import hil, importlib\n"
             "from hil import build\n"
             "names = [build.module_name(p) for p in build.COMPILED]\n"
-            "print(build.state().mode, all(importlib.import_module(n).__file__.endswith('.py') for n in names))")
+            "pure = all(importlib.import_module(n).__file__.endswith('.py') for n in names)\n"
+            "print(build.state().mode, pure)")
     env = dict(os.environ, **{build.PURE_ENV: "1"})
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT,
                           timeout=120)
