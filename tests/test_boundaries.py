@@ -24,6 +24,8 @@ of it.  The one arrow that points up by design is the scenario's lookup of the s
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -285,3 +287,25 @@ def second_run():
 """
     bad = unexplained_function_imports(source, "m.py")
     assert [b.split(":")[1] for b in bad] == ["3", "16", "24"], bad
+
+
+@pytest.mark.parametrize("command, heavy", [
+    ("wsp-test", "hil.campaign.sweep"), ("campaign", "hil.campaign.sweep"), ("report", "hil.report.html"),
+    ("export-fmu", "hil.fmi.export"),
+])
+def test_the_lazy_imports_keep_their_commands_help_light(command, heavy):
+    """The reason the `# lazy:` lines of these subcommands give holds: their --help loads no runner."""
+    code = ("import sys; from hil.cli.main import main\n"
+            f"try:\n    main([{command!r}, '--help'])\nexcept SystemExit:\n    pass\n"
+            f"print({heavy!r} in sys.modules, 'numba' in sys.modules, file=sys.stderr)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert proc.stderr.splitlines()[-1] == "False False", proc.stderr[-500:]
+
+
+@pytest.mark.parametrize("module, heavy", [("hil.pytest_plugin", "hil.report.run"),
+                                           ("hil", "hil.report.runfolder")])
+def test_the_lazy_imports_keep_what_every_session_loads_light(module, heavy):
+    """The pytest plugin (loaded by every pytest session) and `import hil` load no run machinery."""
+    code = f"import sys, {module}; print({heavy!r} in sys.modules, 'numba' in sys.modules)"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert proc.stdout.split() == ["False", "False"], proc.stderr[-500:]

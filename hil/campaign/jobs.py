@@ -15,7 +15,6 @@ from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_complet
 from pathlib import Path
 from typing import TypeVar
 
-from hil.campaign.sweep import check_positive
 from hil.errors import RailhilError
 from hil.progress import progress_bar
 
@@ -96,6 +95,8 @@ def add_executor_options(p: argparse.ArgumentParser, what: str, jobs: int, dask_
 def check_executor_options(args: argparse.Namespace, error: type[RailhilError]) -> None:
     """--jobs at least 1 and --dask-timeout positive: else one line naming the option (`error` for the
     timeout, the campaign's error for --jobs, as hil.campaign.sweep.check_positive)."""
+    # lazy: the campaign runner (1 s to import) stays out of `railhil wsp-test --help` (50 ms)
+    from hil.campaign.sweep import check_positive
 
     check_positive("--jobs", args.jobs)
     if args.dask_timeout <= 0:

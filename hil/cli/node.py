@@ -20,7 +20,7 @@ from pathlib import Path
 
 import can.cli
 
-from hil.cli.run import bus_config_from_args
+from hil.cli.bus_args import bus_config_from_args
 from hil.errors import RailhilError
 from hil.runtime.clock import RunClock
 from hil.runtime.host import Host, PlantEnd

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import can.cli
 
+from hil.cli.bus_args import bus_config_from_args
 from hil.devices.description import read_device_file
 from hil.errors import BusError, DeviceError, ScenarioError
 from hil.fmi.fmu import open_fmu, scenario_fmus
@@ -23,8 +24,6 @@ from hil.runtime.assembly import check_devices
 from hil.scenario import load_scenario
 from hil.scenario.model import DeviceRef
 from hil.scenario.params import kmh
-
-BUS_KEYS = ("channel", "interface", "bitrate", "fd", "data_bitrate", "can_filters", "timing", "bus_kwargs")
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -79,18 +78,6 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                         "study's check) exits 1")
     can.cli.add_bus_arguments(p, group_title="bus arguments (real-time mode; python-can's flags)")
     p.set_defaults(func=run, mode="lockstep")
-
-
-def bus_config_from_args(args: argparse.Namespace) -> dict:
-    config: dict = {}
-    for key in BUS_KEYS:
-        if key in args:
-            value = getattr(args, key)
-            if key == "bus_kwargs":
-                config.update(value)
-            else:
-                config[key] = value
-    return config
 
 
 class Progress:

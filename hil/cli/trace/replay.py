@@ -51,7 +51,7 @@ import can
 import can.cli
 import numpy as np
 
-from hil.cli.run import bus_config_from_args
+from hil.cli.bus_args import bus_config_from_args
 from hil.cli.trace.common import Output, TraceArgError, notice_skipped, parse_id
 from hil.cli.trace.timebase import TimeBase, add_time_arguments
 from hil.errors import BusError
