@@ -158,10 +158,12 @@ REGISTRY_LINE = "STUDIES = (*STUDIES, demand_clamp.STUDY)\n"
 
 @pytest.fixture(scope="module")
 def checkout(tmp_path_factory) -> Path:
-    """A copy of railhil's source with the study written by the checklist and its registry line."""
+    """A copy of railhil's source with the study written by the checklist and its registry line (the
+    sources only: the copy runs pure Python, as a checkout that was never built)."""
     root = tmp_path_factory.mktemp("new-study")
     for package in PACKAGES:
-        shutil.copytree(ROOT / package, root / package, ignore=shutil.ignore_patterns("__pycache__"))
+        shutil.copytree(ROOT / package, root / package,
+                        ignore=shutil.ignore_patterns("__pycache__", "*.so", "*.pyd", "_build.json"))
     for name, text in STUDY_FILES.items():
         path = root / name
         path.parent.mkdir(parents=True, exist_ok=True)
