@@ -4,7 +4,7 @@
 - Inside hil, the wings form layers and every import points to the same layer or a lower one:
 
       cli, pytest plugin  →  studies  →  safety / report / campaign / typetest  →  runtime / devices / fmi
-                          →  can / trace / scenario / links  →  errors, resources, progress
+                          →  can / trace / scenario / links  →  errors, resources, progress, build
 
   The runtime runs a scenario and leaves its run folder; the report reads it (hil.report.run also holds the
   entry points that run and then report), and a lockstep run's caller hands the runtime its fault injector
@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: hil's layers, lowest first: a module belongs to the first prefix it starts with
 LAYERS: list[tuple[str, ...]] = [
-    ("hil.errors", "hil.resources", "hil.progress"),
+    ("hil.errors", "hil.resources", "hil.progress", "hil.build"),
     ("hil.can", "hil.trace", "hil.scenario", "hil.links"),
     ("hil.runtime", "hil.devices", "hil.fmi"),
     ("hil.safety", "hil.report", "hil.campaign", "hil.typetest"),
