@@ -15,6 +15,7 @@ from pathlib import Path
 
 from setuptools import setup
 from setuptools.command.build_ext import build_ext
+from setuptools.command.build_py import build_py
 
 HERE = Path(__file__).resolve().parent
 build = runpy.run_path(str(HERE / "hil" / "build.py"))     # stdlib only: hil itself is not importable here
@@ -37,15 +38,27 @@ def pure_reason() -> str | None:
     return None
 
 
-def write_manifest(**fields) -> None:
+def manifest(**fields) -> dict:
     from importlib.metadata import version
     try:
         mypyc_version = version("mypy")
     except Exception:
         mypyc_version = None
-    data = {"mypyc": mypyc_version, "python": sys.version.split()[0],
+    return {"mypyc": mypyc_version, "python": sys.version.split()[0],
             "sources": {p: build["source_digest"](HERE / p) for p in COMPILED}, **fields}
-    MANIFEST.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+
+
+def write_manifest(data: dict, build_lib: str | None) -> None:
+    """hil/_build.json into the wheel's tree, or beside the sources in a development (in-place) build."""
+    path = MANIFEST if build_lib is None else Path(build_lib) / "hil" / MANIFEST.name
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+
+
+class BuildPyWithManifest(build_py):
+    def run(self) -> None:
+        super().run()
+        write_manifest(MANIFEST_DATA, None if self.editable_mode else self.build_lib)
 
 
 class BuildExtOrPure(build_ext):
@@ -56,7 +69,8 @@ class BuildExtOrPure(build_ext):
             super().run()
         except Exception as exc:                         # the compiler's error, e.g. a missing Python.h
             print(f"warning: railhil's mypyc compile failed, installing pure Python: {exc}", file=sys.stderr)
-            write_manifest(pure_reason=f"the compile failed: {exc}")
+            write_manifest(manifest(pure_reason=f"the compile failed: {exc}"),
+                           None if self.inplace else self.build_lib)
 
 
 reason = pure_reason()
@@ -64,10 +78,10 @@ if reason is None:
     from mypyc.build import mypycify
 
     ext_modules = mypycify(COMPILED, opt_level="3", debug_level="0")
-    write_manifest()
+    MANIFEST_DATA = manifest()
 else:
     print(f"railhil: {reason}: installing pure Python", file=sys.stderr)
     ext_modules = []
-    write_manifest(pure_reason=reason)
+    MANIFEST_DATA = manifest(pure_reason=reason)
 
-setup(ext_modules=ext_modules, cmdclass={"build_ext": BuildExtOrPure})
+setup(ext_modules=ext_modules, cmdclass={"build_ext": BuildExtOrPure, "build_py": BuildPyWithManifest})
