@@ -318,12 +318,14 @@ def test_a_comparison_counts_the_kpis_both_runs_have_and_describes_each_from_its
 def test_version_names_railhil_python_can_cantools_and_python(capsys):
     from importlib.metadata import version
 
+    from hil import build
+
     with pytest.raises(SystemExit) as done:
         railhil(capsys, "--version")
     out = capsys.readouterr().out.strip()
     assert done.value.code == 0
     assert out == (f"railhil {version('railhil')} (python-can {version('python-can')}, cantools "
-                   f"{version('cantools')}, Python {sys.version.split()[0]})")
+                   f"{version('cantools')}, Python {sys.version.split()[0]}); {build.state().line()}")
 
 
 def test_a_mistyped_scenario_gets_the_closest_names(capsys, tmp_path):
