@@ -11,14 +11,15 @@ $(STAMP): pyproject.toml constraints.txt
 	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found; install Python 3.11 or run 'make PYTHON=python3 ...'"; exit 2; }
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip 'setuptools>=77' wheel
-	$(PY) -m pip install --quiet -c constraints.txt -e '.[test,docs]'
+	RAILHIL_PURE=1 $(PY) -m pip install --quiet -c constraints.txt -e '.[test,docs]'
 	touch $(STAMP)
 
-# the modules mypyc compiles (hil/build.py COMPILED) and the build's record of them: when one of them changed
-# since, `make build` (and every target that needs the install) compiles them again, in place. The install
-# itself compiles (setup.py); RAILHIL_PURE=1 make ... installs and runs pure Python
+# the modules mypyc compiles (hil/build.py COMPILED): the install above is pure Python (its build has none of
+# the dependencies whose types mypyc reads); here they are compiled in place by the venv's pinned mypy, with
+# every dependency installed, and again when one of them changed since (`make build`; every target that needs
+# the install). RAILHIL_PURE=1 make ... keeps it pure
 COMPILED_SRC := $(shell sed -n '/^COMPILED/,/^)/p' hil/build.py | grep -o '"[^"]*\.py"' | tr -d '"')
-BUILT := hil/_build.json
+BUILT := $(VENV)/.built
 $(BUILT): $(STAMP) $(COMPILED_SRC) hil/build.py setup.py
 	$(PY) -m pip install --quiet --no-deps --no-build-isolation -c constraints.txt -e .
 	touch $(BUILT)
