@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml constraints.txt
 # the dependencies whose types mypyc reads); here they are compiled in place by the venv's pinned mypy, with
 # every dependency installed, and again when one of them changed since (`make build`; every target that needs
 # the install). RAILHIL_PURE=1 make ... keeps it pure
-COMPILED_SRC := $(shell grep -o '"[a-z_]*/[a-z_/]*\.py"' hil/build.py | tr -d '"')
+COMPILED_SRC := $(shell grep -o '"[a-z_]*/[a-z0-9_/]*\.py"' hil/build.py | tr -d '"')
 BUILT := $(VENV)/.built
 $(BUILT): $(STAMP) $(COMPILED_SRC) hil/build.py setup.py
 	$(PY) -m pip install --quiet --no-deps --no-build-isolation -c constraints.txt -e .
