@@ -62,7 +62,14 @@ class BuildPyWithManifest(build_py):
 
 
 class BuildExtOrPure(build_ext):
-    """A failed compile leaves a pure build that says why, not a failed install."""
+    """A failed compile leaves a pure build that says why, not a failed install.  The extensions (mypyc's
+    shared library of every compiled module, and a small one that imports it for each module) are compiled
+    on every core, unless `build_ext --parallel N` says otherwise."""
+
+    def finalize_options(self) -> None:
+        super().finalize_options()
+        if self.parallel is None:
+            self.parallel = os.cpu_count() or 1
 
     def run(self) -> None:
         try:
