@@ -77,11 +77,12 @@ bench: $(STAMP)
 	$(PY) bench/run_all.py
 
 ## make profile: where the default lockstep run's wall goes, per component (controllers, node dispatch, event
-## loop, bus, codec, E2E, SecOC, plant, trace writer): py-spy samples bench_lockstep's traced run; installs
-## py-spy (the profile extra) first. PROFILE_RUNS=N runs counted (default 8)
+## loop, bus, codec, E2E, SecOC, plant, trace writer): py-spy samples bench_lockstep's traced run, on the
+## build that runs (the compiled one: its native stacks; RAILHIL_PURE=1 make profile: the pure one); installs
+## py-spy (the profile extra's one package) where missing. PROFILE_RUNS=N runs counted (default 8)
 PROFILE_RUNS ?= 8
-profile: $(STAMP)
-	$(PY) -m pip install --quiet -c constraints.txt -e '.[test,docs,profile]'
+profile: $(BUILT)
+	test -x $(VENV)/bin/py-spy || $(PY) -m pip install --quiet 'py-spy>=0.3.14'
 	$(PY) bench/profile_lockstep.py --runs $(PROFILE_RUNS)
 
 ## make soak: 10 consecutive real-time runs of the default scenario (about 6 minutes), each judged against

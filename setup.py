@@ -85,8 +85,16 @@ class BuildExtOrPure(build_ext):
 LENIENT = ["--ignore-missing-imports", "--no-warn-unused-ignores", "--no-warn-return-any",
            "--allow-subclassing-any", "--allow-untyped-calls", "--allow-untyped-decorators"]
 
+# pip asks for the package's metadata in calls of their own (`setup.py egg_info`, `dist_info`) before the
+# call that builds (editable_wheel, bdist_wheel, build_ext): mypyc's type check and C generation (about 40 s)
+# run in that one only
+command = next((arg for arg in sys.argv[1:] if not arg.startswith("-")), None)
+METADATA_ONLY = command in ("egg_info", "dist_info")
+
 reason = pure_reason()
-if reason is None:
+if reason is None and METADATA_ONLY:
+    ext_modules = []
+elif reason is None:
     from mypyc.build import mypycify
 
     try:

@@ -51,6 +51,31 @@ def test_profile_counts_each_sample_for_its_innermost_component():
     assert counts == {controllers: 5, codec: 3, node: 2, pl.SETUP: 4, loop: 1}
 
 
+def test_a_native_profile_counts_mypycs_functions_for_their_modules_components():
+    """On the compiled build py-spy --native names mypyc's C functions (a py-spy raw line of this build):
+    each counts for its module's component, as the Python frame of the pure build does."""
+    import profile_lockstep as pl
+
+    from hil.build import COMPILED
+
+    so = "(66a872f373b0a3a688fe__mypyc.cpython-311-x86_64-linux-gnu.so)"
+    run = ("<module> (profile_lockstep.py:162);main (profile_lockstep.py:122);"
+           "child (profile_lockstep.py:106);_profiled_runs (profile_lockstep.py:97);"
+           "_once (bench_lockstep.py:44);"
+           f"CPyPy_lockstep___run_lockstep {so};CPyDef_lockstep___run_lockstep {so};"
+           f"CPyDef_lockstep___LockstepLoop___run {so}")
+    raw = [f"{run};CPyDef_node___Node___cycle {so};CPyDef_becu___Becu___step {so};0x7f44 (libc.so.6) 5",
+           f"{run};CPyDef_node___Node___cycle {so};CPyDef_rx___RxTable___take {so} 2",
+           f"{run};CPyDef_bustiming___BitTimedBus___arbitrate {so} 3",
+           f"{run};CPyDef_lockstep___LockstepLoop___deliver {so};CPyDef_e2e___E2eCheck___check {so} 1"]
+    components = pl.native_keys(COMPILED)
+    counts, total = pl.shares(raw, components)
+    controllers, node, bus, e2e = (next(n for n, _ in components if n.startswith(p))
+                                   for p in ("controllers", "node dispatch", "bit-timed bus", "E2E"))
+    assert total == 11 and counts == {controllers: 5, node: 2, bus: 3, e2e: 1}
+    assert pl.shares(raw) == ({}, 11)          # the Python frames' keys alone: no sample has a component
+
+
 def _gateway_kpis(device_p99_us: float, machine: dict) -> dict:
     way = {"frames": 2940, "p50_us": 170.0, "p99_us": device_p99_us, "max_us": 1509}
     return {
