@@ -57,6 +57,16 @@ def test_mypy_checks_every_compiled_module_and_only_numba_kernels_stay_pure():
     assert not [p for p in build.COMPILED if imports_numba(ROOT / p)], "numba in a compiled module"
 
 
+def test_make_rebuilds_when_any_compiled_module_changes():
+    """The Makefile's list of compiled sources (the prerequisites of .venv/.built, read from hil/build.py
+    with grep) is build.COMPILED, as make itself reads it."""
+    printer = "print-compiled:\n\t@echo $(COMPILED_SRC)\n"
+    make = ["make", "-s", "--no-print-directory", "-f", "Makefile", "-f", "-", "print-compiled"]
+    proc = subprocess.run(make, cwd=ROOT, input=printer, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.split() == list(build.COMPILED)
+
+
 def test_the_modules_that_run_are_the_build_the_state_names():
     state = build.state()
     for name in (build.module_name(p) for p in build.COMPILED):

@@ -5,8 +5,8 @@ what the code prints.
   in a fresh bash (railhil not on the PATH until the tour's `. .venv/bin/activate`) in a folder laid out as
   a checkout after `make run` (`.venv`, `dbc`, `scenarios` linked to this checkout's, `runs/` holding the
   run folder `make run` leaves): on a real-time run of the default scenario (the session's realtime_run,
-  marked realtime) and on a lockstep one.  Every command exits 0 with output; the only change to the text is /tmp/tour, which
-  becomes a folder of the test's own (parallel tests, other users).
+  marked realtime) and on a lockstep one.  Every command exits 0 with output; the only change to the text
+  is /tmp/tour, which becomes a folder of the test's own (parallel tests, other users).
 * One time base: a real-time run's trace read from the run's start (`--start 1.0 --end 1.03` finds the
   frames), from its first frame out of its folder, as recorded with --absolute; a window outside the
   trace is one warning line.  The real-time trace is made from the lockstep one (its timestamps moved to
