@@ -27,6 +27,7 @@ from hil.can.e2e import (
     E2EConfigError,
     P01Config,
     P02Config,
+    P11Config,
     PCheckStatus,
     ProtectState,
     Status,
@@ -478,6 +479,7 @@ def test_config_errors_are_one_line(build, words):
     (lambda: P01Config(data_id=1.0), "data_id = 1.0"),
     (lambda: P02Config([0] * 16), "data_id_list = [0,"),
     (lambda: P02Config(bytes(16)), "16 data id bytes"),
+    (lambda: P11Config(1, "BOTH"), "data_id_mode = 'BOTH'"),
 ])
 def test_a_value_of_the_wrong_type_is_a_type_error(build, words):
     """A programming error, not a configuration's: compiled, the fields' types refuse it (mypyc checks a
